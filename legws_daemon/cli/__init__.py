@@ -1,0 +1,1 @@
+"""The ``legws`` command line."""

@@ -1,0 +1,191 @@
+"""``legws certify``: the trajectory-margin certificate of a goal set or a scene layout."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import click
+
+from legws_daemon.core.certificate import Certificate, certify
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.montecarlo import CONFIDENCE, GoalAccuracy, monte_carlo
+from legws_daemon.core.params import COST_FORMS, CostForm, Params
+from legws_daemon.errors import InputError
+from legws_daemon.formats.goalset import goalset_to_data, load_goalset
+from legws_daemon.formats.layout_file import dump_json, load_layout
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.constraints import LayoutConstraints
+
+
+def certificate_report(
+    cert: Certificate,
+    params: Params,
+    mc: dict[str, GoalAccuracy] | None,
+    mc_settings: dict[str, Any] | None,
+    source: str,
+) -> dict[str, Any]:
+    """The JSON object printed by ``legws certify --json`` (interfaces.md, plus extras)."""
+    out: dict[str, Any] = {
+        "objective": cert.objective,
+        "pairs": [asdict(p) for p in cert.pairs],
+        "certified": cert.certified,
+        "quantile": cert.quantile,
+        "source": source,
+        "params": params.as_dict(),
+    }
+    if mc is not None:
+        out["monte_carlo"] = {name: asdict(acc) for name, acc in mc.items()}
+        out["monte_carlo_settings"] = mc_settings
+    return out
+
+
+def _table(rows: list[list[str]], header: list[str]) -> str:
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(r: list[str]) -> str:
+        cells = zip(r, widths, strict=True)
+        return "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(cells))
+
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def render_text(report: dict[str, Any], goals: GoalSet) -> str:
+    p = report["params"]
+    lines = [
+        f"Certificate of {report['source']}: M = {goals.m}, cost {p['cost']}, beta {p['beta']}, "
+        f"alpha {p['alpha']}, z = {report['quantile']:.3f}",
+        "",
+        _table(
+            [
+                [
+                    q["true"],
+                    q["other"],
+                    f"{q['margin']:.3f}",
+                    f"{q['variance']:.4f}",
+                    f"{q['slack']:.3f}",
+                    str(q["steps"]),
+                ]
+                for q in report["pairs"]
+            ],
+            ["true", "other", "margin", "variance", "slack", "steps"],
+        ),
+        "",
+        f"objective J = {report['objective']:.4f}: "
+        + (
+            f"CERTIFIED, every goal wins at the horizon with probability >= {1 - p['alpha']:.2f}"
+            if report["certified"]
+            else "NOT certified (J <= 0)"
+        ),
+    ]
+    mc = report.get("monte_carlo")
+    if mc:
+        s = report["monte_carlo_settings"]
+        lines += [
+            "",
+            f"Monte Carlo: {s['trials']} trials per goal, seed {s['seed']}, "
+            f"{'speed clipped to v_max' if s['clip_speed'] else 'unclipped user model'}, "
+            f"{int(CONFIDENCE * 100)}% Clopper-Pearson interval",
+            "",
+            _table(
+                [
+                    [
+                        name,
+                        "",
+                        f"{a['accuracy']:.4f}",
+                        f"[{a['lower95']:.4f}, {a['upper95']:.4f}]",
+                        "yes" if a["accuracy"] >= 1 - p["alpha"] else "NO",
+                    ]
+                    for name, a in mc.items()
+                ],
+                ["goal", "", "accuracy", "95% interval", f">= {1 - p['alpha']:.2f}"],
+            ),
+        ]
+    return "\n".join(lines)
+
+
+@click.command("certify")
+@click.argument("goals_file", required=False, type=click.Path(path_type=Path))
+@click.option("--scene", help="Certify a scene's layout instead of a goal-set file.")
+@click.option(
+    "--layout",
+    "layout_file",
+    type=click.Path(path_type=Path),
+    help="Layout JSON for --scene (default: the scene's shipped layout).",
+)
+@click.option("--cost", type=click.Choice(COST_FORMS), help="Override the cost form.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (interfaces.md).")
+@click.option(
+    "--monte-carlo",
+    "trials",
+    type=click.IntRange(min=1, max=10_000_000),
+    help="Also simulate N noisy users per goal and report accuracy at the horizon.",
+)
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="Seed of the Monte Carlo check."
+)
+@click.option(
+    "--clip-speed", is_flag=True, help="Monte Carlo with the robot's speed clip |v| <= v_max."
+)
+@click.option(
+    "--export-goals",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Write the certified goal set as a goal-set file.",
+)
+def certify_cmd(
+    goals_file: Path | None,
+    scene: str | None,
+    layout_file: Path | None,
+    cost: CostForm | None,
+    as_json: bool,
+    trials: int | None,
+    seed: int,
+    clip_speed: bool,
+    export_goals: Path | None,
+) -> None:
+    """Certify GOALS_FILE (a goal-set JSON) or a scene layout (--scene).
+
+    Prints every ordered pair's margin, variance, slack and horizon, and the objective J;
+    J > 0 certifies that the true goal is the observer's argmax at the horizon with
+    probability at least 1 - alpha for every goal.
+    """
+    if (goals_file is None) == (scene is None):
+        raise click.UsageError("give either GOALS_FILE or --scene NAME")
+    if layout_file is not None and scene is None:
+        raise click.UsageError("--layout needs --scene")
+    if scene is not None:
+        sc = load_scene(scene)
+        layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
+        problems = LayoutConstraints.of(sc).problems(sc.poses(layout))
+        if problems:
+            where = str(layout_file) if layout_file else sc.source
+            raise InputError(f"infeasible layout: {problems[0]}", source=where)
+        goals = sc.goal_set(layout)
+        params = Params()
+        source = f"scene {sc.name} ({layout_file or 'default layout'})"
+    else:
+        assert goals_file is not None
+        goals, params = load_goalset(goals_file)
+        source = str(goals_file)
+    if cost is not None:
+        params = params.with_cost(cost)
+
+    cert = certify(goals, params)
+    mc = settings = None
+    if trials is not None:
+        mc = monte_carlo(goals, params, trials, seed, clip_speed=clip_speed)[params.cost]
+        settings = {
+            "trials": trials,
+            "seed": seed,
+            "clip_speed": clip_speed,
+            "confidence": CONFIDENCE,
+        }
+    report = certificate_report(cert, params, mc, settings, source)
+    if export_goals is not None:
+        try:
+            export_goals.write_text(dump_json(goalset_to_data(goals, params)), encoding="utf-8")
+        except OSError as err:
+            raise InputError(f"cannot write: {err.strerror}", source=str(export_goals)) from None
+    click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))

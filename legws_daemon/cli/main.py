@@ -1,0 +1,61 @@
+"""Entry point of ``legws``: the command group and the error policy.
+
+Bad input of any kind (a usage error, a file or field that does not validate, an
+unknown name) prints one line ``legws: error: ...`` on stderr and exits 2. Nothing the
+user can cause prints a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+import click
+
+from legws_daemon import __version__
+from legws_daemon.cli.certify import certify_cmd
+from legws_daemon.cli.scenes import scenes_cmd
+from legws_daemon.errors import LegwsError
+
+EXIT_BAD_INPUT = 2
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="legws")
+def cli() -> None:
+    """legws: certified intent inference and workspace design for shared autonomy."""
+
+
+cli.add_command(certify_cmd)
+cli.add_command(scenes_cmd)
+
+
+def _fail(message: str) -> int:
+    text = " ".join(message.split())
+    click.echo(f"legws: error: {text}", err=True)
+    return EXIT_BAD_INPUT
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI and return its exit code (used by :func:`main` and the tests)."""
+    try:
+        result = cli.main(
+            args=list(argv) if argv is not None else None, prog_name="legws", standalone_mode=False
+        )
+    except click.exceptions.Exit as exc:
+        return int(exc.exit_code)
+    except click.ClickException as exc:
+        return _fail(exc.format_message())
+    except click.exceptions.Abort:
+        click.echo("legws: aborted", err=True)
+        return 130
+    except LegwsError as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        click.echo("legws: interrupted", err=True)
+        return 130
+    return int(result) if isinstance(result, int) else 0
+
+
+def main() -> None:
+    sys.exit(run())

@@ -1,0 +1,1 @@
+"""Pure, typed, vectorised mathematics: geometry, observer, certificate, Monte Carlo check."""

@@ -1,0 +1,203 @@
+"""The trajectory-margin slack certificate (method.md section 4), batched over layouts.
+
+For every true goal ``i`` and alternative ``j != i``:
+
+1. nominal straight line from ``p0`` toward ``p_i`` at ``v_max``, orientation held at
+   ``R0``, for ``T_i = ceil(eta |p_i - p0| / (v_max dt))`` steps, ending at
+   ``pbar_i = p0 + L_i unit(p_i - p0)`` with ``L_i = T_i v_max dt``;
+2. margin ``m_ij = beta (C_j - C_i)`` at ``pbar_i`` and ``L_i``;
+3. sensitivity ``a_ij = d(C_j - C_i)/d pbar_i`` (``L_i`` held fixed);
+4. variance ``v_ij = beta^2 a_ij^T Sigma a_ij`` with ``Sigma = T_i sigma^2 dt^2 I``;
+5. slack ``s_ij = m_ij - Phi^-1(1 - alpha / (M - 1)) sqrt(v_ij)``;
+6. objective ``J = min_i min_{j != i} s_ij``.
+
+``J > 0`` certifies ``P(argmax at the horizon = g_i) >= 1 - alpha`` for every goal under
+the model's assumptions (Gaussian, linearised, straight-line nominal).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.stats import norm
+
+from legws_daemon.core.costs import path_costs
+from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+
+
+@dataclass(frozen=True, slots=True)
+class CertificateBatch:
+    """Certificate of B layouts with M goals each.
+
+    Attributes:
+        margin: ``(B, M, M)``; ``[b, i, j]`` is the margin of alternative ``j`` when ``i``
+            is the true goal. The diagonal is 0.
+        variance: ``(B, M, M)`` margin variances (diagonal 0).
+        slack: ``(B, M, M)`` slacks (diagonal ``+inf``).
+        steps: ``(B, M)`` horizon steps ``T_i`` per true goal.
+        objective: ``(B,)`` the layout objective ``J``.
+        quantile: ``Phi^-1(1 - alpha / (M - 1))``.
+    """
+
+    margin: FloatArray
+    variance: FloatArray
+    slack: FloatArray
+    steps: IntArray
+    objective: FloatArray
+    quantile: float
+
+
+@dataclass(frozen=True, slots=True)
+class NominalTerms:
+    """Intermediate quantities of the certificate, exposed for tests and diagnostics."""
+
+    steps: IntArray  # (B, M)
+    length: FloatArray  # (B, M) nominal path length L_i
+    endpoint: FloatArray  # (B, M, 3) nominal end pbar_i
+    dist_start: FloatArray  # (B, M) d(x0, g_j)
+    rot_term: FloatArray  # (B, M) lambda_R * angle(R0, R_j)
+    costs: FloatArray  # (B, M, M) C_j at the nominal end of true goal i
+    sensitivity: FloatArray  # (B, M, M, 3) a_ij
+
+
+def horizon_steps(distance: ArrayLike, params: Params) -> IntArray:
+    """``T = ceil(eta |p_g* - p0| / (v_max dt))`` (at least one step)."""
+    d = np.asarray(distance, dtype=np.float64)
+    raw = params.horizon_fraction * d / (params.v_max * params.dt)
+    # Guard against 7.000000000001 becoming 8 through floating-point noise.
+    steps = np.ceil(raw - 1e-9).astype(np.int64)
+    return np.asarray(np.maximum(steps, 1), dtype=np.int64)
+
+
+def nominal_terms(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+) -> NominalTerms:
+    """Nominal trajectories, costs and sensitivities for a batch of layouts.
+
+    Args:
+        p0: ``(3,)`` start position.
+        R0: ``(3, 3)`` start orientation.
+        goal_positions: ``(B, M, 3)`` grasp positions.
+        goal_rotations: ``(B, M, 3, 3)`` grasp orientations.
+        symmetry: ``(M,)`` or ``(B, M)`` symmetry orders.
+        params: model parameters (``cost`` selects the form).
+    """
+    p0 = np.asarray(p0, dtype=np.float64)
+    pg = np.asarray(goal_positions, dtype=np.float64)
+    Rg = np.asarray(goal_rotations, dtype=np.float64)
+    if pg.ndim != 3 or pg.shape[-1] != 3 or pg.shape[1] < 2:
+        raise InputError(f"expected goal positions of shape (B, M>=2, 3), got {pg.shape}")
+    if Rg.shape != (*pg.shape[:2], 3, 3):
+        raise InputError(f"expected goal rotations of shape {(*pg.shape[:2], 3, 3)}")
+    step = params.v_max * params.dt
+
+    rot_term = params.rotation_weight * symmetric_angle(R0, Rg, symmetry)  # (B, M)
+    delta = pg - p0  # (B, M, 3)
+    trans0 = np.sqrt(np.einsum("bmi,bmi->bm", delta, delta))
+    dist_start = trans0 + rot_term
+    steps = horizon_steps(trans0, params)
+    length = np.asarray(steps * step, dtype=np.float64)
+    endpoint = p0 + length[..., None] * safe_unit(delta)  # (B, M, 3)
+
+    # Distances from the nominal end of true goal i to every goal j.
+    diff = endpoint[:, :, None, :] - pg[:, None, :, :]  # (B, i, j, 3)
+    trans_now = np.sqrt(np.einsum("bijk,bijk->bij", diff, diff))
+    dist_now = trans_now + rot_term[:, None, :]
+    costs = path_costs(length, dist_now, dist_start[:, None, :], params.cost)  # (B, i, j)
+
+    unit = safe_unit(diff)  # d|pbar_i - p_j| / d pbar_i
+    if params.cost == "dragan":
+        scale = np.mean(dist_start, axis=1)  # (B,)
+        grad_c = unit / scale[:, None, None, None]
+    else:
+        grad_c = unit / dist_start[:, None, :, None]
+    diag = np.einsum("biik->bik", grad_c)  # gradient of C_i at pbar_i
+    sensitivity = grad_c - diag[:, :, None, :]
+    return NominalTerms(steps, length, endpoint, dist_start, rot_term, costs, sensitivity)
+
+
+def certify_batch(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+) -> CertificateBatch:
+    """Certificate of B layouts at once; see :func:`nominal_terms` for the arguments."""
+    t = nominal_terms(p0, R0, goal_positions, goal_rotations, symmetry, params)
+    m = t.costs.shape[1]
+    c_true = np.einsum("bii->bi", t.costs)
+    margin = params.beta * (t.costs - c_true[:, :, None])
+    a2 = np.einsum("bijk,bijk->bij", t.sensitivity, t.sensitivity)
+    variance = params.beta**2 * (t.steps * (params.sigma * params.dt) ** 2)[:, :, None] * a2
+    quantile = float(norm.ppf(1.0 - params.alpha / (m - 1)))
+    slack = margin - quantile * np.sqrt(variance)
+    eye = np.eye(m, dtype=bool)
+    margin[:, eye] = 0.0
+    variance[:, eye] = 0.0
+    slack[:, eye] = np.inf
+    objective = slack.min(axis=(1, 2))
+    return CertificateBatch(margin, variance, slack, t.steps, objective, quantile)
+
+
+@dataclass(frozen=True, slots=True)
+class PairCertificate:
+    true: str
+    other: str
+    margin: float
+    variance: float
+    slack: float
+    steps: int
+
+
+@dataclass(frozen=True, slots=True)
+class Certificate:
+    """Certificate of one goal set, with every ordered pair."""
+
+    objective: float
+    pairs: tuple[PairCertificate, ...]
+    quantile: float
+
+    @property
+    def certified(self) -> bool:
+        return self.objective > 0.0
+
+    def worst_pair(self) -> PairCertificate:
+        return min(self.pairs, key=lambda p: p.slack)
+
+
+def certify(goals: GoalSet, params: Params) -> Certificate:
+    """Certificate of one goal set: all ``M (M - 1)`` ordered pairs and the objective."""
+    batch = certify_batch(
+        goals.x0.position,
+        goals.x0.rotation,
+        goals.positions[None],
+        goals.rotations[None],
+        goals.symmetry,
+        params,
+    )
+    pairs = tuple(
+        PairCertificate(
+            true=goals.names[i],
+            other=goals.names[j],
+            margin=float(batch.margin[0, i, j]),
+            variance=float(batch.variance[0, i, j]),
+            slack=float(batch.slack[0, i, j]),
+            steps=int(batch.steps[0, i]),
+        )
+        for i in range(goals.m)
+        for j in range(goals.m)
+        if i != j
+    )
+    return Certificate(float(batch.objective[0]), pairs, batch.quantile)

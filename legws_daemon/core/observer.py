@@ -1,0 +1,169 @@
+"""Streaming Boltzmann-rational observer with the commit rule (method.md section 3).
+
+Per tick the observer keeps only the running path length ``L_t`` and the last position,
+so an update is ``O(M)`` and never re-sums the path. The rotation part of
+``d(x_t, g)`` is recomputed only when the end-effector orientation changes (it is held
+during teleoperation).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from legws_daemon.core.costs import path_costs, posterior
+from legws_daemon.core.geometry import FloatArray, quat_to_matrix, se3_distance, symmetric_angle
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+
+
+class IntentObserver:
+    """Posterior over the goals of a :class:`GoalSet`, updated once per control tick.
+
+    Example:
+        >>> obs = IntentObserver(goals, Params())
+        >>> p = obs.update(ee_position, ee_quaternion)
+        >>> obs.committed  # index of the committed goal, or None
+    """
+
+    def __init__(self, goals: GoalSet, params: Params | None = None) -> None:
+        self.goals = goals
+        self.params = params if params is not None else Params()
+        self._goal_pos = goals.positions.copy()
+        self._goal_rot = goals.rotations
+        self._sym = goals.symmetry
+        self._lam = self.params.rotation_weight
+        self._beta = self.params.beta
+        self._p_thresh = self.params.p_thresh
+        self._start_pos = goals.x0.position.copy()
+        self._start_quat = goals.x0.quaternion.copy()
+        self._dist_start = se3_distance(
+            self._start_pos,
+            goals.x0.rotation,
+            self._goal_pos,
+            self._goal_rot,
+            self._sym,
+            self._lam,
+        )
+        self._offset, self._scale = self._cost_affine()
+        self.reset()
+
+    def _cost_affine(self) -> tuple[FloatArray, FloatArray]:
+        """Write both cost forms as ``C = (L + d_now - offset) / scale``."""
+        d0 = self._dist_start
+        if self.params.cost == "dragan":
+            return d0.copy(), np.full_like(d0, float(np.mean(d0)))
+        return np.zeros_like(d0), d0.copy()
+
+    def reset(self) -> None:
+        """Start a new episode at ``x0`` (path length 0, uniform posterior, no commit)."""
+        self._last = self._start_pos.copy()
+        self._length = 0.0
+        self._ticks = 0
+        self._rot_quat = self._start_quat.copy()
+        self._rot_term = self._lam * symmetric_angle(
+            quat_to_matrix(self._rot_quat), self._goal_rot, self._sym
+        )
+        m = self.goals.m
+        self._posterior = np.full(m, 1.0 / m)
+        self._committed: int | None = None
+        self._commit_tick: int | None = None
+
+    @property
+    def path_length(self) -> float:
+        return self._length
+
+    @property
+    def ticks(self) -> int:
+        return self._ticks
+
+    @property
+    def posterior(self) -> FloatArray:
+        return self._posterior.copy()
+
+    @property
+    def committed(self) -> int | None:
+        """Index of the committed goal, or ``None`` while undecided."""
+        return self._committed
+
+    @property
+    def commit_tick(self) -> int | None:
+        return self._commit_tick
+
+    def update(self, position: ArrayLike, quaternion: ArrayLike | None = None) -> FloatArray:
+        """Add one end-effector pose to the path and return the posterior ``(M,)``.
+
+        Args:
+            position: EE position ``(3,)``.
+            quaternion: EE orientation ``[w, x, y, z]``; ``None`` keeps the last one.
+
+        Raises:
+            InputError: for a non-finite position or quaternion (the state is unchanged).
+        """
+        p = np.asarray(position, dtype=np.float64)
+        if p.shape != (3,) or not (
+            math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
+        ):
+            raise InputError(f"expected a finite position of 3 numbers, got {position!r}")
+        if quaternion is not None:
+            q = np.asarray(quaternion, dtype=np.float64)
+            if not np.array_equal(q, self._rot_quat):
+                if q.shape != (4,) or not np.all(np.isfinite(q)) or not np.any(q):
+                    raise InputError(f"expected a finite non-zero quaternion, got {quaternion!r}")
+                self._rot_term = self._lam * symmetric_angle(
+                    quat_to_matrix(q), self._goal_rot, self._sym
+                )
+                self._rot_quat = q.copy()
+        step = p - self._last
+        self._length += math.sqrt(float(step @ step))
+        self._last = p.copy()
+        diff = self._goal_pos - p
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff)) + self._rot_term
+        costs = (self._length + dist - self._offset) / self._scale
+        logits = costs * -self._beta
+        logits -= logits.max()
+        post: FloatArray = np.exp(logits)
+        post /= post.sum()
+        self._posterior = post
+        self._ticks += 1
+        if self._committed is None:
+            best = int(post.argmax())
+            if post[best] >= self._p_thresh:
+                self._committed = best
+                self._commit_tick = self._ticks
+        return post
+
+
+def posterior_of_path(
+    goals: GoalSet,
+    params: Params,
+    positions: ArrayLike,
+    quaternion: ArrayLike | None = None,
+) -> FloatArray:
+    """Posterior at the end of a whole path ``(K, 3)`` (starting after ``x0``), from scratch.
+
+    The reference the streaming observer is tested against: it re-sums the path.
+    """
+    path = np.vstack([goals.x0.position[None], np.asarray(positions, dtype=np.float64)])
+    length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+    q = goals.x0.quaternion if quaternion is None else np.asarray(quaternion, dtype=np.float64)
+    dist_now = se3_distance(
+        path[-1],
+        quat_to_matrix(q),
+        goals.positions,
+        goals.rotations,
+        goals.symmetry,
+        params.rotation_weight,
+    )
+    dist_start = se3_distance(
+        goals.x0.position,
+        goals.x0.rotation,
+        goals.positions,
+        goals.rotations,
+        goals.symmetry,
+        params.rotation_weight,
+    )
+    return posterior(path_costs(length, dist_now, dist_start, params.cost), params.beta)

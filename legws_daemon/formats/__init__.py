@@ -1,0 +1,1 @@
+"""File formats: parsing, validation with one-line errors, and writing."""

@@ -1,0 +1,116 @@
+"""The goal-set file (``shared/spec/interfaces.md``): input of ``legws certify``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator
+
+from legws_daemon.core.geometry import Pose
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+from legws_daemon.formats.validation import (
+    Finite,
+    Quat,
+    Vec3,
+    nonzero_quaternion,
+    read_json,
+    validate,
+)
+
+
+class PoseSchema(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    position: Vec3
+    quaternion: Quat
+
+    _q = field_validator("quaternion")(nonzero_quaternion)
+
+
+class GoalSchema(PoseSchema):
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    symmetry: Annotated[int, Strict(), Field(ge=0, le=360)] = 1
+
+
+class ParamsSchema(BaseModel):
+    """Every field optional; unknown keys are rejected (a typo must not fall back silently)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    beta: Finite | None = None
+    rotation_weight: Finite | None = None
+    sigma: Finite | None = None
+    v_max: Finite | None = None
+    dt: Finite | None = None
+    alpha: Finite | None = None
+    horizon_fraction: Finite | None = None
+    cost: str | None = None
+    p_thresh: Finite | None = None
+
+
+class GoalSetFile(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    x0: PoseSchema
+    goals: Annotated[list[GoalSchema], Field(min_length=2)]
+    params: ParamsSchema = ParamsSchema()
+
+
+def params_from_schema(schema: ParamsSchema, source: str, base: Params | None = None) -> Params:
+    values = {k: v for k, v in schema.model_dump().items() if v is not None}
+    try:
+        return Params(**{**(base.as_dict() if base else {}), **values})
+    except InputError as err:
+        raise InputError(_strip(err), source=source, field=f"params.{err.field}") from None
+
+
+def _strip(err: InputError) -> str:
+    text = str(err)
+    return text.split(": ", 1)[1] if err.field and text.startswith(err.field) else text
+
+
+def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:
+    """Validate parsed JSON of a goal-set file."""
+    doc = validate(GoalSetFile, data, source)
+    params = params_from_schema(doc.params, source)
+    x0 = Pose(np.array(doc.x0.position), np.array(doc.x0.quaternion))
+    try:
+        goals = GoalSet.build(
+            [g.name for g in doc.goals],
+            [g.position for g in doc.goals],
+            [g.quaternion for g in doc.goals],
+            x0,
+            [g.symmetry for g in doc.goals],
+        )
+    except InputError as err:
+        raise InputError(_strip(err), source=source, field=err.field) from None
+    return goals, params
+
+
+def load_goalset(path: Path) -> tuple[GoalSet, Params]:
+    """Read and validate a goal-set file; every error is one line naming file and field."""
+    return goalset_from_data(read_json(path), str(path))
+
+
+def goalset_to_data(goals: GoalSet, params: Params) -> dict[str, Any]:
+    """The goal-set file contents for ``goals`` (round-trips through :func:`goalset_from_data`)."""
+    return {
+        "x0": {
+            "position": [float(v) for v in goals.x0.position],
+            "quaternion": [float(v) for v in goals.x0.quaternion],
+        },
+        "goals": [
+            {
+                "name": name,
+                "position": [float(v) for v in goals.positions[i]],
+                "quaternion": [float(v) for v in goals.quaternions[i]],
+                "symmetry": int(goals.symmetry[i]),
+            }
+            for i, name in enumerate(goals.names)
+        ],
+        "params": params.as_dict(),
+    }

@@ -1,0 +1,1 @@
+"""Scenes: objects, grasps, layouts and their constraints."""
