@@ -25,14 +25,20 @@ _EPS = 1e-12
 
 
 def normalize_quaternion(q: ArrayLike) -> FloatArray:
-    """Unit quaternion(s) with a non-negative w, so that ``q`` and ``-q`` map to one array."""
+    """Unit quaternion(s) in canonical sign, so that ``q`` and ``-q`` map to one array."""
     arr = np.asarray(q, dtype=np.float64)
     norm = np.linalg.norm(arr, axis=-1, keepdims=True)
     if np.any(norm < 1e-9) or not np.all(np.isfinite(arr)):
         raise InputError("quaternion must be finite with a non-zero norm")
-    unit = arr / norm
-    sign = np.where(unit[..., :1] < 0.0, -1.0, 1.0)
-    return np.asarray(unit * sign, dtype=np.float64)
+    return canonical_sign(arr / norm)
+
+
+def canonical_sign(q: FloatArray) -> FloatArray:
+    """Of ``q`` and ``-q`` (the same rotation) the one whose first non-zero entry is positive."""
+    significant = np.abs(q) > 1e-12
+    first = np.argmax(significant, axis=-1)[..., None]
+    lead = np.take_along_axis(q, first, axis=-1)
+    return np.asarray(np.where(lead < 0.0, -q, q), dtype=np.float64)
 
 
 def quat_to_matrix(q: ArrayLike) -> FloatArray:
@@ -54,7 +60,7 @@ def quat_to_matrix(q: ArrayLike) -> FloatArray:
 
 
 def matrix_to_quat(R: ArrayLike) -> FloatArray:
-    """Quaternions ``[w, x, y, z]`` (w >= 0) of rotation matrices ``(..., 3, 3)``.
+    """Canonical quaternions ``[w, x, y, z]`` of rotation matrices ``(..., 3, 3)``.
 
     Uses the largest-pivot branch per matrix, so it is accurate for every rotation.
     """
@@ -91,8 +97,7 @@ def matrix_to_quat(R: ArrayLike) -> FloatArray:
             vec[:, k] = (s[:, k, i] + s[:, i, k]) / r
             w = (s[:, k, j] - s[:, j, k]) / r
             q[sel] = np.concatenate([w[:, None], vec], axis=1)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    q = q * np.where(q[:, :1] < 0.0, -1.0, 1.0)
+    q = canonical_sign(q / np.linalg.norm(q, axis=1, keepdims=True))
     return np.asarray(q.reshape(*mats.shape[:-2], 4), dtype=np.float64)
 
 

@@ -7,7 +7,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from legws_daemon.core.geometry import FloatArray, IntArray, Pose, quat_to_matrix
+from legws_daemon.core.geometry import (
+    FloatArray,
+    IntArray,
+    Pose,
+    canonical_sign,
+    quat_to_matrix,
+)
 from legws_daemon.errors import InputError
 
 #: A goal closer than this to the start position cannot be inferred (zero-length horizon).
@@ -62,9 +68,8 @@ class GoalSet:
                 f"{MIN_GOAL_DISTANCE} m from the end-effector start",
                 field=f"goals[{i}].position",
             )
-        quat = quat / norms[:, None]
         object.__setattr__(self, "positions", pos)
-        object.__setattr__(self, "quaternions", quat * np.where(quat[:, :1] < 0, -1.0, 1.0))
+        object.__setattr__(self, "quaternions", canonical_sign(quat / norms[:, None]))
         object.__setattr__(self, "symmetry", sym)
 
     @property
