@@ -65,10 +65,24 @@ class NominalTerms:
     sensitivity: FloatArray  # (B, M, M, 3) a_ij
 
 
+#: Longest horizon accepted (at 20 Hz, 83 minutes); longer means nonsensical inputs.
+MAX_HORIZON_STEPS = 100_000
+
+
 def horizon_steps(distance: ArrayLike, params: Params) -> IntArray:
-    """``T = ceil(eta |p_g* - p0| / (v_max dt))`` (at least one step)."""
+    """``T = ceil(eta |p_g* - p0| / (v_max dt))`` (at least one step).
+
+    Raises:
+        InputError: when a horizon exceeds :data:`MAX_HORIZON_STEPS`.
+    """
     d = np.asarray(distance, dtype=np.float64)
     raw = params.horizon_fraction * d / (params.v_max * params.dt)
+    if not np.all(raw <= MAX_HORIZON_STEPS):
+        raise InputError(
+            f"a goal {float(np.max(d)):.3g} m away needs {float(np.max(raw)):.3g} steps of "
+            f"{params.v_max * params.dt:.3g} m; at most {MAX_HORIZON_STEPS} are accepted "
+            f"(check v_max, dt and the positions)"
+        )
     # Guard against 7.000000000001 becoming 8 through floating-point noise.
     steps = np.ceil(raw - 1e-9).astype(np.int64)
     return np.asarray(np.maximum(steps, 1), dtype=np.int64)

@@ -40,13 +40,12 @@ class Params:
     p_thresh: float = 0.9
 
     def __post_init__(self) -> None:
-        for name in ("beta", "sigma", "v_max", "dt"):
+        for name, (lo, hi) in _RANGES.items():
             value = getattr(self, name)
-            if not (_is_real(value) and math.isfinite(value) and value > 0):
-                raise InputError(f"expected a finite number > 0, got {value!r}", field=name)
-        lam = self.rotation_weight
-        if not (_is_real(lam) and math.isfinite(lam) and lam >= 0):
-            raise InputError(f"expected a finite number >= 0, got {lam!r}", field="rotation_weight")
+            if not (_is_real(value) and math.isfinite(value) and lo <= value <= hi):
+                raise InputError(
+                    f"expected a number in [{lo:g}, {hi:g}], got {value!r}", field=name
+                )
         unit_open = {"alpha": self.alpha, "p_thresh": self.p_thresh}
         for name, value in unit_open.items():
             if not (_is_real(value) and 0.0 < value < 1.0):
@@ -64,6 +63,17 @@ class Params:
 
     def as_dict(self) -> dict[str, float | str]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+#: Closed ranges of the physical parameters: wide enough for any real set-up, narrow enough
+#: that no computation downstream overflows or runs for ever.
+_RANGES: dict[str, tuple[float, float]] = {
+    "beta": (1e-6, 1e3),
+    "rotation_weight": (0.0, 10.0),
+    "sigma": (1e-9, 10.0),
+    "v_max": (1e-3, 10.0),
+    "dt": (1e-4, 10.0),
+}
 
 
 def _is_real(value: object) -> bool:

@@ -13,16 +13,16 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, RootModel
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Finite, read_json, validate
+from legws_daemon.formats.validation import Angle, Coordinate, read_json, validate
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 
 
 class _PoseEntry(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    x: Finite
-    y: Finite
-    yaw: Finite = 0.0
+    x: Coordinate
+    y: Coordinate
+    yaw: Angle = 0.0
 
 
 class _LayoutFile(RootModel[dict[str, _PoseEntry]]):

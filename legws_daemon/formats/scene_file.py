@@ -11,16 +11,26 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    field_validator,
+    model_validator,
+)
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import (
+    Angle,
+    Coordinate,
     Finite,
     Name,
     NonNegative,
     Positive,
     Quat,
     Vec3,
+    field_error,
     nonzero_quaternion,
     read_toml,
     validate,
@@ -65,7 +75,7 @@ class WorkspaceSpec(_Model):
     def _ranges(self) -> WorkspaceSpec:
         for field, (lo, hi) in (("x_range", self.x_range), ("y_range", self.y_range)):
             if not lo < hi:
-                raise ValueError(f"{field} must be [low, high] with low < high")
+                raise field_error((field,), f"must be [low, high] with low < high, got {[lo, hi]}")
         cx, cy = self.table_center
         sx, sy = self.table_size
         if not (
@@ -74,9 +84,11 @@ class WorkspaceSpec(_Model):
             and cy - sy / 2 <= self.y_range[0]
             and self.y_range[1] <= cy + sy / 2
         ):
-            raise ValueError("x_range and y_range must lie on the table (table_center, table_size)")
+            raise field_error(
+                ("x_range",), "x_range and y_range must lie on the table (table_center, table_size)"
+            )
         if self.ee_home.position[2] <= self.table_height:
-            raise ValueError("ee_home must be above the table")
+            raise field_error(("ee_home", "position"), "ee_home must be above the table")
         return self
 
 
@@ -88,18 +100,19 @@ class ObjectSpec(_Model):
     color: tuple[Unit, Unit, Unit] = (0.6, 0.6, 0.6)
     grasp: GraspKind = "top"
     symmetry: Annotated[int, Strict(), Field(ge=0, le=360)] | None = None
-    movable: bool = True
-    x: Finite
-    y: Finite
-    yaw: Finite = 0.0
+    movable: Annotated[bool, Strict()] = True
+    x: Coordinate
+    y: Coordinate
+    yaw: Angle = 0.0
 
     @model_validator(mode="after")
     def _size(self) -> ObjectSpec:
         want = _SIZE_LEN[self.shape]
         if len(self.size) != want:
-            raise ValueError(
+            raise field_error(
+                ("size",),
                 f"size of a {self.shape} must be {_SIZE_HELP[self.shape]} ({want} numbers), "
-                f"got {len(self.size)}"
+                f"got {len(self.size)}",
             )
         return self
 
@@ -129,22 +142,29 @@ class SceneSpec(_Model):
     @model_validator(mode="after")
     def _names(self) -> SceneSpec:
         seen: set[str] = set()
-        for name in [o.name for o in self.objects] + [p.name for p in self.places]:
+        named = [("objects", i, o.name) for i, o in enumerate(self.objects)]
+        named += [("places", i, p.name) for i, p in enumerate(self.places)]
+        for group, i, name in named:
             if name in seen:
-                raise ValueError(f"name '{name}' is used twice")
+                raise field_error((group, i, "name"), f"name '{name}' is used twice")
             seen.add(name)
         movable = [o.name for o in self.objects if o.movable]
         if self.goals is not None:
-            for g in self.goals:
+            for j, g in enumerate(self.goals):
                 if g not in movable:
-                    raise ValueError(
-                        f"goal '{g}' is not a movable object; movable: {', '.join(movable)}"
+                    raise field_error(
+                        ("goals", j),
+                        f"goal '{g}' is not a movable object; movable: {', '.join(movable)}",
                     )
-            if len(set(self.goals)) != len(self.goals):
-                raise ValueError("goals must not repeat a name")
+                if g in self.goals[:j]:
+                    raise field_error(("goals", j), f"goal '{g}' is listed twice")
         candidates = self.goals if self.goals is not None else movable
         if len(candidates) < 2:
-            raise ValueError(f"a scene needs at least 2 candidate goals, has {len(candidates)}")
+            raise field_error(
+                ("goals",) if self.goals is not None else ("objects",),
+                f"a scene needs at least 2 candidate goals (movable objects), "
+                f"has {len(candidates)}",
+            )
         return self
 
 

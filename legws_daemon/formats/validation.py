@@ -12,11 +12,21 @@ from pydantic import AllowInfNan, BaseModel, Field, Strict, ValidationError
 
 from legws_daemon.errors import InputError
 
+#: Largest magnitude accepted for any coordinate or size, metres: far beyond any robot cell,
+#: small enough that nothing downstream can overflow.
+MAX_COORDINATE = 100.0
+
 #: A finite real number; strings, booleans, NaN and infinities are rejected.
 Finite = Annotated[float, Strict(), AllowInfNan(False)]
-Positive = Annotated[float, Strict(), AllowInfNan(False), Field(gt=0)]
-NonNegative = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0)]
-Vec3 = tuple[Finite, Finite, Finite]
+#: A coordinate in metres, |value| <= MAX_COORDINATE.
+Coordinate = Annotated[
+    float, Strict(), AllowInfNan(False), Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)
+]
+#: An angle in radians, |value| <= 100 (any yaw, unwrapped or not).
+Angle = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-100.0, le=100.0)]
+Positive = Annotated[float, Strict(), AllowInfNan(False), Field(gt=0, le=MAX_COORDINATE)]
+NonNegative = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=MAX_COORDINATE)]
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
 Quat = tuple[Finite, Finite, Finite, Finite]
 Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 
@@ -46,6 +56,17 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def field_error(loc: tuple[int | str, ...], message: str) -> ValueError:
+    """An error for a model validator that points at a field below the model.
+
+    Raise it from a ``model_validator``; :func:`one_line` puts ``loc`` into the field path.
+    """
+    return ValueError(f"{_FIELD_MARK}{json.dumps(list(loc))}{_FIELD_MARK}{message}")
+
+
+_FIELD_MARK = "\x1f"
+
+
 def one_line(err: ValidationError, source: str) -> InputError:
     """The first validation error as an :class:`InputError` naming file and field."""
     errors = err.errors(include_url=False)
@@ -53,7 +74,10 @@ def one_line(err: ValidationError, source: str) -> InputError:
     loc = tuple(p for p in first["loc"] if not (isinstance(p, str) and p.startswith("function-")))
     msg = str(first["msg"])
     msg = msg.removeprefix("Value error, ")
-    if first["type"] not in ("missing",) and "input" in first:
+    if msg.startswith(_FIELD_MARK):
+        _, sub, msg = msg.split(_FIELD_MARK, 2)
+        loc = (*loc, *json.loads(sub))
+    elif first["type"] not in ("missing",) and "input" in first:
         msg = f"{msg} (got {_describe(first['input'])})"
     more = len(errors) - 1
     if more:
@@ -69,21 +93,21 @@ def validate(model: type[M], data: Any, source: str) -> M:
         raise one_line(err, source) from None
 
 
-def _reject_constant(token: str) -> float:
-    raise ValueError(f"{token} is not a number")
-
-
 def read_json(path: Path) -> Any:
-    """Parse a JSON file; NaN and Infinity are rejected, errors name file and line."""
+    """Parse a JSON file; syntax errors name file, line and column.
+
+    ``NaN`` and ``Infinity`` literals parse (as Python's json module allows) and are then
+    rejected by the schema's finite-number fields, so the message names the field.
+    """
     text = read_text(path)
     try:
-        return json.loads(text, parse_constant=_reject_constant)
+        return json.loads(text)
     except json.JSONDecodeError as err:
         raise InputError(
             f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}", source=str(path)
         ) from None
-    except ValueError as err:
-        raise InputError(f"invalid JSON: {err}", source=str(path)) from None
+    except RecursionError:
+        raise InputError("invalid JSON: nested too deeply", source=str(path)) from None
 
 
 def read_toml(path: Path) -> dict[str, Any]:

@@ -102,35 +102,52 @@ class LayoutConstraints:
         n: int,
         rng: np.random.Generator,
         *,
-        batch: int = 20_000,
-        max_draws: int = 5_000_000,
+        batch: int = 100_000,
+        max_draws: int = 20_000_000,
     ) -> FloatArray:
         """``n`` layouts drawn uniformly from the feasible set, ``(n, K, 3)``.
 
-        Positions uniform in the bounds, yaw uniform in ``[-pi, pi)``, whole layouts
-        rejected when infeasible (so the result is uniform over the feasible set).
+        Positions uniform in the bounds, yaw uniform in ``[-pi, pi)``; a layout with any
+        violated constraint is rejected whole, so the result is uniform over the feasible
+        set. Objects are drawn one at a time and only for the candidate layouts that are
+        still feasible, which makes the rejection cheap without changing the distribution.
 
         Raises:
             InfeasibleError: when ``max_draws`` candidate layouts yield fewer than ``n``.
         """
         k = len(self.names)
+        lo = np.array([self.x_range[0], self.y_range[0]])
+        hi = np.array([self.x_range[1], self.y_range[1]])
+        c2 = self.min_clearance**2
         found: list[FloatArray] = []
         count = draws = 0
         while count < n:
             if draws >= max_draws:
                 raise InfeasibleError(
                     f"found only {count} of {n} feasible layouts of {k} objects in {draws} "
-                    f"random draws: the bounds cannot hold them with "
-                    f"{self.min_clearance} m clearance"
+                    f"random draws: the bounds x {self.x_range}, y {self.y_range} cannot hold "
+                    f"them with {self.min_clearance} m clearance"
                 )
-            cand = np.empty((batch, k, 3))
-            cand[..., 0] = rng.uniform(*self.x_range, size=(batch, k))
-            cand[..., 1] = rng.uniform(*self.y_range, size=(batch, k))
-            cand[..., 2] = rng.uniform(-np.pi, np.pi, size=(batch, k))
+            xy = np.empty((batch, k, 2))
+            alive = np.arange(batch)
             draws += batch
-            ok = cand[self.violation(cand) == 0.0]
-            found.append(ok)
-            count += len(ok)
+            for j in range(k):
+                p = rng.uniform(lo, hi, size=(len(alive), 2))
+                ok = ((p - self.home_xy) ** 2).sum(axis=1) >= self.min_home_distance**2
+                if len(self.fixed_xy):
+                    df = ((p[:, None, :] - self.fixed_xy[None]) ** 2).sum(axis=2)
+                    ok &= np.all(df >= c2, axis=1)
+                if j:
+                    dp = ((p[:, None, :] - xy[alive, :j]) ** 2).sum(axis=2)
+                    ok &= np.all(dp >= c2, axis=1)
+                alive = alive[ok]
+                xy[alive, j] = p[ok]
+                if not len(alive):
+                    break
+            if len(alive):
+                yaw = rng.uniform(-np.pi, np.pi, size=(len(alive), k, 1))
+                found.append(np.concatenate([xy[alive], yaw], axis=2))
+                count += len(alive)
         return np.concatenate(found)[:n]
 
     def to_layout(self, poses: ArrayLike) -> Layout:
