@@ -12,31 +12,12 @@ import pytest
 
 from legws_daemon.formats.goalset import load_goalset
 from tests.cli.helpers import EXAMPLE_GOALSET, Result, run_script
+from tests.expected import ALL_SCENES, PAPER_TIERS
 
 Cli = Callable[..., Result]
 WriteJson = Callable[[str, Any], Path]
 
 PAIR_KEYS = {"true", "other", "margin", "variance", "slack", "steps"}
-ALL_SCENES = [
-    "breakfast",
-    "breakfast_easy",
-    "cluttered",
-    "desk",
-    "feeding",
-    "kitchen_prep",
-    "lego",
-    "meal_assembly",
-    "tea",
-]
-#: method.md §7: tier, M (candidate goals) and total objects of the paper's scenes.
-PAPER_TIERS = {
-    "breakfast_easy": ("Easy", 2, 3),
-    "desk": ("Med-A", 3, 5),
-    "breakfast": ("Med-B", 3, 6),
-    "kitchen_prep": ("Med-C", 3, 5),
-    "meal_assembly": ("Hard-A", 5, 7),
-    "cluttered": ("Hard-B", 8, 11),
-}
 MOVED_MUG = {"white_mug": {"x": 0.45, "y": -0.35, "yaw": 0.3}}
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import goalset_from_data, goalset_to_data, load_goalset
 from legws_daemon.formats.layout_file import dump_json
+from tests.cli.helpers import EXAMPLE_GOALSET
 
 X0 = {"position": [0.55, 0.0, 0.30], "quaternion": [0, 1, 0, 0]}
 
@@ -188,16 +190,7 @@ def test_params_override() -> None:
 
 def test_interfaces_example_params_are_the_defaults() -> None:
     doc = example()
-    doc["params"] = {
-        "beta": 5,
-        "rotation_weight": 0.04,
-        "sigma": 0.03,
-        "v_max": 0.05,
-        "dt": 0.05,
-        "alpha": 0.05,
-        "horizon_fraction": 0.75,
-        "cost": "dragan",
-    }
+    doc["params"] = copy.deepcopy(EXAMPLE_GOALSET["params"])
     assert goalset_from_data(doc, "doc")[1] == Params()
 
 

@@ -14,22 +14,13 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.scene_file import load_scene_spec
 from legws_daemon.scene.catalog import load_scene, scene_names, scenes_dir
 from legws_daemon.scene.constraints import LayoutConstraints
+from tests.expected import ALL_SCENES
 from tests.formats.helpers import toml_dumps
 
 WriteScene = Callable[..., Path]
 Mutation = Callable[[dict[str, Any]], None]
 
-SHIPPED = [
-    "breakfast",
-    "breakfast_easy",
-    "cluttered",
-    "desk",
-    "feeding",
-    "kitchen_prep",
-    "lego",
-    "meal_assembly",
-    "tea",
-]
+SHIPPED = ALL_SCENES
 
 
 def test_catalog_lists_the_shipped_scenes() -> None:

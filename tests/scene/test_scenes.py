@@ -11,20 +11,11 @@ from legws_daemon.errors import InputError
 from legws_daemon.scene.catalog import load_scene, scene_names
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.grasps import extents
-
-PAPER_TIERS = {
-    "breakfast_easy": ("Easy", 2, 3),
-    "desk": ("Med-A", 3, 5),
-    "breakfast": ("Med-B", 3, 6),
-    "kitchen_prep": ("Med-C", 3, 5),
-    "meal_assembly": ("Hard-A", 5, 7),
-    "cluttered": ("Hard-B", 8, 11),
-}
-DEMOS = {"tea", "lego", "feeding"}
+from tests.expected import DEMOS, PAPER_TIERS
 
 
 def test_all_scenes_are_shipped() -> None:
-    assert set(scene_names()) == set(PAPER_TIERS) | DEMOS
+    assert set(scene_names()) == set(PAPER_TIERS) | set(DEMOS)
 
 
 @pytest.mark.parametrize("name", sorted(PAPER_TIERS))
@@ -39,7 +30,7 @@ def test_all_tiers_share_one_workspace_and_home() -> None:
     assert len(workspaces) == 1
 
 
-@pytest.mark.parametrize("name", sorted(set(PAPER_TIERS) | DEMOS))
+@pytest.mark.parametrize("name", sorted([*PAPER_TIERS, *DEMOS]))
 def test_default_layout_is_feasible_and_objects_sit_on_the_table(name: str) -> None:
     sc = load_scene(name)
     cons = LayoutConstraints.of(sc)
