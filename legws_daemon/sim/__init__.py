@@ -1,0 +1,1 @@
+"""The MuJoCo Sawyer stand-in: assets, world composition, control, IK, feasibility, episodes."""

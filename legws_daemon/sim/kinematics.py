@@ -1,0 +1,145 @@
+"""Differential kinematics of the arm: damped least squares with joint limits.
+
+One solver serves both uses: a velocity step (teleoperation, autonomous approach) and
+inverse kinematics (iterated steps toward a pose). Orientation errors are rotation vectors
+in the world frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from legws_daemon.core.geometry import FloatArray
+from legws_daemon.errors import InfeasibleError
+from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
+
+#: Damping of the least-squares solve (m, rad): keeps steps bounded near singularities.
+DAMPING = 0.02
+#: Joint limits are kept this far inside the hardware range, rad.
+LIMIT_MARGIN = 0.02
+
+
+def rotation_error(R_current: FloatArray, R_target: FloatArray) -> FloatArray:
+    """Rotation vector ``w`` with ``exp([w]) R_current = R_target`` (world frame)."""
+    E = R_target @ R_current.T
+    cos = np.clip((np.trace(E) - 1.0) / 2.0, -1.0, 1.0)
+    angle = float(np.arccos(cos))
+    axis = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
+    s = np.linalg.norm(axis)
+    if s < 1e-9:
+        if angle < 1e-6:
+            return np.zeros(3)
+        # angle near pi: axis from the symmetric part
+        B = (E + np.eye(3)) / 2.0
+        k = int(np.argmax(np.diag(B)))
+        v = B[:, k] / np.sqrt(max(B[k, k], 1e-12))
+        return np.asarray(v * angle, dtype=np.float64)
+    return np.asarray(axis / s * angle, dtype=np.float64)
+
+
+def dls_joint_velocity(J: FloatArray, twist: FloatArray, damping: float = DAMPING) -> FloatArray:
+    """``qdot = J^T (J J^T + damping^2 I)^-1 twist``."""
+    A = J @ J.T
+    A[np.diag_indices_from(A)] += damping**2
+    return np.asarray(J.T @ np.linalg.solve(A, twist), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class StepResult:
+    """What one velocity step did."""
+
+    qdot: FloatArray  # joint velocity applied, rad/s
+    scale: float  # 1.0, or < 1 when joint speed limits scaled the motion down
+    at_limit: bool  # a joint position limit was reached
+
+
+#: Nominal "ready" posture the redundancy is pulled toward (keeps joints off their limits).
+READY_POSTURE = np.array([0.0, -0.6, 0.0, 1.4, 0.0, 0.8, 0.0])
+#: Gain of the null-space pull toward the ready posture, 1/s.
+POSTURE_GAIN = 0.5
+
+
+def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
+    """Move the arm by the EE twist ``[v (3), w (3)]`` for ``dt`` seconds.
+
+    The arm's redundancy is used, in the null space of the EE task, to drift slowly toward
+    :data:`READY_POSTURE`. The joint velocity is then scaled down uniformly (direction kept)
+    to respect the joint speed limits, and joint positions are clamped inside the limits.
+    """
+    J = world.jacobian()
+    A = J @ J.T
+    A[np.diag_indices_from(A)] += DAMPING**2
+    J_pinv = J.T @ np.linalg.inv(A)
+    q = world.q
+    posture = POSTURE_GAIN * (READY_POSTURE - q)
+    posture[6] = 0.0  # the wrist roll is free: it follows the grasp yaw
+    qdot = J_pinv @ np.asarray(twist, dtype=np.float64) + posture - J_pinv @ (J @ posture)
+    ratio = np.max(np.abs(qdot) / JOINT_SPEED_LIMITS)
+    scale = 1.0 if ratio <= 1.0 else 1.0 / float(ratio)
+    qdot = qdot * scale
+    q = q + qdot * dt
+    lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
+    clamped = np.clip(q, lo, hi)
+    world.set_q(clamped)
+    return StepResult(qdot, scale, bool(np.any(clamped != q)))
+
+
+def home_configuration(world: World, position: ArrayLike, rotation: ArrayLike) -> IKResult:
+    """IK of the EE home pose, the solution nearest :data:`READY_POSTURE` of a few seeds."""
+    seeds = [READY_POSTURE, READY_POSTURE + [0.0, -0.4, 0.0, 0.6, 0.0, -0.2, 0.0], np.zeros(7)]
+    best: IKResult | None = None
+    for seed in seeds:
+        r = solve_ik(world, position, rotation, seed, tol_position=1e-4, tol_rotation=1e-4)
+        if r.converged and (
+            best is None
+            or np.linalg.norm(r.q - READY_POSTURE) < np.linalg.norm(best.q - READY_POSTURE)
+        ):
+            best = r
+    if best is None:
+        raise InfeasibleError("the EE home pose is out of the arm's reach")
+    world.set_q(best.q)
+    return best
+
+
+@dataclass(frozen=True, slots=True)
+class IKResult:
+    q: FloatArray
+    position_error: float
+    rotation_error: float
+    converged: bool
+
+
+def solve_ik(
+    world: World,
+    position: ArrayLike,
+    rotation: ArrayLike,
+    q0: ArrayLike,
+    *,
+    tol_position: float = 1e-3,
+    tol_rotation: float = 1e-2,
+    max_iterations: int = 200,
+) -> IKResult:
+    """Iterate damped least-squares steps from ``q0`` toward an EE pose, within joint limits.
+
+    Leaves the world at the returned configuration.
+    """
+    target_p = np.asarray(position, dtype=np.float64)
+    target_R = np.asarray(rotation, dtype=np.float64)
+    world.set_q(np.clip(np.asarray(q0, dtype=np.float64), world.arm.lower, world.arm.upper))
+    lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
+    ep = er = np.inf
+    for _ in range(max_iterations):
+        dp = target_p - world.ee_position()
+        dr = rotation_error(world.ee_rotation(), target_R)
+        ep, er = float(np.linalg.norm(dp)), float(np.linalg.norm(dr))
+        if ep < tol_position and er < tol_rotation:
+            return IKResult(world.q, ep, er, True)
+        # bounded Cartesian step for a well-behaved linearisation
+        dp *= min(1.0, 0.05 / max(ep, 1e-12))
+        dr *= min(1.0, 0.3 / max(er, 1e-12))
+        dq = dls_joint_velocity(world.jacobian(), np.concatenate([dp, dr]), damping=0.05)
+        world.set_q(np.clip(world.q + dq, lo, hi))
+    return IKResult(world.q, ep, er, False)

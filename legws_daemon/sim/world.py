@@ -1,0 +1,214 @@
+"""A scene composed with ``MjSpec``: table, objects as primitive geometry, the Sawyer.
+
+World frame = robot base frame (method.md §1): the Sawyer's base sits at the origin, the
+table top at ``workspace.table_height``, its centre and size from the scene file. Every
+object is a mocap body with one primitive geom matching its shape and size, so a layout is
+applied without recompiling. A simple parallel gripper of primitive geoms is attached to
+the hand; its ``ee`` site is the grasp frame convention of the grasp library (origin
+between the fingertips, z the approach axis, x the closing direction).
+
+Geom groups: 0 table and objects, 1 robot meshes and gripper, 3 robot collision
+primitives (hidden in renders), 4 grasp markers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike
+
+from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat
+from legws_daemon.scene.grasps import extents
+from legws_daemon.scene.scene import ObjectPose, Scene
+from legws_daemon.sim.assets import sawyer_dir
+
+PREFIX = "sawyer/"
+ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))
+#: Joint speed limits of the Sawyer (Intera specification), rad/s.
+JOINT_SPEED_LIMITS = np.array([1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545])
+#: Distance from the hand flange to the grasp point between the fingertips, metres.
+TCP_OFFSET = 0.11
+#: Half of the opening between the fingers' inner faces, metres.
+FINGER_GAP = 0.042
+
+_GEOM = {
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class ArmIndex:
+    """Addresses of the arm in the compiled model."""
+
+    qpos: np.ndarray  # (7,) qpos addresses
+    dof: np.ndarray  # (7,) dof addresses
+    lower: FloatArray  # (7,) joint position limits
+    upper: FloatArray
+    ee_site: int
+    robot_bodies: frozenset[int]
+
+
+def _object_geom_size(shape: str, size: list[float]) -> list[float]:
+    if shape == "box":
+        return [size[0] / 2, size[1] / 2, size[2] / 2]
+    if shape == "cylinder":
+        return [size[0], size[1] / 2, 0.0]
+    return [size[0], 0.0, 0.0]
+
+
+def _robot_spec(visual: bool) -> mujoco.MjSpec:
+    robot = mujoco.MjSpec.from_file(str(sawyer_dir() / "robot.xml"))
+    for actuator in list(robot.actuators):
+        robot.delete(actuator)
+    for geom in list(robot.geoms):
+        if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+            if not visual:
+                robot.delete(geom)
+        else:
+            geom.group = 3  # collision primitives: hidden in renders
+    if not visual:
+        for mesh in list(robot.meshes):
+            robot.delete(mesh)
+        for material in list(robot.materials):
+            robot.delete(material)
+    hand = robot.body("right_hand")
+    grey = [0.25, 0.25, 0.27, 1.0]
+    hand.add_geom(
+        name="gripper_base", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.055, 0.03],
+        pos=[0, 0, 0.03], rgba=grey, group=1,
+    )  # fmt: skip
+    for side, y in (("l", 1.0), ("r", -1.0)):
+        hand.add_geom(
+            name=f"finger_{side}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.008, 0.006, 0.03],
+            pos=[0, y * (FINGER_GAP + 0.006), 0.09], rgba=[0.1, 0.1, 0.1, 1.0], group=1,
+        )  # fmt: skip
+    # site frame: z along the hand's z (approach), x along the hand's y (closing direction)
+    c = float(np.sqrt(0.5))
+    hand.add_site(name="ee", pos=[0, 0, TCP_OFFSET], quat=[c, 0, 0, c], size=[0.008, 0, 0], group=4)
+    return robot
+
+
+class World:
+    """A compiled scene with the Sawyer, and the state of one arm.
+
+    Args:
+        scene: the scene (objects, workspace, home pose).
+        visual: include the robot's meshes (for rendering); without them the model
+            compiles faster and kinematics is unchanged.
+    """
+
+    def __init__(self, scene: Scene, *, visual: bool = False) -> None:
+        self.scene = scene
+        spec = mujoco.MjSpec()
+        spec.modelname = f"legws_{scene.name}"
+        spec.option.timestep = 0.002
+        spec.visual.global_.offwidth = 1280
+        spec.visual.global_.offheight = 960
+        ws = scene.workspace
+        table = spec.worldbody.add_body(
+            name="table",
+            pos=[ws.table_center[0], ws.table_center[1], ws.table_height - 0.02],
+        )
+        table.add_geom(
+            name="table_top",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[ws.table_size[0] / 2, ws.table_size[1] / 2, 0.02],
+            rgba=[0.82, 0.74, 0.6, 1.0],
+        )
+        spec.worldbody.add_light(pos=[0.6, 0.0, 2.5], dir=[0, 0, -1], diffuse=[0.8, 0.8, 0.8])
+        poses = scene.poses()
+        for name, obj in scene.objects.items():
+            body = spec.worldbody.add_body(name=f"obj/{name}", mocap=True)
+            p = poses[name]
+            body.pos = [p.x, p.y, scene.z_center(name)]
+            body.quat = [np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]
+            body.add_geom(
+                name=f"obj/{name}",
+                type=_GEOM[obj.shape],
+                size=_object_geom_size(obj.shape, list(obj.size)),
+                rgba=[*obj.color, 1.0],
+            )
+        frame = spec.worldbody.add_frame(pos=[0.0, 0.0, 0.0])
+        spec.attach(_robot_spec(visual), prefix=PREFIX, frame=frame)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        joints = [m.joint(PREFIX + j) for j in ARM_JOINTS]
+        robot_bodies = frozenset(
+            b for b in range(m.nbody) if m.body(b).name.startswith(PREFIX)
+        )
+        self.arm = ArmIndex(
+            qpos=np.array([j.qposadr[0] for j in joints]),
+            dof=np.array([j.dofadr[0] for j in joints]),
+            lower=np.array([j.range[0] for j in joints]),
+            upper=np.array([j.range[1] for j in joints]),
+            ee_site=m.site(PREFIX + "ee").id,
+            robot_bodies=robot_bodies,
+        )
+        self._mocap = {
+            name: int(m.body_mocapid[m.body(f"obj/{name}").id]) for name in scene.objects
+        }
+        self._object_of_body = {m.body(f"obj/{n}").id: n for n in scene.objects}
+        self._jacp = np.zeros((3, m.nv))
+        self._jacr = np.zeros((3, m.nv))
+        mujoco.mj_forward(m, self.data)
+
+    # --- layout -------------------------------------------------------------------
+    def set_layout(self, layout: Mapping[str, ObjectPose]) -> None:
+        """Move the named objects (others keep their pose); kinematics is updated."""
+        for name, p in layout.items():
+            i = self._mocap[name]
+            self.data.mocap_pos[i] = [p.x, p.y, self.scene.z_center(name)]
+            self.data.mocap_quat[i] = [np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]
+        mujoco.mj_kinematics(self.model, self.data)
+
+    # --- arm state ----------------------------------------------------------------
+    @property
+    def q(self) -> FloatArray:
+        return np.asarray(self.data.qpos[self.arm.qpos], dtype=np.float64).copy()
+
+    def set_q(self, q: ArrayLike) -> None:
+        """Set the arm's joint positions and update kinematics (no dynamics)."""
+        self.data.qpos[self.arm.qpos] = np.asarray(q, dtype=np.float64)
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+
+    def ee_position(self) -> FloatArray:
+        return np.asarray(self.data.site_xpos[self.arm.ee_site], dtype=np.float64).copy()
+
+    def ee_rotation(self) -> FloatArray:
+        return np.asarray(self.data.site_xmat[self.arm.ee_site], dtype=np.float64).reshape(3, 3)
+
+    def ee_pose(self) -> Pose:
+        return Pose(self.ee_position(), matrix_to_quat(self.ee_rotation()))
+
+    def jacobian(self) -> FloatArray:
+        """``(6, 7)`` EE Jacobian: linear rows then angular rows, world frame."""
+        mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.arm.ee_site)
+        return np.vstack([self._jacp[:, self.arm.dof], self._jacr[:, self.arm.dof]])
+
+    # --- collisions ---------------------------------------------------------------
+    def arm_contacts(self, ignore: frozenset[str] = frozenset()) -> list[tuple[str, str]]:
+        """Contacts between the robot and the table or objects (not in ``ignore``).
+
+        Returns ``(robot geom, other)`` pairs; ``other`` is ``table`` or an object name.
+        """
+        m, d = self.model, self.data
+        mujoco.mj_forward(m, d)
+        hits: list[tuple[str, str]] = []
+        for c in d.contact[: d.ncon]:
+            b1, b2 = int(m.geom_bodyid[c.geom1]), int(m.geom_bodyid[c.geom2])
+            r1, r2 = b1 in self.arm.robot_bodies, b2 in self.arm.robot_bodies
+            if r1 == r2:
+                continue
+            robot_geom, other_body = (c.geom1, b2) if r1 else (c.geom2, b1)
+            other = self._object_of_body.get(other_body, m.body(other_body).name)
+            if other in ignore or c.dist > 0:
+                continue
+            hits.append((m.geom(robot_geom).name or f"geom{robot_geom}", other))
+        return hits
