@@ -7,13 +7,22 @@ user can cause prints a traceback.
 
 from __future__ import annotations
 
+# MuJoCo picks its OpenGL backend once, when first imported: headless EGL unless the user
+# chose another (MUJOCO_GL=osmesa). This must run before anything imports mujoco.
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 import sys
 from collections.abc import Sequence
 
 import click
 
 from legws_daemon import __version__
+from legws_daemon.cli.assets import assets_cmd
 from legws_daemon.cli.certify import certify_cmd
+from legws_daemon.cli.eval import eval_cmd
+from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.errors import LegwsError
 
@@ -26,8 +35,11 @@ def cli() -> None:
     """legws: certified intent inference and workspace design for shared autonomy."""
 
 
+cli.add_command(assets_cmd)
 cli.add_command(certify_cmd)
+cli.add_command(render_cmd)
 cli.add_command(scenes_cmd)
+cli.add_command(eval_cmd)
 
 
 def _fail(message: str) -> int:

@@ -9,7 +9,10 @@ the gripper into the object), local x the closing direction of the fingers.
   object's sides just under its top.
 * ``side``: at mid-height, approaching horizontally along the object's local +x axis
   (the gripper stands on the object's -x side), fingers closing along local y. The
-  origin is ``min(FINGER_DEPTH, depth / 2)`` inside the -x face.
+  origin is ``min(FINGER_DEPTH, depth / 2)`` inside the -x face. The height is raised to
+  ``SIDE_MIN_HEIGHT`` above the table where mid-height is lower (but never above the top
+  minus ``FINGER_DEPTH``): with a horizontal approach the Sawyer's wrist, ~7 cm in radius,
+  would otherwise hit the table (measured: docs/decisions.md).
 
 Symmetry (turns about the approach axis that leave the grasp unchanged): a top grasp of a
 cylinder or sphere is unchanged by any turn (0); of a square box by a quarter turn (4); of
@@ -34,6 +37,8 @@ SHAPES: tuple[str, ...] = get_args(Shape)
 
 #: How far the fingertips reach over the object's surface, metres.
 FINGER_DEPTH = 0.02
+#: Lowest height above the table of a side grasp, metres (the wrist's clearance).
+SIDE_MIN_HEIGHT = 0.07
 
 # Columns are the grasp frame's x (closing), y, z (approach) axes in the object frame.
 _R_TOP = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -93,7 +98,8 @@ def derive_grasp(
         else:
             derived = 2
     else:
-        offset = np.array([-(sx / 2 - min(FINGER_DEPTH, sx / 2)), 0.0, 0.0])
+        lift = min(max(SIDE_MIN_HEIGHT - sz / 2, 0.0), max(sz / 2 - FINGER_DEPTH, 0.0))
+        offset = np.array([-(sx / 2 - min(FINGER_DEPTH, sx / 2)), 0.0, lift])
         rotation = _R_SIDE.copy()
         derived = 2
     return Grasp(kind, offset, rotation, derived if symmetry is None else symmetry)

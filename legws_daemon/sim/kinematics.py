@@ -20,6 +20,7 @@ from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
 DAMPING = 0.02
 #: Joint limits are kept this far inside the hardware range, rad.
 LIMIT_MARGIN = 0.02
+_DAMPING_EYE = DAMPING**2 * np.eye(6)
 
 
 def rotation_error(R_current: FloatArray, R_target: FloatArray) -> FloatArray:
@@ -38,6 +39,13 @@ def rotation_error(R_current: FloatArray, R_target: FloatArray) -> FloatArray:
         v = B[:, k] / np.sqrt(max(B[k, k], 1e-12))
         return np.asarray(v * angle, dtype=np.float64)
     return np.asarray(axis / s * angle, dtype=np.float64)
+
+
+def small_rotation_error(R_current: FloatArray, R_target: FloatArray) -> FloatArray:
+    """``sin(angle) * axis`` of ``R_target R_current^T``: the rotation error for holding an
+    orientation (exact direction, magnitude ~ angle for small errors; cheap per tick)."""
+    E = R_target @ R_current.T
+    return 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
 
 
 def dls_joint_velocity(J: FloatArray, twist: FloatArray, damping: float = DAMPING) -> FloatArray:
@@ -70,26 +78,42 @@ def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
     to respect the joint speed limits, and joint positions are clamped inside the limits.
     """
     J = world.jacobian()
-    A = J @ J.T
-    A[np.diag_indices_from(A)] += DAMPING**2
-    J_pinv = J.T @ np.linalg.inv(A)
     q = world.q
     posture = POSTURE_GAIN * (READY_POSTURE - q)
     posture[6] = 0.0  # the wrist roll is free: it follows the grasp yaw
-    qdot = J_pinv @ np.asarray(twist, dtype=np.float64) + posture - J_pinv @ (J @ posture)
+    tw = np.asarray(twist, dtype=np.float64)
+    lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
+    qdot = _redundant_solve(J, tw, posture)
+    q_next = q + qdot * dt
+    blocked = ((q_next < lo) & (qdot < 0)) | ((q_next > hi) & (qdot > 0))
+    if np.any(blocked):
+        # joints that would pass a limit stop there; the others take over their share
+        free = ~blocked
+        qdot = np.zeros(7)
+        qdot[free] = _redundant_solve(J[:, free], tw, posture[free])
     ratio = np.max(np.abs(qdot) / JOINT_SPEED_LIMITS)
     scale = 1.0 if ratio <= 1.0 else 1.0 / float(ratio)
     qdot = qdot * scale
     q = q + qdot * dt
-    lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
     clamped = np.clip(q, lo, hi)
     world.set_q(clamped)
-    return StepResult(qdot, scale, bool(np.any(clamped != q)))
+    return StepResult(qdot, scale, bool(np.any(blocked) or np.any(clamped != q)))
+
+
+def _redundant_solve(J: FloatArray, twist: FloatArray, posture: FloatArray) -> FloatArray:
+    """``J+ twist + (I - J+ J) posture`` with the damped ``J+ = J^T (J J^T + l^2 I)^-1``."""
+    A = J @ J.T + _DAMPING_EYE
+    rhs = np.empty((6, 2))
+    rhs[:, 0] = twist
+    rhs[:, 1] = J @ posture
+    y = np.linalg.solve(A, rhs)
+    return np.asarray(J.T @ (y[:, 0] - y[:, 1]) + posture, dtype=np.float64)
 
 
 def home_configuration(world: World, position: ArrayLike, rotation: ArrayLike) -> IKResult:
     """IK of the EE home pose, the solution nearest :data:`READY_POSTURE` of a few seeds."""
-    seeds = [READY_POSTURE, READY_POSTURE + [0.0, -0.4, 0.0, 0.6, 0.0, -0.2, 0.0], np.zeros(7)]
+    bent = READY_POSTURE + np.array([0.0, -0.4, 0.0, 0.6, 0.0, -0.2, 0.0])
+    seeds = [READY_POSTURE, bent, np.zeros(7)]
     best: IKResult | None = None
     for seed in seeds:
         r = solve_ik(world, position, rotation, seed, tol_position=1e-4, tol_rotation=1e-4)
