@@ -86,18 +86,20 @@ def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
     qdot = _redundant_solve(J, tw, posture)
     q_next = q + qdot * dt
     blocked = ((q_next < lo) & (qdot < 0)) | ((q_next > hi) & (qdot > 0))
-    if np.any(blocked):
+    any_blocked = bool(blocked.any())
+    if any_blocked:
         # joints that would pass a limit stop there; the others take over their share
         free = ~blocked
         qdot = np.zeros(7)
         qdot[free] = _redundant_solve(J[:, free], tw, posture[free])
-    ratio = np.max(np.abs(qdot) / JOINT_SPEED_LIMITS)
-    scale = 1.0 if ratio <= 1.0 else 1.0 / float(ratio)
-    qdot = qdot * scale
+    ratio = float((np.abs(qdot) / JOINT_SPEED_LIMITS).max())
+    scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
+    if scale != 1.0:
+        qdot = qdot * scale
     q = q + qdot * dt
-    clamped = np.clip(q, lo, hi)
+    clamped = np.minimum(np.maximum(q, lo), hi)
     world.set_q(clamped)
-    return StepResult(qdot, scale, bool(np.any(blocked) or np.any(clamped != q)))
+    return StepResult(qdot, scale, any_blocked or bool((clamped != q).any()))
 
 
 def _redundant_solve(J: FloatArray, twist: FloatArray, posture: FloatArray) -> FloatArray:

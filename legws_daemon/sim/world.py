@@ -174,6 +174,13 @@ class World:
         self._object_of_body = {m.body(f"obj/{n}").id: n for n in scene.objects}
         self._jacp = np.zeros((3, m.nv))
         self._jacr = np.zeros((3, m.nv))
+        # the arm's dofs are the model's only dofs, in order: plain slices, no fancy indexing
+        dof = self.arm.dof
+        self._dof = slice(int(dof[0]), int(dof[-1]) + 1)
+        qadr = self.arm.qpos
+        self._qslice = slice(int(qadr[0]), int(qadr[-1]) + 1)
+        assert np.array_equal(dof, np.arange(dof[0], dof[-1] + 1))
+        assert np.array_equal(qadr, np.arange(qadr[0], qadr[-1] + 1))
         mujoco.mj_forward(m, self.data)
 
     # --- layout -------------------------------------------------------------------
@@ -188,16 +195,16 @@ class World:
     # --- arm state ----------------------------------------------------------------
     @property
     def q(self) -> FloatArray:
-        return np.asarray(self.data.qpos[self.arm.qpos], dtype=np.float64).copy()
+        return np.array(self.data.qpos[self._qslice])
 
     def set_q(self, q: ArrayLike) -> None:
         """Set the arm's joint positions and update kinematics (no dynamics)."""
-        self.data.qpos[self.arm.qpos] = np.asarray(q, dtype=np.float64)
+        self.data.qpos[self._qslice] = q
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)
 
     def ee_position(self) -> FloatArray:
-        return np.asarray(self.data.site_xpos[self.arm.ee_site], dtype=np.float64).copy()
+        return np.array(self.data.site_xpos[self.arm.ee_site])
 
     def ee_rotation(self) -> FloatArray:
         return np.asarray(self.data.site_xmat[self.arm.ee_site], dtype=np.float64).reshape(3, 3)
@@ -208,7 +215,10 @@ class World:
     def jacobian(self) -> FloatArray:
         """``(6, 7)`` EE Jacobian: linear rows then angular rows, world frame."""
         mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.arm.ee_site)
-        return np.vstack([self._jacp[:, self.arm.dof], self._jacr[:, self.arm.dof]])
+        J = np.empty((6, 7))
+        J[:3] = self._jacp[:, self._dof]
+        J[3:] = self._jacr[:, self._dof]
+        return J
 
     # --- collisions ---------------------------------------------------------------
     def arm_contacts(self, ignore: frozenset[str] = frozenset()) -> list[tuple[str, str]]:

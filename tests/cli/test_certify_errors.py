@@ -313,7 +313,7 @@ BAD_LAYOUTS = [
         id="under-the-gripper",
     ),
     pytest.param(
-        {"white_mug": {"x": 0.44, "y": 0.32}},
+        {"white_mug": {"x": 0.79, "y": -0.32}},
         ["infeasible", "white_mug", "tape_dispenser"],
         id="on-a-fixed-object",
     ),

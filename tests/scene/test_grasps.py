@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from legws_daemon.scene.grasps import FINGER_DEPTH, derive_grasp
+from legws_daemon.scene.grasps import FINGER_DEPTH, SIDE_MIN_HEIGHT, derive_grasp
 
 
 def test_top_grasp_of_a_box_points_down_below_the_top_surface() -> None:
@@ -27,13 +27,25 @@ def test_top_grasp_yaw_follows_the_object() -> None:
 
 
 def test_side_grasp_approaches_horizontally_at_mid_height() -> None:
-    g = derive_grasp("cylinder", (0.04, 0.095), "side")
-    pos, rot = g.world(0.6, 0.2, math.pi / 2, z_center=0.0475)
+    g = derive_grasp("cylinder", (0.04, 0.22), "side")  # a bottle: mid-height 11 cm
+    pos, rot = g.world(0.6, 0.2, math.pi / 2, z_center=0.11)
     np.testing.assert_allclose(rot[:, 2], [0, 1, 0], atol=1e-12)  # local +x turned to +y
     np.testing.assert_allclose(rot[:, 1], [0, 0, 1], atol=1e-12)
     # origin FINGER_DEPTH inside the face on the approach side, at mid-height
-    np.testing.assert_allclose(pos, [0.6, 0.2 - (0.04 - FINGER_DEPTH), 0.0475], atol=1e-12)
+    np.testing.assert_allclose(pos, [0.6, 0.2 - (0.04 - FINGER_DEPTH), 0.11], atol=1e-12)
     assert g.symmetry == 2
+
+
+@pytest.mark.parametrize(
+    ("height", "grasp_z"),
+    [(0.095, SIDE_MIN_HEIGHT), (0.122, SIDE_MIN_HEIGHT), (0.14, SIDE_MIN_HEIGHT), (0.2, 0.1),
+     (0.08, 0.08 - FINGER_DEPTH)],
+)  # fmt: skip
+def test_low_side_grasps_are_raised_to_clear_the_wrist(height: float, grasp_z: float) -> None:
+    """Mid-height, raised to SIDE_MIN_HEIGHT above the table, never above top - depth."""
+    g = derive_grasp("cylinder", (0.04, height), "side")
+    pos, _ = g.world(0.6, 0.0, 0.0, z_center=height / 2)  # resting on a table at z = 0
+    assert pos[2] == pytest.approx(grasp_z)
 
 
 @pytest.mark.parametrize(
