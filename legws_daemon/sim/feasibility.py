@@ -1,9 +1,10 @@
 """Grasp feasibility: IK reachability of the grasp pose and a collision-free configuration.
 
 For each grasp the symmetric equivalents of its orientation are tried, nearest to the home
-orientation first; a grasp is feasible when IK reaches one of them within tolerance and,
-in that configuration, the robot touches neither the table nor any non-target object
-(contact with the target itself is expected: the fingers straddle it).
+orientation first, from the home configuration and then from a few fixed restarts; a grasp
+is feasible when IK reaches one of them within tolerance and, in that configuration, the
+robot touches neither the table nor any non-target object (contact with the target itself
+is expected: the fingers straddle it).
 """
 
 from __future__ import annotations
@@ -24,6 +25,17 @@ CONTINUOUS_SAMPLES = 8
 #: IK tolerances for a grasp to count as reachable.
 TOL_POSITION = 0.005
 TOL_ROTATION = 0.05
+#: Extra IK starts (deterministic) tried when the start from home does not give a
+#: reachable, collision-free configuration: the arm is redundant, and damped least squares
+#: from one start finds one of its configurations only.
+RESTARTS = 12
+
+
+def ik_seeds(world: World, q_home: FloatArray) -> list[FloatArray]:
+    """``q_home`` first, then :data:`RESTARTS` fixed pseudo-random starts inside the limits."""
+    rng = np.random.default_rng(20_240_601)
+    lo, hi = world.arm.lower * 0.8, world.arm.upper * 0.8
+    return [q_home, *(rng.uniform(lo, hi) for _ in range(RESTARTS))]
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,21 +77,34 @@ def check_grasps(
         world.set_layout(layout)
     out: dict[str, GraspCheck] = {}
     rotations = goals.rotations
+    seeds = ik_seeds(world, q_home)
     for i, name in enumerate(names or goals.names):
-        best_err = np.inf
-        best_q = q_home
-        reason = ""
-        for R in symmetric_rotations(rotations[i], int(goals.symmetry[i]), goals.x0.rotation):
+        out[name] = _check_one(world, name, goals.positions[i], rotations[i],
+                               int(goals.symmetry[i]), goals.x0.rotation, seeds)  # fmt: skip
+    world.set_q(q_home)
+    return out
+
+
+def _check_one(
+    world: World,
+    name: str,
+    position: FloatArray,
+    rotation: FloatArray,
+    symmetry: int,
+    reference: FloatArray,
+    seeds: list[FloatArray],
+) -> GraspCheck:
+    best_err = np.inf
+    best_q = seeds[0]
+    reason = ""
+    for seed in seeds:
+        for R in symmetric_rotations(rotation, symmetry, reference):
             ik = solve_ik(
-                world,
-                goals.positions[i],
-                R,
-                q_home,
-                tol_position=TOL_POSITION / 5,
+                world, position, R, seed, tol_position=TOL_POSITION / 5,
                 tol_rotation=TOL_ROTATION / 5,
-            )
-            err = ik.position_error + 0.1 * ik.rotation_error
+            )  # fmt: skip
             if ik.position_error > TOL_POSITION or ik.rotation_error > TOL_ROTATION:
+                err = ik.position_error + 0.1 * ik.rotation_error
                 if err < best_err and not reason.startswith("collides"):
                     best_err, best_q = err, ik.q
                     reason = (
@@ -89,11 +114,7 @@ def check_grasps(
                 continue
             hits = world.arm_contacts(ignore=frozenset({name}))
             if not hits:
-                out[name] = GraspCheck(name, True, "ok", ik.q)
-                break
+                return GraspCheck(name, True, "ok", ik.q)
             best_q = ik.q
             reason = f"collides with {hits[0][1]} ({hits[0][0]})"
-        else:
-            out[name] = GraspCheck(name, False, reason, best_q)
-    world.set_q(q_home)
-    return out
+    return GraspCheck(name, False, reason, best_q)

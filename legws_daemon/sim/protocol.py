@@ -62,8 +62,13 @@ class LayoutEvaluation:
 
 
 def metrics(picks: Sequence[Pick]) -> dict[str, float | int | None]:
-    """Argmax accuracy, T_infer (mean ± sd over commits), commit / wrong / no-commit rates."""
+    """Argmax accuracy, T_infer (mean ± sd over commits), commit / wrong / no-commit rates.
+
+    ``accuracy`` counts a pick whose grasp is infeasible as a failure (the protocol);
+    ``accuracy_feasible`` is the accuracy over the picks that ran an episode.
+    """
     n = len(picks)
+    feasible = [p for p in picks if p.episode is not None]
     times = [
         p.episode.commit_time for p in picks if p.episode and p.episode.commit_time is not None
     ]
@@ -72,6 +77,9 @@ def metrics(picks: Sequence[Pick]) -> dict[str, float | int | None]:
     return {
         "episodes": n,
         "accuracy": sum(p.correct for p in picks) / n if n else None,
+        "accuracy_feasible": (
+            sum(p.correct for p in feasible) / len(feasible) if feasible else None
+        ),
         "t_infer_mean": float(np.mean(times)) if times else None,
         "t_infer_sd": float(np.std(times, ddof=1)) if len(times) > 1 else None,
         "commit_rate": len(committed) / n if n else None,
