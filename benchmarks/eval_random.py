@@ -5,7 +5,7 @@ report to ``docs/results/eval_random/SCENE.{json,md}`` and a comparison table wi
 paper's random rows to ``docs/results/eval_random/table1_random.md``.
 
 Usage:
-    python benchmarks/eval_random.py [--layouts 30] [--seed 0] [--workers 2]
+    python benchmarks/eval_random.py [--layouts 30] [--seed 0] [--workers 2] [--cost ratio]
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from legws_daemon.core.params import COST_FORMS, Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.sim.evaluate import markdown, random_layouts, run_eval
 
@@ -37,8 +38,15 @@ def main() -> None:
     ap.add_argument("--layouts", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path("docs/results/eval_random"))
+    ap.add_argument("--cost", choices=COST_FORMS, default="dragan")
+    ap.add_argument(
+        "--out", type=Path, default=None, help="default docs/results/eval_random[_ratio]"
+    )
     args = ap.parse_args()
+    if args.out is None:
+        suffix = "" if args.cost == "dragan" else f"_{args.cost}"
+        args.out = Path(f"docs/results/eval_random{suffix}")
+    params = Params(cost=args.cost)
     args.out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
@@ -46,7 +54,9 @@ def main() -> None:
         scene = load_scene(name)
         layouts = random_layouts(scene, args.layouts, args.seed)
         with tqdm(total=len(layouts), desc=name, unit="layout") as bar:
-            report = run_eval(scene, layouts, args.seed, workers=args.workers, progress=bar.update)
+            report = run_eval(
+                scene, layouts, args.seed, params=params, workers=args.workers, progress=bar.update
+            )
         (args.out / f"{name}.json").write_text(json.dumps(report, indent=2) + "\n")
         (args.out / f"{name}.md").write_text(markdown(report))
         a, t = report["aggregate"], report["timing"]
