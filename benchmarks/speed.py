@@ -98,6 +98,33 @@ def main() -> None:
     mc_t, _ = median_seconds(lambda: monte_carlo(goals, params, 2000, 0), max(3, args.repeats // 2))
     out["monte_carlo"] = {"m": goals.m, "trials_per_goal": 2000, "median_s": mc_t}
 
+    # Episodes on the MuJoCo stand-in: one process, meal_assembly's default layout.
+    from legws_daemon.sim.episode import run_episode
+    from legws_daemon.sim.kinematics import home_configuration
+    from legws_daemon.sim.world import World
+
+    meal = load_scene("meal_assembly")
+    world = World(meal)
+    q_home = home_configuration(world, meal.home.position, meal.home.rotation).q
+    meal_goals = meal.goal_set()
+    ep_rng = np.random.default_rng(2)
+    durations: list[float] = []
+
+    def episodes() -> None:
+        for name in meal_goals.names * 4:
+            durations.append(run_episode(world, meal_goals, name, q_home, ep_rng, params).duration)
+
+    ep_t, _ = median_seconds(episodes, max(3, args.repeats // 2))
+    n_ep = len(meal_goals.names) * 4
+    mean_ticks = float(np.mean(durations)) / params.dt
+    out["episodes"] = {
+        "scene": "meal_assembly",
+        "episodes_per_second_one_process": n_ep / ep_t,
+        "ms_per_episode": ep_t / n_ep * 1e3,
+        "mean_ticks_per_episode": mean_ticks,
+        "us_per_tick": ep_t / n_ep / mean_ticks * 1e6,
+    }
+
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2) + "\n")
     c, o = out["certificate"], out["observer"]
@@ -108,6 +135,12 @@ def main() -> None:
     )
     print(f"observer: M = {o['m']}: median {o['median_us_per_tick']:.1f} µs per tick")
     print(f"monte carlo: M = 8, 2000 trials per goal: median {mc_t * 1e3:.0f} ms")
+    e = out["episodes"]
+    print(
+        f"episodes (stand-in, meal_assembly): {e['episodes_per_second_one_process']:.0f} per "
+        f"second in one process, {e['ms_per_episode']:.1f} ms each, "
+        f"{e['us_per_tick']:.0f} µs per tick"
+    )
     print(f"written {args.out}")
 
 
