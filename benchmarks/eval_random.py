@@ -96,7 +96,8 @@ def main() -> None:
     eps = sum(r["episodes"] for r in rows) / total
     lines += [
         "",
-        f"All six tiers: {total:.0f} s wall-clock, {args.workers} workers, {eps:.0f} picks/s.",
+        f"Cost form {args.cost}. All six tiers: {total:.0f} s wall-clock, {args.workers} "
+        f"workers, {eps:.0f} picks/s.",
     ]
     table = "\n".join(lines) + "\n"
     (args.out / "table1_random.md").write_text(table)

@@ -46,15 +46,44 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("docs/results/speed.json"))
     args = ap.parse_args()
 
-    sc = load_scene("cluttered")  # M = 8
-    names = sc.goal_names
-    cons = LayoutConstraints.of(sc, names)
-    poses = cons.sample(args.layouts, np.random.default_rng(0))
     params = Params()
     out: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "processor": platform.machine()},
         "numpy": np.__version__,
     }
+    # Episodes on the MuJoCo stand-in: one process, meal_assembly's default layout. Measured
+    # first: after the large BLAS calls below, OpenBLAS threads keep spinning for a while and
+    # slow the many small solves of a tick by half.
+    from legws_daemon.sim.episode import run_episode
+    from legws_daemon.sim.kinematics import home_configuration
+    from legws_daemon.sim.world import World
+
+    meal = load_scene("meal_assembly")
+    world = World(meal)
+    q_home = home_configuration(world, meal.home.position, meal.home.rotation).q
+    meal_goals = meal.goal_set()
+    ep_rng = np.random.default_rng(2)
+    durations: list[float] = []
+
+    def episodes() -> None:
+        for name in meal_goals.names * 4:
+            durations.append(run_episode(world, meal_goals, name, q_home, ep_rng, params).duration)
+
+    ep_t, _ = median_seconds(episodes, max(3, args.repeats // 2))
+    n_ep = len(meal_goals.names) * 4
+    mean_ticks = float(np.mean(durations)) / params.dt
+    out["episodes"] = {
+        "scene": "meal_assembly",
+        "episodes_per_second_one_process": n_ep / ep_t,
+        "ms_per_episode": ep_t / n_ep * 1e3,
+        "mean_ticks_per_episode": mean_ticks,
+        "us_per_tick": ep_t / n_ep / mean_ticks * 1e6,
+    }
+
+    sc = load_scene("cluttered")  # M = 8
+    names = sc.goal_names
+    cons = LayoutConstraints.of(sc, names)
+    poses = cons.sample(args.layouts, np.random.default_rng(0))
 
     pos, rot, sym = sc.grasp_batch(names, poses)
     cert_t, cert_all = median_seconds(
@@ -97,33 +126,6 @@ def main() -> None:
 
     mc_t, _ = median_seconds(lambda: monte_carlo(goals, params, 2000, 0), max(3, args.repeats // 2))
     out["monte_carlo"] = {"m": goals.m, "trials_per_goal": 2000, "median_s": mc_t}
-
-    # Episodes on the MuJoCo stand-in: one process, meal_assembly's default layout.
-    from legws_daemon.sim.episode import run_episode
-    from legws_daemon.sim.kinematics import home_configuration
-    from legws_daemon.sim.world import World
-
-    meal = load_scene("meal_assembly")
-    world = World(meal)
-    q_home = home_configuration(world, meal.home.position, meal.home.rotation).q
-    meal_goals = meal.goal_set()
-    ep_rng = np.random.default_rng(2)
-    durations: list[float] = []
-
-    def episodes() -> None:
-        for name in meal_goals.names * 4:
-            durations.append(run_episode(world, meal_goals, name, q_home, ep_rng, params).duration)
-
-    ep_t, _ = median_seconds(episodes, max(3, args.repeats // 2))
-    n_ep = len(meal_goals.names) * 4
-    mean_ticks = float(np.mean(durations)) / params.dt
-    out["episodes"] = {
-        "scene": "meal_assembly",
-        "episodes_per_second_one_process": n_ep / ep_t,
-        "ms_per_episode": ep_t / n_ep * 1e3,
-        "mean_ticks_per_episode": mean_ticks,
-        "us_per_tick": ep_t / n_ep / mean_ticks * 1e6,
-    }
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2) + "\n")
