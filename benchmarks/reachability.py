@@ -29,13 +29,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse
 import json
 import platform
-import statistics
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from timing import median_seconds
 from tqdm import tqdm
 
 from legws_daemon.scene.catalog import load_scene
@@ -51,16 +50,6 @@ from legws_daemon.sim.world import World
 
 LOOKUP_SCENES = ("cluttered", "meal_assembly")
 AGREEMENT_SCENES = ("meal_assembly", "desk")
-
-
-def median_seconds(fn: Callable[[], object], repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def world_of(name: str) -> tuple[World, np.ndarray]:
@@ -133,7 +122,7 @@ def lookup_speed(m: ReachabilityMap, name: str, args: argparse.Namespace) -> dic
     sample_s = time.perf_counter() - t
     poses = goal_poses(sc, cons, np.tile(distinct, (args.lookups // args.distinct, 1, 1)))
     names = list(sc.goal_names)
-    screen_s = median_seconds(lambda: m.screen(sc, names, poses), args.repeats)
+    screen_s, _ = median_seconds(lambda: m.screen(sc, names, poses), args.repeats)
     pos, rot, sym = sc.grasp_batch(names, poses)
     kinds = {k: [j for j, n in enumerate(names) if sc.grasps[n].kind == k] for k in GRASP_KINDS}
 
@@ -142,7 +131,7 @@ def lookup_speed(m: ReachabilityMap, name: str, args: argparse.Namespace) -> dic
             if cols:
                 m.lookup(k, pos[:, cols], rot[:, cols], sym[cols])
 
-    lookup_s = median_seconds(only_lookup, args.repeats)
+    lookup_s, _ = median_seconds(only_lookup, args.repeats)
     ok = m.screen(sc, names, poses)
     return {
         "layouts": len(poses),

@@ -13,13 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import statistics
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from timing import median_seconds
 
 from legws_daemon.core.certificate import certify_batch
 from legws_daemon.core.montecarlo import monte_carlo
@@ -27,16 +25,6 @@ from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
-
-
-def median_seconds(fn: Callable[[], object], repeats: int) -> tuple[float, list[float]]:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), times
 
 
 def main() -> None:
