@@ -22,6 +22,7 @@ from legws_daemon import __version__
 from legws_daemon.cli.assets import assets_cmd
 from legws_daemon.cli.certify import certify_cmd
 from legws_daemon.cli.eval import eval_cmd
+from legws_daemon.cli.optimize import optimize_cmd
 from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.errors import LegwsError
@@ -40,6 +41,7 @@ cli.add_command(certify_cmd)
 cli.add_command(render_cmd)
 cli.add_command(scenes_cmd)
 cli.add_command(eval_cmd)
+cli.add_command(optimize_cmd)
 
 
 def _fail(message: str) -> int:

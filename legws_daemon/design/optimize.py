@@ -1,0 +1,213 @@
+"""``legws optimize``: search, verify the best elite with the full check, write the results.
+
+Outputs in the run folder (interfaces.md): ``summary.json`` (``objective``, ``coverage``,
+``elites``, ``evaluations``, ``seconds`` and more), ``best_layout.json``, ``goals.json``
+(certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate),
+``archive.csv``, ``archive.png`` (heatmap of J over the grid) and ``best_layout.png``.
+Results are cached by a hash of the scene file and the settings.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from legws_daemon import __version__
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.params import Params
+from legws_daemon.design.problem import LayoutProblem
+from legws_daemon.design.search import GRID, SearchResult, search
+from legws_daemon.errors import InfeasibleError, LegwsError
+from legws_daemon.formats.goalset import goalset_to_data, load_goalset
+from legws_daemon.formats.layout_file import dump_json, layout_to_data
+from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.sim.assets import sawyer_dir
+from legws_daemon.sim.feasibility import check_grasps
+from legws_daemon.sim.kinematics import home_configuration
+from legws_daemon.sim.reachability import load_or_build
+from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET, World
+
+#: Elites tried, best first, before giving up on finding one that passes the full check.
+MAX_VERIFIED = 60
+#: Densest packing of equal discs in the plane (hexagonal).
+_PACKING = math.pi / (2 * math.sqrt(3))
+FILES = ("summary.json", "best_layout.json", "goals.json", "archive.csv", "archive.png")
+
+
+def check_capacity(problem: LayoutProblem) -> None:
+    """Fail at once when the bounds cannot hold the movable objects with the clearance."""
+    c = problem.constraints
+    k = len(problem.names) + len(c.fixed_xy)
+    # discs of diameter `clearance` centred in the bounds grown by half a clearance
+    area = (c.x_range[1] - c.x_range[0] + c.min_clearance) * (
+        c.y_range[1] - c.y_range[0] + c.min_clearance
+    )
+    needed = k * math.pi * (c.min_clearance / 2) ** 2 / _PACKING
+    if needed > area:
+        raise InfeasibleError(
+            f"{k} objects need {needed:.3f} m² at {c.min_clearance} m clearance; the bounds "
+            f"x {c.x_range}, y {c.y_range} offer {area:.3f} m²: no layout exists"
+        )
+
+
+def settings_key(scene: Scene, settings: dict[str, Any]) -> str:
+    """Hash of what a run depends on: the scene file, the robot model, the settings and the
+    code's version. Cheap, so that a cached run needs no simulator."""
+    h = hashlib.sha256()
+    h.update(Path(scene.source).read_bytes())
+    h.update((sawyer_dir() / "robot.xml").read_bytes())
+    extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP}
+    h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
+    return h.hexdigest()[:20]
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "legws" / "optimize"
+
+
+def verify(
+    problem: LayoutProblem, result: SearchResult, world: World, q_home: np.ndarray
+) -> tuple[Layout, int]:
+    """The best elite that satisfies every constraint and whose grasps all pass the full
+    IK + collision check; returns it and its rank among the elites."""
+    scene = problem.scene
+    for rank, elite in enumerate(result.elites[:MAX_VERIFIED]):
+        layout = problem.layout(elite.solution)
+        poses = scene.poses(layout)
+        if problem.constraints.problems(poses):
+            continue
+        goals = scene.goal_set(layout, goals=problem.names)
+        checks = check_grasps(world, goals, q_home, poses)
+        if all(c.feasible for c in checks.values()):
+            return layout, rank
+    raise InfeasibleError(
+        f"none of the best {min(MAX_VERIFIED, len(result.elites))} elites passed the full "
+        "IK and collision check; run more iterations or relax the scene"
+    )
+
+
+def heatmap_png(result: SearchResult) -> bytes:
+    """The archive as a 20 × 20 heatmap of J (feasible elites; grey: empty or infeasible)."""
+    from PIL import Image
+
+    grid = np.full(GRID[0] * GRID[1], np.nan)
+    for row in result.table:
+        if row["feasible_screen"]:
+            grid[row["cell"]] = row["certificate"]
+    grid = grid.reshape(GRID)
+    finite = grid[np.isfinite(grid)]
+    lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
+    t = np.clip((grid - lo) / max(hi - lo, 1e-9), 0, 1)
+    # a blue-to-yellow ramp; rows: first measure (up), columns: second measure (right)
+    rgb = np.stack([40 + 215 * t, 60 + 160 * t, 140 - 110 * t], axis=-1)
+    rgb[~np.isfinite(grid)] = 200
+    img = Image.fromarray(np.flipud(rgb.astype(np.uint8))).resize(
+        (400, 400), Image.Resampling.NEAREST
+    )
+    buf = io.BytesIO()
+    img.save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def optimize(
+    scene: Scene,
+    out_dir: Path,
+    *,
+    method: str = "cma-me",
+    iterations: int = 1000,
+    seed: int = 0,
+    movable: Sequence[str] | None = None,
+    use_cache: bool = True,
+    render: bool = True,
+    progress: Callable[[int, float, float], None] | None = None,
+) -> dict[str, Any]:
+    """Optimise a scene's layout and write the run folder; returns the summary."""
+    problem = LayoutProblem(scene, movable, Params())
+    check_capacity(problem)
+    settings = {
+        "scene": scene.name,
+        "method": method,
+        "iterations": iterations,
+        "seed": seed,
+        "movable": list(problem.names),
+        "params": problem.params.as_dict(),
+    }
+    key = settings_key(scene, settings)
+    cached = cache_dir() / key
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if use_cache and all((cached / f).is_file() for f in FILES):
+        for f in cached.iterdir():
+            shutil.copyfile(f, out_dir / f.name)
+        summary: dict[str, Any] = json.loads((out_dir / "summary.json").read_text())
+        summary["cached"] = True
+        return summary
+    world = World(scene)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    world = World(scene)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    problem.screen = load_or_build(world, q_home)
+    result = search(problem, method, iterations, seed, progress)
+    layout, rank = verify(problem, result, world, q_home)
+    goals = scene.goal_set(layout, goals=problem.names)
+    _write_atomic(out_dir / "best_layout.json", dump_json(layout_to_data(layout)).encode())
+    _write_atomic(
+        out_dir / "goals.json", dump_json(goalset_to_data(goals, problem.params)).encode()
+    )
+    # the reported objective is the certificate of the written goal set, so that
+    # `legws certify goals.json` reproduces it to the last digit
+    written, params = load_goalset(out_dir / "goals.json")
+    objective = certify(written, params).objective
+    summary = {
+        "objective": objective,
+        "coverage": result.coverage,
+        "elites": len(result.elites),
+        "evaluations": result.evaluations,
+        "seconds": result.seconds,
+        "feasible_coverage": result.feasible_coverage,
+        "qd_score": result.qd_score,
+        "verified_rank": rank,
+        "measure_ranges": result.ranges,
+        "key": key,
+        "cached": False,
+        **settings,
+    }
+    buf = io.StringIO()
+    if result.table:
+        writer = csv.DictWriter(buf, fieldnames=list(result.table[0]))
+        writer.writeheader()
+        writer.writerows(result.table)
+    _write_atomic(out_dir / "archive.csv", buf.getvalue().encode())
+    _write_atomic(out_dir / "archive.png", heatmap_png(result))
+    if render:
+        try:
+            from legws_daemon.sim.render import render_layout, save_png
+
+            save_png(render_layout(scene, layout, 800, 600, "top"), out_dir / "best_layout.png")
+        except LegwsError as err:  # no GL here: the numbers still stand
+            summary["render_error"] = str(err)
+    _write_atomic(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    if use_cache:
+        cached.mkdir(parents=True, exist_ok=True)
+        for f in out_dir.iterdir():
+            if f.is_file() and (f.name in FILES or f.name == "best_layout.png"):
+                shutil.copyfile(f, cached / f.name)
+    return summary
