@@ -6,7 +6,13 @@ certificate, Monte Carlo check), ``scene`` the object/grasp/layout model,
 command. Nothing in ``core`` performs I/O.
 """
 
+import os
 from importlib.metadata import PackageNotFoundError, version
+
+# MuJoCo picks its OpenGL backend once, when first imported: headless EGL unless the user
+# chose another (MUJOCO_GL=osmesa or glfw). Set here, before any module of the package can
+# import mujoco, so that the CLI, benchmarks and library users all render offscreen.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 try:
     __version__ = version("legws")

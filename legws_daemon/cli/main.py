@@ -7,12 +7,6 @@ user can cause prints a traceback.
 
 from __future__ import annotations
 
-# MuJoCo picks its OpenGL backend once, when first imported: headless EGL unless the user
-# chose another (MUJOCO_GL=osmesa). This must run before anything imports mujoco.
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import sys
 from collections.abc import Sequence
 

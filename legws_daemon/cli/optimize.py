@@ -11,7 +11,15 @@ from legws_daemon.design.search import METHODS
 
 
 @click.command("optimize")
-@click.option("--scene", "scene_name", required=True, help="Scene name or .toml path.")
+@click.option(
+    "--scene", "scene_names", multiple=True,
+    help="Scene name or .toml path; with --all, a list (repeat or comma-separate).",
+)  # fmt: skip
+@click.option("--all", "run_all_scenes", is_flag=True, help="Every scene (or the --scene list).")
+@click.option("--seeds", help="With --all: comma-separated seeds (default: --seed).")
+@click.option("--dask", "dask_address", help="With --all: Dask scheduler, tcp://HOST:PORT.")
+@click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
+              help="With --all: local worker processes (without --dask).")  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
 @click.option("--iterations", type=click.IntRange(1, 1_000_000), default=1000, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -23,7 +31,11 @@ from legws_daemon.design.search import METHODS
 @click.option("--no-cache", is_flag=True, help="Ignore and do not write the result cache.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def optimize_cmd(
-    scene_name: str,
+    scene_names: tuple[str, ...],
+    run_all_scenes: bool,
+    seeds: str | None,
+    dask_address: str | None,
+    workers: int,
     method: str,
     iterations: int,
     seed: int,
@@ -36,14 +48,24 @@ def optimize_cmd(
 
     Writes summary.json, best_layout.json, goals.json, archive.csv, archive.png and
     best_layout.png to the run folder; `legws certify RUN/goals.json` reproduces the
-    objective.
+    objective. With --all, runs scenes × seeds on a process pool or a Dask cluster.
     """
     from tqdm import tqdm
 
     from legws_daemon.design.optimize import optimize
     from legws_daemon.scene.catalog import load_scene
+    from legws_daemon.scene.catalog import scene_names as all_names
 
-    scene = load_scene(scene_name)
+    names_given = [n.strip() for spec in scene_names for n in spec.split(",") if n.strip()]
+    if run_all_scenes:
+        _run_all(names_given or all_names(), seeds, seed, dask_address, workers, method,
+                 iterations, movable, out_dir, quiet)  # fmt: skip
+        return
+    if seeds or dask_address:
+        raise click.UsageError("--seeds and --dask go with --all")
+    if len(names_given) != 1:
+        raise click.UsageError("give one --scene (or --all)")
+    scene = load_scene(names_given[0])
     names = [n.strip() for n in movable.split(",") if n.strip()] if movable else None
     if names is not None:
         scene.check_names(names, "--movable")
@@ -61,3 +83,47 @@ def optimize_cmd(
         )  # fmt: skip
     keys = ("objective", "coverage", "elites", "evaluations", "seconds", "cached")
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
+
+
+def _run_all(
+    names: list[str],
+    seeds: str | None,
+    seed: int,
+    dask_address: str | None,
+    workers: int,
+    method: str,
+    iterations: int,
+    movable: str | None,
+    out_dir: Path | None,
+    quiet: bool,
+) -> None:
+    from tqdm import tqdm
+
+    from legws_daemon.design.batch import Job, run_all
+    from legws_daemon.errors import InputError
+    from legws_daemon.scene.catalog import load_scene
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",")] if seeds else [seed]
+    except ValueError:
+        raise InputError(
+            f"expected comma-separated integers, got {seeds!r}", field="--seeds"
+        ) from None
+    if movable:
+        raise InputError("--movable names one scene's objects; not with --all", field="--movable")
+    root = out_dir or Path("out") / "optimize"
+    scenes = [load_scene(n) for n in names]  # validate every name before starting
+    jobs = [
+        Job(sc.source, s, str(root / sc.name / f"seed{s}"), method, iterations, None)
+        for sc in scenes
+        for s in seed_list
+    ]
+    with tqdm(total=len(jobs), desc=f"{method} runs", unit="run", disable=quiet) as bar:
+        results = run_all(
+            jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
+        )
+    keys = ("scene", "seed", "objective", "coverage", "elites", "seconds", "cached", "out")
+    table = [{k: r[k] for k in keys} for r in results]
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")
+    click.echo(json.dumps(table))
