@@ -63,3 +63,16 @@ def test_unreachable_scheduler_is_one_line(capsys: pytest.CaptureFixture[str]) -
 def test_seeds_and_dask_need_all(capsys: pytest.CaptureFixture[str]) -> None:
     assert run(["optimize", "--scene", "desk", "--seeds", "1,2", "--quiet"]) == 2
     assert "--all" in capsys.readouterr().err
+
+
+def test_impossible_problem_is_a_clear_error_not_a_hang(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the cluttered scene with 0.4 m clearance: eleven such discs do not fit the bounds
+    text = (Path(__file__).parents[2] / "scenes" / "cluttered.toml").read_text()
+    crowded = tmp_path / "cluttered.toml"
+    crowded.write_text(text.replace("min_clearance = 0.12", "min_clearance = 0.4"))
+    assert run(["optimize", "--scene", str(crowded), "--quiet", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "no layout exists" in err
