@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from legws_daemon.design.search import METHODS
+from legws_daemon.design import METHODS
 
 
 @click.command("optimize")

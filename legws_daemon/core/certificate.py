@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
@@ -155,7 +155,7 @@ def certify_batch(
     margin = params.beta * (t.costs - c_true[:, :, None])
     a2 = np.einsum("bijk,bijk->bij", t.sensitivity, t.sensitivity)
     variance = params.beta**2 * (t.steps * (params.sigma * params.dt) ** 2)[:, :, None] * a2
-    quantile = float(norm.ppf(1.0 - params.alpha / (m - 1)))
+    quantile = float(ndtri(1.0 - params.alpha / (m - 1)))  # standard normal quantile
     slack = margin - quantile * np.sqrt(variance)
     eye = np.eye(m, dtype=bool)
     margin[:, eye] = 0.0

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import beta as beta_dist
+from scipy.special import betaincinv
 
 from legws_daemon.core.certificate import horizon_steps
 from legws_daemon.core.costs import path_costs
@@ -44,10 +44,9 @@ def clopper_pearson(
     if trials <= 0 or not 0 <= correct <= trials:
         raise InputError(f"need 0 <= correct <= trials and trials > 0, got {correct}/{trials}")
     tail = (1.0 - confidence) / 2.0
-    lower = 0.0 if correct == 0 else float(beta_dist.ppf(tail, correct, trials - correct + 1))
-    upper = (
-        1.0 if correct == trials else float(beta_dist.ppf(1 - tail, correct + 1, trials - correct))
-    )
+    # quantiles of the Beta distributions of the exact interval
+    lower = 0.0 if correct == 0 else float(betaincinv(correct, trials - correct + 1, tail))
+    upper = 1.0 if correct == trials else float(betaincinv(correct + 1, trials - correct, 1 - tail))
     return lower, upper
 
 

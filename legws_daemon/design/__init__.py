@@ -1,1 +1,7 @@
 """Layout design: the objective of method.md §5 and the quality-diversity search over layouts."""
+
+from typing import Literal, get_args
+
+#: Search methods of ``legws optimize`` (kept here, light, for the CLI's option parsing).
+Method = Literal["cma-me", "map-elites", "cma-mae"]
+METHODS: tuple[str, ...] = get_args(Method)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from typing import Any
 
 import numpy as np
 from ribs.archives import GridArchive
@@ -25,11 +25,9 @@ from ribs.emitters import EvolutionStrategyEmitter, GaussianEmitter
 from ribs.schedulers import Scheduler
 
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.design import METHODS
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.errors import InputError
-
-Method = Literal["cma-me", "map-elites", "cma-mae"]
-METHODS: tuple[str, ...] = get_args(Method)
 
 GRID = (20, 20)
 EMITTERS = 3
