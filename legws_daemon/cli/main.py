@@ -59,6 +59,14 @@ def run(argv: Sequence[str] | None = None) -> int:
         return 130
     except LegwsError as exc:
         return _fail(str(exc))
+    except RuntimeError as exc:
+        # mujoco refuses to import with an unknown MUJOCO_GL: bad input, not a crash
+        if "MUJOCO_GL" not in str(exc):
+            raise
+        return _fail(
+            f"{exc}; unset it or use egl (headless, the default) or osmesa "
+            "(Debian packages: libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6)"
+        )
     except KeyboardInterrupt:
         click.echo("legws: interrupted", err=True)
         return 130

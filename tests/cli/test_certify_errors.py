@@ -7,13 +7,15 @@ with a one-line message naming the field, and prints no traceback").
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.cli.helpers import EXAMPLE_GOALSET, Result, assert_bad_input, run_script
+from tests.cli.helpers import EXAMPLE_GOALSET, LEGWS, Result, assert_bad_input, run_script
 
 Mutation = Callable[[dict[str, Any]], None]
 Cli = Callable[..., Result]
@@ -381,3 +383,13 @@ def test_console_script_exit_code(
     result = run_script("certify", path, "--json", cwd=tmp_path)
     assert "Traceback" not in result.err
     assert_bad_input(result, str(path), *needles)
+
+
+def test_unknown_gl_backend_is_one_line_for_simulator_commands(tmp_path: Path) -> None:
+    env = {**os.environ, "MUJOCO_GL": "no-such-backend"}
+    proc = subprocess.run(
+        [str(LEGWS), "eval", "--scene", "desk", "--layouts", "random:1", "--quiet"],
+        capture_output=True, text=True, env=env, timeout=120, check=False, cwd=tmp_path,
+    )  # fmt: skip
+    line = assert_bad_input(Result(proc.returncode, proc.stdout, proc.stderr), "MUJOCO_GL")
+    assert "egl" in line
