@@ -30,6 +30,33 @@ def fetch_cmd(force: bool) -> None:
     click.echo(assets.fetch(force=force))
 
 
+@assets_cmd.command("reachability")
+@click.option(
+    "--scene",
+    "scene_name",
+    default="desk",
+    show_default=True,
+    help="Any scene on the shared table (the map depends on table and home only).",
+)
+def reachability_cmd(scene_name: str) -> None:
+    """Build (once) and cache the reachability map the optimiser screens grasps with."""
+    from legws_daemon.scene.catalog import load_scene
+    from legws_daemon.sim.kinematics import home_configuration
+    from legws_daemon.sim.reachability import cache_key, load_or_build
+    from legws_daemon.sim.world import World
+
+    scene = load_scene(scene_name)
+    world = World(scene)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    path = assets.assets_dir() / "reachability" / f"{cache_key(world, q_home)}.npz"
+    if not path.is_file():
+        click.echo(
+            "legws: building the reachability map (once per robot model, ~1.5 min)", err=True
+        )
+    load_or_build(world, q_home)
+    click.echo(path)
+
+
 @assets_cmd.command("status")
 def status_cmd() -> None:
     """Print the Sawyer model's folder; exit 2 with one line when it is not fetched."""

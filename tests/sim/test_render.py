@@ -162,3 +162,11 @@ def test_assets_fetch_is_a_no_op_when_cached(capsys: pytest.CaptureFixture[str])
     assert result.code == 0, result
     assert (Path(result.out.strip()) / "robot.xml").is_file()
     assert result.err == ""
+
+
+def test_assets_reachability_prints_the_cached_map(capsys: pytest.CaptureFixture[str]) -> None:
+    result = legws(capsys, "assets", "reachability")
+    assert result.code == 0, result
+    path = Path(result.out.strip())
+    assert path.suffix == ".npz"
+    assert path.is_file()
