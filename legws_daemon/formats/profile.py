@@ -1,0 +1,117 @@
+"""Hardware profiles (``hw_profiles/*.toml``): one robot set-up, validated on load.
+
+A profile names the robot (its zenoh keys live under ``legws/<robot>/``), the adapter that
+reaches it (a registry key: ``sim`` for the MuJoCo stand-in, ``sawyer`` for the real arm
+through its bridge), the control rate and limits, the deadman timeout, the EE workspace
+box every command is clamped to, and the transport settings. Defaults are safe: loopback
+only, multicast scouting off.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
+
+from legws_daemon.formats.validation import (
+    Coordinate,
+    Name,
+    field_error,
+    read_toml,
+    validate,
+)
+
+Rate = Annotated[float, Strict(), Field(gt=0, le=1000)]
+Speed = Annotated[float, Strict(), Field(gt=0, le=2.0)]
+Seconds = Annotated[float, Strict(), Field(gt=0, le=60)]
+Endpoint = Annotated[str, Field(pattern=r"^(tcp|udp|tls|quic)/[^\s]+:\d{1,5}$")]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ControlSpec(_Model):
+    rate_hz: Rate = 20.0
+    v_max: Speed = 0.05  # EE speed at full joystick deflection, m/s
+    assist_speed: Speed = 0.10  # autonomous approach, m/s
+    deadman_timeout: Seconds = 0.25  # no valid input for this long: zero velocity
+    status_rate_hz: Rate = 10.0
+
+
+class WorkspaceBox(_Model):
+    """The box the EE may move in (robot base frame, metres); commands are clamped to it."""
+
+    x: tuple[Coordinate, Coordinate] = (0.20, 0.95)
+    y: tuple[Coordinate, Coordinate] = (-0.55, 0.55)
+    z: tuple[Coordinate, Coordinate] = (0.0, 0.60)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WorkspaceBox:
+        for axis in ("x", "y", "z"):
+            lo, hi = getattr(self, axis)
+            if not lo < hi:
+                raise field_error((axis,), f"must be [low, high] with low < high, got {[lo, hi]}")
+        return self
+
+
+class SimSpec(_Model):
+    realtime: StrictBool = True  # pace the stand-in to the wall clock (False: as fast as possible)
+
+
+class SawyerSpec(_Model):
+    bridge_timeout: Seconds = 3.0  # the bridge must answer within this long
+    heartbeat_timeout: Seconds = 0.5  # no joint state for this long: fault, safe stop
+    fallback_to_sim: StrictBool = False  # start on the stand-in when the bridge does not answer
+    command: Literal["joint_velocity", "ee_velocity"] = "joint_velocity"
+
+
+class TransportSpec(_Model):
+    """zenoh settings used when no --zenoh-config file is given: loopback peer, no scouting."""
+
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[Endpoint] = ["tcp/127.0.0.1:7447"]
+    connect: list[Endpoint] = []
+    multicast_scouting: StrictBool = False
+
+
+class CanSpec(_Model):
+    """Frame layout of a CAN joystick: three signed 16-bit axes, little-endian, and a
+    button byte, in one frame of ``arbitration_id``; ``scale`` maps raw counts to [-1, 1]."""
+
+    arbitration_id: Annotated[int, Strict(), Field(ge=0, le=0x1FFFFFFF)] = 0x100
+    axis_offsets: tuple[int, int, int] = (0, 2, 4)
+    button_offset: Annotated[int, Field(ge=0, le=63)] = 6
+    scale: Annotated[float, Strict(), Field(gt=0)] = 32767.0
+    invert: tuple[StrictBool, StrictBool, StrictBool] = (False, False, False)
+
+
+class ProfileSpec(_Model):
+    schema_version: Literal[1]
+    name: Name
+    robot: Name
+    adapter: Literal["sim", "sawyer"]
+    description: str = ""
+    control: ControlSpec = ControlSpec()
+    workspace: WorkspaceBox = WorkspaceBox()
+    sim: SimSpec = SimSpec()
+    sawyer: SawyerSpec = SawyerSpec()
+    transport: TransportSpec = TransportSpec()
+    can: CanSpec = CanSpec()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ProfileSpec:
+        if self.control.assist_speed < self.control.v_max / 10:
+            raise field_error(("control", "assist_speed"), "implausibly slow next to v_max")
+        if self.control.deadman_timeout < 1.0 / self.control.rate_hz:
+            raise field_error(
+                ("control", "deadman_timeout"),
+                f"shorter than one control period ({1.0 / self.control.rate_hz:g} s)",
+            )
+        return self
+
+
+def load_profile(path: Path) -> ProfileSpec:
+    """Read and validate a hardware profile; errors name the file and the field."""
+    return validate(ProfileSpec, read_toml(path), str(path))

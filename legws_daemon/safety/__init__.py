@@ -1,0 +1,1 @@
+"""Safety decisions, pure and tested: the envelope every command passes through."""
