@@ -1,0 +1,127 @@
+"""Messages on the wire (zenoh payloads): JSON with a schema version, validated on receipt.
+
+Keys live under ``legws/<robot>/``: ``joystick`` (in), ``status`` and ``events`` (out),
+``command`` (a queryable). A payload that does not validate is rejected with an
+:class:`~legws_daemon.errors.InputError` naming the field; for the joystick a rejected
+message counts as no input (the deadman then stops the robot), never as a guess.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Annotated, Any, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.validation import Finite, Quat, Vec3, field_error, validate
+
+SCHEMA_VERSION = 1
+#: Largest payload accepted, bytes: a joystick or command message is a few hundred.
+MAX_PAYLOAD = 64 * 1024
+
+Axis = Annotated[float, Strict(), Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+Seq = Annotated[int, Strict(), Field(ge=0, le=2**63 - 1)]
+Label = Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    schema_: Literal[1] = Field(alias="schema")
+
+
+class Buttons(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cancel: StrictBool = False  # give control back to the user during assistance
+    confirm: StrictBool = False
+
+
+class JoystickMessage(_Message):
+    """A joystick sample: deflection ``axes`` (x, y, z in the robot base frame), |axes| <= 1."""
+
+    seq: Seq
+    stamp: Finite  # sender's clock, s (for logs; staleness uses the receive time)
+    axes: tuple[Axis, Axis, Axis]
+    buttons: Buttons = Buttons()
+    source: Label = "unknown"
+
+    @model_validator(mode="after")
+    def _norm(self) -> JoystickMessage:
+        norm = math.sqrt(sum(a * a for a in self.axes))
+        if norm > 1.0 + 1e-6:
+            raise field_error(("axes",), f"deflection must have norm <= 1, got {norm:.4f}")
+        return self
+
+
+class Pose(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    position: Vec3
+    quaternion: Quat
+
+
+class StatusMessage(_Message):
+    robot: Label
+    seq: Seq
+    stamp: Finite
+    mode: Literal["idle", "teleop", "assist", "stopped", "fault"]
+    stage: Label | None = None
+    posterior: dict[Label, Annotated[float, Field(ge=0.0, le=1.0)]] = {}
+    committed: Label | None = None
+    ee: Pose | None = None
+    certificate: Finite | None = None
+    adapter: Label
+    fallback: StrictBool = False
+    fault: str | None = None
+
+
+class EventMessage(_Message):
+    robot: Label
+    seq: Seq
+    stamp: Finite
+    kind: Literal["commit", "cancel", "stage_done", "fault", "recovered", "fallback", "warning"]
+    detail: dict[str, Any] = {}
+
+
+class CommandRequest(_Message):
+    command: Literal["status", "reset", "stop", "load_scene", "load_taskgraph"]
+    argument: Label | None = None
+
+    @model_validator(mode="after")
+    def _argument(self) -> CommandRequest:
+        needs = self.command in ("load_scene", "load_taskgraph")
+        if needs and self.argument is None:
+            raise field_error(("argument",), f"'{self.command}' needs an argument")
+        if not needs and self.argument is not None:
+            raise field_error(("argument",), f"'{self.command}' takes no argument")
+        return self
+
+
+M = TypeVar("M", bound=_Message)
+
+
+def parse(model: type[M], payload: bytes | str, source: str) -> M:
+    """Validate one payload; any problem is an :class:`InputError` naming the field."""
+    if len(payload) > MAX_PAYLOAD:
+        raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}", source=source)
+    try:
+        data = json.loads(payload)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"not JSON: {err}", source=source) from None
+    except RecursionError:
+        raise InputError("not JSON: nested too deeply", source=source) from None
+    if isinstance(data, dict) and data.get("schema") not in (None, SCHEMA_VERSION):
+        raise InputError(
+            f"unsupported schema {data.get('schema')!r}; this daemon speaks {SCHEMA_VERSION}",
+            source=source,
+            field="schema",
+        )
+    return validate(model, data, source)
+
+
+def dump(message: _Message) -> bytes:
+    """The wire form of a message (with its ``schema`` field)."""
+    return message.model_dump_json(by_alias=True).encode()
