@@ -1,0 +1,1 @@
+"""Transport: zenoh sessions and keys."""
