@@ -13,11 +13,11 @@ from legws_daemon.core.certificate import Certificate, certify
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.montecarlo import CONFIDENCE, GoalAccuracy, monte_carlo
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
-from legws_daemon.errors import InputError
+from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.formats.layout_file import dump_json, load_layout
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.scene.constraints import LayoutConstraints
+from legws_daemon.scene.constraints import require_feasible
 
 
 def certificate_report(
@@ -158,10 +158,7 @@ def certify_cmd(
     if scene is not None:
         sc = load_scene(scene)
         layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
-        problems = LayoutConstraints.of(sc).problems(sc.poses(layout))
-        if problems:
-            where = str(layout_file) if layout_file else sc.source
-            raise InputError(f"infeasible layout: {problems[0]}", source=where)
+        require_feasible(sc, layout, str(layout_file) if layout_file else sc.source)
         goals = sc.goal_set(layout)
         params = Params()
         source = f"scene {sc.name} ({layout_file or 'default layout'})"
@@ -184,8 +181,5 @@ def certify_cmd(
         }
     report = certificate_report(cert, params, mc, settings, source)
     if export_goals is not None:
-        try:
-            export_goals.write_text(dump_json(goalset_to_data(goals, params)), encoding="utf-8")
-        except OSError as err:
-            raise InputError(f"cannot write: {err.strerror}", source=str(export_goals)) from None
+        write_atomic(export_goals, dump_json(goalset_to_data(goals, params)).encode())
     click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))

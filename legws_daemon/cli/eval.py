@@ -62,9 +62,10 @@ def eval_cmd(
     """
     from tqdm import tqdm
 
+    from legws_daemon.formats.files import write_atomic
     from legws_daemon.formats.layout_file import load_layout
     from legws_daemon.scene.catalog import load_scene
-    from legws_daemon.scene.constraints import LayoutConstraints
+    from legws_daemon.scene.constraints import require_feasible
     from legws_daemon.sim.evaluate import markdown, random_layouts, run_eval
 
     scene = load_scene(scene_name)
@@ -73,14 +74,7 @@ def eval_cmd(
     if kind == "random":
         layouts = random_layouts(scene, int(items[0]), seed)
     else:
-        cons = LayoutConstraints.of(scene)
-        layouts = []
-        for item in items:
-            layout = load_layout(Path(item), scene)
-            problems = cons.problems(scene.poses(layout))
-            if problems:
-                raise InputError(f"infeasible layout: {problems[0]}", source=item)
-            layouts.append(layout)
+        layouts = [require_feasible(scene, load_layout(Path(i), scene), i) for i in items]
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     with tqdm(total=len(layouts), desc=f"eval {scene.name}", unit="layout", disable=quiet) as bar:
@@ -89,15 +83,8 @@ def eval_cmd(
         )
     text = markdown(report)
     if out_dir is not None:
-        _write(out_dir / "eval.json", json.dumps(report, indent=2, allow_nan=False) + "\n")
-        _write(out_dir / "eval.md", text)
+        write_atomic(
+            out_dir / "eval.json", (json.dumps(report, indent=2, allow_nan=False) + "\n").encode()
+        )
+        write_atomic(out_dir / "eval.md", text.encode())
     click.echo(text)
-
-
-def _write(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as err:
-        raise InputError(f"cannot write: {err.strerror}", source=str(path)) from None

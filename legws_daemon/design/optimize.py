@@ -16,7 +16,6 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import GRID, SearchResult, search
 from legws_daemon.errors import InfeasibleError, LegwsError
+from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.formats.layout_file import dump_json, layout_to_data
 from legws_daemon.scene.scene import Layout, Scene
@@ -121,13 +121,6 @@ def heatmap_png(result: SearchResult) -> bytes:
     return buf.getvalue()
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
-
-
 def optimize(
     scene: Scene,
     out_dir: Path,
@@ -168,10 +161,8 @@ def optimize(
     result = search(problem, method, iterations, seed, progress)
     layout, rank = verify(problem, result, world, q_home)
     goals = scene.goal_set(layout, goals=problem.names)
-    _write_atomic(out_dir / "best_layout.json", dump_json(layout_to_data(layout)).encode())
-    _write_atomic(
-        out_dir / "goals.json", dump_json(goalset_to_data(goals, problem.params)).encode()
-    )
+    write_atomic(out_dir / "best_layout.json", dump_json(layout_to_data(layout)).encode())
+    write_atomic(out_dir / "goals.json", dump_json(goalset_to_data(goals, problem.params)).encode())
     # the reported objective is the certificate of the written goal set, so that
     # `legws certify goals.json` reproduces it to the last digit
     written, params = load_goalset(out_dir / "goals.json")
@@ -195,8 +186,8 @@ def optimize(
         writer = csv.DictWriter(buf, fieldnames=list(result.table[0]))
         writer.writeheader()
         writer.writerows(result.table)
-    _write_atomic(out_dir / "archive.csv", buf.getvalue().encode())
-    _write_atomic(out_dir / "archive.png", heatmap_png(result))
+    write_atomic(out_dir / "archive.csv", buf.getvalue().encode())
+    write_atomic(out_dir / "archive.png", heatmap_png(result))
     if render:
         try:
             from legws_daemon.sim.render import render_layout, save_png
@@ -204,7 +195,7 @@ def optimize(
             save_png(render_layout(scene, layout, 800, 600, "top"), out_dir / "best_layout.png")
         except LegwsError as err:  # no GL here: the numbers still stand
             summary["render_error"] = str(err)
-    _write_atomic(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    write_atomic(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
     if use_cache:
         cached.mkdir(parents=True, exist_ok=True)
         for f in out_dir.iterdir():

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
-from legws_daemon.errors import InfeasibleError
+from legws_daemon.errors import InfeasibleError, InputError
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 
 
@@ -161,3 +161,12 @@ class LayoutConstraints:
     def from_layout(self, layout: Layout) -> FloatArray:
         """A :data:`Layout` as a ``(K, 3)`` array in ``self.names`` order."""
         return np.array([[layout[n].x, layout[n].y, layout[n].yaw] for n in self.names])
+
+
+def require_feasible(scene: Scene, layout: Layout, source: str) -> Layout:
+    """``layout`` if the scene's objects satisfy every constraint with it, else an
+    :class:`InputError` naming ``source`` and the first violation."""
+    problems = LayoutConstraints.of(scene).problems(scene.poses(layout))
+    if problems:
+        raise InputError(f"infeasible layout: {problems[0]}", source=source)
+    return layout

@@ -45,10 +45,9 @@ robot description, the gripper, the table, the IK seeds, the tolerances and the 
 from __future__ import annotations
 
 import hashlib
+import io
 import itertools
 import json
-import os
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
@@ -61,6 +60,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
+from legws_daemon.formats.files import write_atomic
 from legws_daemon.scene.grasps import GRASP_KINDS, SIDE_MIN_HEIGHT, derive_grasp
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.sim.assets import assets_dir, sawyer_dir
@@ -328,21 +328,15 @@ class ReachabilityMap:
             "build_seconds": self.build_seconds,
         }
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez_compressed(
-                    f,
-                    meta=np.array(json.dumps(meta)),
-                    top=self.top,
-                    side=self.side,
-                    side_flipped=self.side_flipped,
-                )
-            os.chmod(tmp, 0o644)  # mkstemp makes it private; the cache is shared
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        buf = io.BytesIO()
+        np.savez_compressed(
+            buf,
+            meta=np.array(json.dumps(meta)),
+            top=self.top,
+            side=self.side,
+            side_flipped=self.side_flipped,
+        )
+        write_atomic(path, buf.getvalue())
 
     @staticmethod
     def load(path: Path, grid: ReachabilityGrid, key: str | None = None) -> ReachabilityMap:

@@ -14,8 +14,8 @@ line instead of an import-time traceback.
 
 from __future__ import annotations
 
+import io
 import os
-import secrets
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -25,6 +25,7 @@ from typing import Any, Literal
 import numpy as np
 
 from legws_daemon.errors import LegwsError
+from legws_daemon.formats.files import write_atomic
 from legws_daemon.scene.scene import ObjectPose, Scene
 
 View = Literal["top", "perspective"]
@@ -279,12 +280,6 @@ def save_png(image: np.ndarray, path: str | Path) -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
-    try:
-        with tmp.open("xb") as out:  # mode 0666 less the umask, like any new file
-            Image.fromarray(np.asarray(image, dtype=np.uint8)).save(out, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buf, format="PNG")
+    return write_atomic(path, buf.getvalue())
