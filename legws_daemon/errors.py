@@ -23,3 +23,14 @@ class InputError(LegwsError):
 
 class InfeasibleError(LegwsError):
     """A request that cannot be satisfied, e.g. no layout meets the constraints."""
+
+
+class HardwareError(LegwsError):
+    """The robot or its bridge failed: stale state, lost heartbeat, a refused command.
+
+    The daemon answers with a safe stop and a fault event; it keeps publishing status.
+    """
+
+
+class BridgeTimeout(HardwareError):
+    """The robot-side bridge did not answer within the profile's ``bridge_timeout``."""

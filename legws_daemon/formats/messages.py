@@ -67,7 +67,7 @@ class StatusMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
-    mode: Literal["idle", "teleop", "assist", "stopped", "fault"]
+    mode: Literal["idle", "teleop", "assist", "stopped", "fault", "starting"]
     stage: Label | None = None
     posterior: dict[Label, Annotated[float, Field(ge=0.0, le=1.0)]] = {}
     committed: Label | None = None
@@ -76,13 +76,33 @@ class StatusMessage(_Message):
     adapter: Label
     fallback: StrictBool = False
     fault: str | None = None
+    phase: Label | None = None  # step of the assisted action
+    gripper_closed: StrictBool = False
+    deadman: StrictBool = False  # no valid joystick input within the timeout: zero velocity
+    tick: Seq = 0
+    overruns: Seq = 0  # control ticks that ran past their period
+    rejected: Seq = 0  # joystick messages that did not validate
+    slack: Finite | None = None  # certificate seen from the current EE pose
 
 
 class EventMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
-    kind: Literal["commit", "cancel", "stage_done", "fault", "recovered", "fallback", "warning"]
+    kind: Literal[
+        "commit",
+        "cancel",
+        "stage_done",
+        "fault",
+        "recovered",
+        "fallback",
+        "warning",
+        "reset",
+        "stop",
+        "loaded",
+        "started",
+        "shutdown",
+    ]
     detail: dict[str, Any] = {}
 
 

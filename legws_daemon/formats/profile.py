@@ -9,11 +9,13 @@ only, multicast scouting off.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
 
+from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import (
     Coordinate,
     Name,
@@ -115,3 +117,21 @@ class ProfileSpec(_Model):
 def load_profile(path: Path) -> ProfileSpec:
     """Read and validate a hardware profile; errors name the file and the field."""
     return validate(ProfileSpec, read_toml(path), str(path))
+
+
+def profiles_dir() -> Path:
+    """The repository's ``hw_profiles/`` folder, or ``$LEGWS_PROFILES``."""
+    env = os.environ.get("LEGWS_PROFILES")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "hw_profiles"
+
+
+def load_profile_named(name_or_path: str | Path) -> ProfileSpec:
+    """A profile by name (``sim`` -> ``hw_profiles/sim.toml``) or from a ``.toml`` path."""
+    text = str(name_or_path)
+    if text.endswith(".toml") or os.sep in text:
+        return load_profile(Path(text))
+    path = profiles_dir() / f"{text}.toml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in profiles_dir().glob("*.toml"))) or "(none)"
+        raise InputError(f"unknown hardware profile '{text}'; known: {known}", field="profile")
+    return load_profile(path)

@@ -1,44 +1,50 @@
-"""The ``sim`` adapter: the MuJoCo Sawyer stand-in, paced to real time or as fast as possible."""
+"""The ``sim`` adapter: the MuJoCo Sawyer stand-in.
+
+Commands move the arm through its differential kinematics (joint speed and position
+limits respected). The daemon's loop timer paces it to real time (or runs it as fast as
+possible when the profile says ``sim.realtime = false``). The gripper is kinematic: closing
+it attaches the object between the fingers, which then follows the hand until it opens.
+"""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 
 import numpy as np
+import zenoh
 
-from legws_daemon.core.geometry import FloatArray, matrix_to_quat
+from legws_daemon.core.geometry import FloatArray, matrix_to_quat, quat_to_matrix
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
-from legws_daemon.scene.scene import Scene
+from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.sim.kinematics import home_configuration, small_rotation_error, velocity_step
 from legws_daemon.sim.world import World
 
 #: Gain holding the EE orientation, 1/s.
 ORIENTATION_GAIN = 2.0
+#: Closing the gripper grasps an object whose centre is this close to the grasp point, m.
+GRASP_REACH = 0.05
 
 
 @register("sim")
 class SimAdapter(Adapter):
-    """The stand-in: commands move the arm through its differential kinematics.
+    """The stand-in; the arm starts at the scene's EE home, objects at the scene's layout."""
 
-    Args:
-        profile: the hardware profile (``sim.realtime`` paces commands to the wall clock).
-        scene: the scene whose table and objects surround the arm; the arm starts at the
-            scene's EE home.
-    """
-
-    def __init__(self, profile: ProfileSpec, scene: Scene) -> None:
-        super().__init__(profile)
-        self.scene = scene
+    def __init__(
+        self, profile: ProfileSpec, scene: Scene, session: zenoh.Session | None = None
+    ) -> None:
+        super().__init__(profile, scene, session)
         self.world: World | None = None
-        self._next_tick = 0.0
+        self.held: str | None = None
+        self._grip_offset: tuple[FloatArray, FloatArray] | None = None
+        self._closed = False
 
     def connect(self) -> None:
         world = World(self.scene)
         home_configuration(world, self.scene.home.position, self.scene.home.rotation)
         self.world = world
-        self._next_tick = time.monotonic()
 
     def disconnect(self) -> None:
         self.world = None
@@ -50,20 +56,63 @@ class SimAdapter(Adapter):
 
     def read_state(self) -> RobotState:
         w = self._world()
-        return RobotState(w.q, w.ee_position(), matrix_to_quat(w.ee_rotation()), time.monotonic())
+        return RobotState(
+            w.q, w.ee_position(), matrix_to_quat(w.ee_rotation()), time.monotonic(), self._closed
+        )
 
     def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
         w = self._world()
-        if np.any(velocity):
+        if np.any(velocity) or hold is not None:
             R = w.ee_rotation()
             target = R if hold is None else np.asarray(hold, dtype=np.float64)
-            twist = np.concatenate([velocity, ORIENTATION_GAIN * small_rotation_error(R, target)])
-            velocity_step(w, twist, self.dt)
-        # a zero command moves nothing: no orientation correction, no null-space drift
-        if self.profile.sim.realtime:
-            self._next_tick += self.dt
-            delay = self._next_tick - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                self._next_tick = time.monotonic()
+            rot = ORIENTATION_GAIN * small_rotation_error(R, target)
+            if np.any(velocity) or float(rot @ rot) > 1e-10:
+                velocity_step(w, np.concatenate([velocity, rot]), self.dt)
+        # a zero command without an orientation target moves nothing (no null-space drift)
+        self._carry()
+
+    def grip(self, closed: bool) -> None:
+        w = self._world()
+        if closed and not self._closed:
+            self._closed = True
+            p, R = w.ee_position(), w.ee_rotation()
+            best, best_d = None, GRASP_REACH
+            for name in self.scene.objects:
+                pos, quat = w.object_pose(name)
+                d = float(np.linalg.norm(pos - p))
+                if d < best_d:
+                    best, best_d = name, d
+            if best is not None:
+                pos, quat = w.object_pose(best)
+                self.held = best
+                # the object's pose in the grasp frame
+                self._grip_offset = (R.T @ (pos - p), R.T @ quat_to_matrix(quat))
+        elif not closed and self._closed:
+            self._closed = False
+            self.held = None
+            self._grip_offset = None
+
+    def _carry(self) -> None:
+        if self.held is None or self._grip_offset is None:
+            return
+        w = self._world()
+        p, R = w.ee_position(), w.ee_rotation()
+        offset_p, offset_R = self._grip_offset
+        w.set_object_pose(self.held, p + R @ offset_p, matrix_to_quat(R @ offset_R))
+
+    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        w = self._world()
+        return {name: w.object_pose(name) for name in self.scene.objects}
+
+    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
+        w = self._world()
+        if self.held in layout:
+            self.grip(False)
+        w.set_layout(layout)
+        return True
+
+    def link_poses(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        w = self._world()
+        if not np.array_equal(q, w.q):
+            return super().link_poses(q)
+        return w.link_poses()

@@ -172,6 +172,7 @@ class World:
             name: int(m.body_mocapid[m.body(f"obj/{name}").id]) for name in scene.objects
         }
         self._object_of_body = {m.body(f"obj/{n}").id: n for n in scene.objects}
+        self._link_ids = np.array(sorted(robot_bodies))
         self._jacp = np.zeros((3, m.nv))
         self._jacr = np.zeros((3, m.nv))
         # the arm's dofs are the model's only dofs, in order: plain slices, no fancy indexing
@@ -192,6 +193,17 @@ class World:
             self.data.mocap_quat[i] = [np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]
         mujoco.mj_kinematics(self.model, self.data)
 
+    def object_pose(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """Position and quaternion ``[w, x, y, z]`` of an object's body."""
+        i = self._mocap[name]
+        return np.array(self.data.mocap_pos[i]), np.array(self.data.mocap_quat[i])
+
+    def set_object_pose(self, name: str, position: ArrayLike, quaternion: ArrayLike) -> None:
+        """Move one object freely (e.g. while it is held); kinematics is not updated."""
+        i = self._mocap[name]
+        self.data.mocap_pos[i] = position
+        self.data.mocap_quat[i] = quaternion
+
     # --- arm state ----------------------------------------------------------------
     @property
     def q(self) -> FloatArray:
@@ -211,6 +223,14 @@ class World:
 
     def ee_pose(self) -> Pose:
         return Pose(self.ee_position(), matrix_to_quat(self.ee_rotation()))
+
+    def link_poses(self, q: ArrayLike | None = None) -> tuple[FloatArray, FloatArray]:
+        """Origins ``(K, 3)`` and rotations ``(K, 3, 3)`` of the arm's bodies, base first
+        (at ``q`` if given — the arm is then left there — else at the current state)."""
+        if q is not None:
+            self.set_q(q)
+        ids = self._link_ids
+        return np.array(self.data.xpos[ids]), np.array(self.data.xmat[ids]).reshape(-1, 3, 3)
 
     def jacobian(self) -> FloatArray:
         """``(6, 7)`` EE Jacobian: linear rows then angular rows, world frame."""

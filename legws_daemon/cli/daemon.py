@@ -1,0 +1,106 @@
+"""``legws daemon``: run the deployment daemon on a hardware profile."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import ExitStack
+from pathlib import Path
+from types import FrameType
+
+import click
+
+from legws_daemon.core.params import COST_FORMS, CostForm, Params
+from legws_daemon.formats.layout_file import load_layout
+from legws_daemon.formats.profile import load_profile_named
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.constraints import require_feasible
+from legws_daemon.transport.session import config_from_file, config_from_spec
+
+
+def install_stop_handlers(stop: threading.Event) -> None:
+    """SIGINT and SIGTERM set ``stop`` (the loop ends within one period)."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+@click.command("daemon")
+@click.option(
+    "--profile",
+    default="sim",
+    show_default=True,
+    help="Hardware profile: a name in hw_profiles/ or a .toml path.",
+)
+@click.option("--scene", default="desk", show_default=True, help="Scene name or .toml path.")
+@click.option(
+    "--layout",
+    "layout_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Layout JSON of the scene (e.g. from legws optimize); default: the scene's.",
+)
+@click.option(
+    "--rerun",
+    "rerun_target",
+    metavar="save:PATH|spawn|connect:URL",
+    help="Stream to Rerun: a .rrd file, a spawned viewer, or a running viewer.",
+)
+@click.option(
+    "--zenoh-config",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="zenoh JSON5 configuration for a real network (default: the profile's loopback).",
+)
+@click.option("--cost", type=click.Choice(COST_FORMS), help="Observer cost form (default dragan).")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="Stop after this many seconds (default: run until SIGINT/SIGTERM).",
+)
+@click.option(
+    "--trace",
+    "trace_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Write one JSON line per tick: timing, the joystick sample used, when the command left.",
+)
+def daemon_cmd(
+    profile: str,
+    scene: str,
+    layout_file: Path | None,
+    rerun_target: str | None,
+    zenoh_config: Path | None,
+    cost: CostForm | None,
+    duration: float | None,
+    trace_file: Path | None,
+) -> int:
+    """Run the shared-autonomy daemon: joystick over zenoh in, the robot out.
+
+    Publishes status on legws/<robot>/status, events on legws/<robot>/events, answers
+    commands on legws/<robot>/command. SIGINT/SIGTERM stop the robot and exit 0.
+    """
+    from legws_daemon.daemon.service import DaemonConfig, DaemonService, Telemetry
+
+    spec = load_profile_named(profile)
+    sc = load_scene(scene)
+    layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
+    require_feasible(sc, layout, str(layout_file) if layout_file else sc.source)
+    params = Params(v_max=spec.control.v_max, dt=1.0 / spec.control.rate_hz)
+    if cost is not None:
+        params = params.with_cost(cost)
+    zcfg = config_from_file(zenoh_config) if zenoh_config else config_from_spec(spec.transport)
+    stop = threading.Event()
+    install_stop_handlers(stop)
+    with ExitStack() as stack:
+        telemetry: Telemetry | None = None
+        if rerun_target is not None:
+            from legws_daemon.telemetry.rerun_log import RerunLog
+
+            telemetry = RerunLog(rerun_target, robot=spec.robot)
+            stack.callback(telemetry.close)
+        trace = stack.enter_context(trace_file.open("w")) if trace_file else None
+        config = DaemonConfig(
+            spec, sc, layout, params, zcfg, telemetry=telemetry, duration=duration, trace=trace
+        )
+        return DaemonService(config).run(stop)

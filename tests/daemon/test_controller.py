@@ -1,0 +1,247 @@
+"""The controller on the real MuJoCo stand-in: commit, assistance, deadman, cancel, faults."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from legws_daemon.core.params import Params
+from legws_daemon.daemon.assist import CANCEL_SECONDS, LIFT_HEIGHT
+from legws_daemon.daemon.controller import Controller
+from legws_daemon.daemon.inbox import JoystickInbox, Sample
+from legws_daemon.errors import HardwareError, InputError
+from legws_daemon.formats.messages import CommandRequest
+from legws_daemon.formats.profile import ProfileSpec, load_profile
+from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import Scene
+
+PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
+
+
+class FlakyAdapter(SimAdapter):
+    """The stand-in with a switch that makes the hardware fail (the hardware edge)."""
+
+    failing = False
+
+    def read_state(self):  # type: ignore[no-untyped-def]
+        if self.failing:
+            raise HardwareError("bridge heartbeat lost")
+        return super().read_state()
+
+    def _command(self, velocity, hold):  # type: ignore[no-untyped-def]
+        if self.failing:
+            raise HardwareError("command refused")
+        super()._command(velocity, hold)
+
+
+@pytest.fixture(scope="module")
+def profile() -> ProfileSpec:
+    p = load_profile(PROFILE)
+    return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
+
+
+@pytest.fixture(scope="module")
+def desk() -> Scene:
+    return load_scene("desk")
+
+
+class Rig:
+    """A controller, an event log and a joystick."""
+
+    def __init__(self, profile: ProfileSpec, scene: Scene) -> None:
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        self.inbox = JoystickInbox()
+        self.seq = 0
+        self.now = 0.0
+
+        def make(sc: Scene) -> FlakyAdapter:
+            a = FlakyAdapter(profile, sc)
+            a.connect()
+            return a
+
+        self.c = Controller(
+            profile,
+            scene,
+            scene.default_layout(),
+            make,
+            Params(v_max=profile.control.v_max, dt=1 / profile.control.rate_hz),
+            lambda k, d: self.events.append((k, d)),
+        )
+
+    @property
+    def adapter(self) -> FlakyAdapter:
+        a = self.c.adapter
+        assert isinstance(a, FlakyAdapter)
+        return a
+
+    def sample(self, axes: Any, **buttons: bool) -> Sample:
+        self.seq += 1
+        self.now += 0.05
+        msg = {"schema": 1, "seq": self.seq, "stamp": 0.0, "axes": list(axes), "source": "t"}
+        if buttons:
+            msg["buttons"] = buttons
+        s = self.inbox.offer(json.dumps(msg).encode(), self.now)
+        assert s is not None
+        return s
+
+    def toward(self, goal: str) -> Sample:
+        g = self.c.stage.goals_home
+        d = g.positions[g.index(goal)] - self.adapter.read_state().ee_position
+        return self.sample(d / max(np.linalg.norm(d), 1e-9))
+
+    def kinds(self) -> list[str]:
+        return [k for k, _ in self.events]
+
+    def drive_to_commit(self, goal: str, limit: int = 600) -> None:
+        for _ in range(limit):
+            self.c.tick(self.toward(goal))
+            if self.c.mode != "teleop":
+                return
+        raise AssertionError("no commit")
+
+
+@pytest.fixture
+def rig(profile: ProfileSpec, desk: Scene) -> Iterator[Rig]:
+    r = Rig(profile, desk)
+    yield r
+    r.c.shutdown()
+
+
+def test_commits_on_the_goal_driven_to_and_picks_it(rig: Rig) -> None:
+    goal = "white_mug"
+    z0 = rig.adapter.object_poses()[goal][0][2]
+    rig.drive_to_commit(goal)
+    assert rig.c.mode == "assist"
+    kind, detail = rig.events[-1]
+    assert kind == "commit"
+    assert detail["goal"] == goal
+    assert detail["p"] >= 0.9
+    assert detail["confirmed"] is False
+    for _ in range(1000):
+        rig.c.tick(rig.sample([0.0, 0.0, 0.0]))  # hands off, dead-man held
+        if rig.c.mode != "assist":
+            break
+    assert rig.c.mode == "idle"
+    assert rig.kinds()[-1] == "stage_done"
+    assert rig.adapter.held == goal
+    z1 = rig.adapter.object_poses()[goal][0][2]
+    assert z1 - z0 == pytest.approx(LIFT_HEIGHT, abs=0.01)
+    # idle: the robot holds still whatever the stick says
+    p = rig.adapter.read_state().ee_position
+    rec = rig.c.tick(rig.sample([1.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(rec.command, 0.0)
+    np.testing.assert_array_equal(rig.adapter.read_state().ee_position, p)
+
+
+def test_deadman_no_input_moves_nothing_in_teleop_and_pauses_assistance(rig: Rig) -> None:
+    q0 = rig.adapter.read_state().q
+    for _ in range(10):
+        rec = rig.c.tick(None)
+        np.testing.assert_array_equal(rec.command, 0.0)
+    np.testing.assert_array_equal(rig.adapter.read_state().q, q0)
+    rig.drive_to_commit("maroon_pen_cup")
+    for _ in range(5):
+        rig.c.tick(rig.sample([0.0, 0.0, 0.0]))
+    q1 = rig.adapter.read_state().q
+    phase = rig.c.assistant.phase if rig.c.assistant else None
+    for _ in range(20):
+        rec = rig.c.tick(None)
+        np.testing.assert_array_equal(rec.command, 0.0)
+    np.testing.assert_array_equal(rig.adapter.read_state().q, q1)
+    assert rig.c.mode == "assist"
+    assert rig.c.assistant is not None
+    assert rig.c.assistant.phase == phase
+
+
+def test_cancel_button_returns_control_and_restarts_inference(rig: Rig) -> None:
+    rig.drive_to_commit("white_mug")
+    rig.c.tick(rig.sample([0.0, 0.0, 0.0]))
+    rig.c.tick(rig.sample([0.0, 0.0, 0.0], cancel=True))
+    assert rig.c.mode == "teleop"
+    assert rig.c.committed is None
+    assert rig.kinds()[-1] == "cancel"
+    assert rig.events[-1][1]["reason"] == "button"
+    post = list(rig.c.posterior().values())
+    assert post == pytest.approx([1 / len(post)] * len(post))
+    # inference resumes from where the arm is now
+    assert rig.c.observer is not None
+    np.testing.assert_allclose(
+        rig.c.observer.goals.x0.position, rig.adapter.read_state().ee_position
+    )
+
+
+def test_holding_the_stick_against_the_motion_cancels(rig: Rig) -> None:
+    rig.drive_to_commit("white_mug")
+    rig.c.tick(rig.sample([0.0, 0.0, 0.0]))  # the plan starts moving
+    a = rig.c.assistant
+    assert a is not None
+    back = -rig.c._last_assist_v / np.linalg.norm(rig.c._last_assist_v)
+    ticks = 0
+    while rig.c.mode == "assist" and ticks < 100:
+        rig.c.tick(rig.sample(0.9 * back))
+        ticks += 1
+    assert rig.c.mode == "teleop"
+    assert rig.events[-1] == ("cancel", rig.events[-1][1])
+    assert rig.events[-1][1]["reason"] == "opposed"
+    assert ticks * rig.c.dt >= CANCEL_SECONDS - 1e-9
+
+
+def test_confirm_commits_the_most_likely_goal(rig: Rig) -> None:
+    for _ in range(10):
+        rig.c.tick(rig.toward("black_stapler"))
+    rig.c.tick(rig.sample([0.0, 0.0, 0.0], confirm=True))
+    assert rig.c.mode == "assist"
+    kind, detail = rig.events[-1]
+    assert kind == "commit"
+    assert detail["confirmed"] is True
+    assert detail["goal"] == max(detail["posterior"], key=detail["posterior"].get)
+
+
+def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:
+    for _ in range(5):
+        rig.c.tick(rig.toward("white_mug"))
+    rig.adapter.failing = True
+    for _ in range(5):
+        rec = rig.c.tick(rig.sample([0.5, 0.0, 0.0]))
+        np.testing.assert_array_equal(rec.command, 0.0)
+    assert rig.c.mode == "fault"
+    assert rig.kinds().count("fault") == 1
+    assert "heartbeat" in (rig.c.fault or "")
+    with pytest.raises(HardwareError):
+        rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), load_scene)
+    rig.adapter.failing = False
+    rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), load_scene)
+    for _ in range(1000):
+        rig.c.tick(rig.sample([0.0, 0.0, 0.0]))
+        if rig.c.mode == "teleop":
+            break
+    assert rig.c.mode == "teleop"
+    assert rig.kinds()[-1] == "recovered"
+    np.testing.assert_allclose(
+        rig.adapter.read_state().ee_position, rig.c.scene.home.position, atol=0.005
+    )
+
+
+def test_stop_holds_until_reset_and_load_scene_swaps(rig: Rig) -> None:
+    req = CommandRequest.model_validate
+    rig.c.command(req({"schema": 1, "command": "stop"}), load_scene)
+    p = rig.adapter.read_state().ee_position
+    for _ in range(5):
+        rec = rig.c.tick(rig.sample([1.0, 0.0, 0.0]))
+        np.testing.assert_array_equal(rec.command, 0.0)
+    np.testing.assert_array_equal(rig.adapter.read_state().ee_position, p)
+    assert rig.c.mode == "stopped"
+    out = rig.c.command(
+        req({"schema": 1, "command": "load_scene", "argument": "breakfast_easy"}), load_scene
+    )
+    assert out["scene"] == "breakfast_easy"
+    assert rig.c.mode == "teleop"
+    assert set(rig.c.posterior()) == set(load_scene("breakfast_easy").goal_names)
+    with pytest.raises(InputError):
+        rig.c.command(req({"schema": 1, "command": "load_scene", "argument": "nope"}), load_scene)
