@@ -32,5 +32,5 @@ class HardwareError(LegwsError):
     """
 
 
-class BridgeTimeout(HardwareError):
+class BridgeTimeoutError(HardwareError):
     """The robot-side bridge did not answer within the profile's ``bridge_timeout``."""

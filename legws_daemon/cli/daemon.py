@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 from contextlib import ExitStack
@@ -12,7 +13,8 @@ import click
 
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.formats.layout_file import load_layout
-from legws_daemon.formats.profile import load_profile_named
+from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
 from legws_daemon.transport.session import config_from_file, config_from_spec
@@ -53,6 +55,11 @@ def install_stop_handlers(stop: threading.Event) -> None:
     type=click.Path(path_type=Path, dir_okay=False),
     help="zenoh JSON5 configuration for a real network (default: the profile's loopback).",
 )
+@click.option(
+    "--rate",
+    type=click.FloatRange(min=1.0, max=1000.0),
+    help="Control rate, Hz (default: the profile's; the deadman stays the profile's).",
+)
 @click.option("--cost", type=click.Choice(COST_FORMS), help="Observer cost form (default dragan).")
 @click.option(
     "--duration",
@@ -71,6 +78,7 @@ def daemon_cmd(
     layout_file: Path | None,
     rerun_target: str | None,
     zenoh_config: Path | None,
+    rate: float | None,
     cost: CostForm | None,
     duration: float | None,
     trace_file: Path | None,
@@ -82,7 +90,14 @@ def daemon_cmd(
     """
     from legws_daemon.daemon.service import DaemonConfig, DaemonService, Telemetry
 
+    logging.basicConfig(level=logging.INFO, format="legws daemon: %(message)s", force=True)
+
     spec = load_profile_named(profile)
+    if rate is not None:
+        control = spec.control.model_copy(update={"rate_hz": rate})
+        spec = validate(
+            ProfileSpec, {**spec.model_dump(), "control": control.model_dump()}, "--rate"
+        )
     sc = load_scene(scene)
     layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
     require_feasible(sc, layout, str(layout_file) if layout_file else sc.source)

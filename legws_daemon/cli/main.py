@@ -14,11 +14,15 @@ import click
 
 from legws_daemon import __version__
 from legws_daemon.cli.assets import assets_cmd
+from legws_daemon.cli.bridge import bridge_group
 from legws_daemon.cli.certify import certify_cmd
+from legws_daemon.cli.daemon import daemon_cmd
 from legws_daemon.cli.eval import eval_cmd
+from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
 from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.scenes import scenes_cmd
+from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.errors import LegwsError
 
 EXIT_BAD_INPUT = 2
@@ -36,6 +40,10 @@ cli.add_command(render_cmd)
 cli.add_command(scenes_cmd)
 cli.add_command(eval_cmd)
 cli.add_command(optimize_cmd)
+cli.add_command(daemon_cmd)
+joystick_group.add_command(sim_user_cmd)
+cli.add_command(joystick_group)
+cli.add_command(bridge_group)
 
 
 def _fail(message: str) -> int:

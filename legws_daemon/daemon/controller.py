@@ -325,7 +325,7 @@ class Controller:
             self.emit("fault", {"error": reason})
         # if even this fails, the robot side's own deadman stops it when commands stop
         with contextlib.suppress(LegwsError):
-            self.adapter.stop()
+            self.adapter.halt()
 
     # --- operator commands ------------------------------------------------------------
     def command(self, request: CommandRequest, scenes: Callable[[str], Scene]) -> dict[str, Any]:
@@ -383,5 +383,5 @@ class Controller:
     def shutdown(self) -> None:
         """Zero velocity and disconnect (idempotent)."""
         with contextlib.suppress(LegwsError):
-            self.adapter.stop()
+            self.adapter.halt()
         self.adapter.disconnect()

@@ -14,6 +14,7 @@ session closed.
 from __future__ import annotations
 
 import json
+import logging
 import queue
 import threading
 import time
@@ -24,12 +25,13 @@ from typing import IO, Any, Protocol
 import numpy as np
 import zenoh
 
+import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
 from legws_daemon.daemon.ticker import Ticker
-from legws_daemon.errors import BridgeTimeout, InputError, LegwsError
+from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
@@ -43,6 +45,10 @@ from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.transport.session import keys, open_session
+
+log = logging.getLogger("legws.daemon")
+#: Rerun text-log level of each event kind (INFO when not listed).
+_SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN"}
 
 #: A command waits at most this long for the loop to carry it out, seconds.
 COMMAND_TIMEOUT = 5.0
@@ -147,12 +153,12 @@ class DaemonService:
         adapter = adapter_class(self.adapter_kind)(self.profile, scene, self._session)
         try:
             adapter.connect()
-        except BridgeTimeout as err:
+        except BridgeTimeoutError as err:
             if not self.profile.sawyer.fallback_to_sim:
                 raise
             self.fallback = True
             self.ticker.paced = True
-            self._emit("fallback", {"reason": str(err), "adapter": "sim"})
+            self._emit("fallback", {"reason": str(err), "adapter": "sim", "note": "falling back"})
             sim = SimAdapter(self.profile, scene, self._session)
             sim.connect()
             return sim
@@ -173,13 +179,15 @@ class DaemonService:
             }
         )
         self._events.append((kind, detail))
+        text = _event_text(kind, detail)
+        severity = _SEVERITY.get(kind, "INFO")
+        log.log(logging.getLevelName(severity.replace("WARN", "WARNING")), "%s", text)
         if self._event_pub is not None:
             self._event_pub.put(dump(msg))
         tel = self.config.telemetry
         if tel is not None:
-            level = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN"}.get(kind, "INFO")
             tick = self.controller.ticks if self.controller is not None else 0
-            tel.log_text(tick, time.monotonic() - self._t0, level, _event_text(kind, detail))
+            tel.log_text(tick, time.monotonic() - self._t0, severity, text)
 
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
         c = self.controller
@@ -316,6 +324,15 @@ class DaemonService:
                 lambda s: self.inbox.offer(s.payload.to_bytes(), time.monotonic()),
             )
             queryable = session.declare_queryable(self.keys["command"], self._on_query)
+            log.info(
+                "robot %s on %s at %g Hz (deadman %g s); keys legws/%s/{joystick,status,events,"
+                "command}",
+                self.profile.robot,
+                "sim (fallback)" if self.fallback else controller.adapter.__class__.__name__,
+                self.profile.control.rate_hz,
+                self.profile.control.deadman_timeout,
+                self.profile.robot,
+            )
             try:
                 self._loop(stop, status_pub)
             finally:
@@ -336,6 +353,7 @@ class DaemonService:
         status_every = max(1, round(control.rate_hz / control.status_rate_hz))
         end = None if self.config.duration is None else time.monotonic() + self.config.duration
         ticker = self.ticker
+        ticker.restart()
         while not stop.is_set() and (end is None or time.monotonic() < end):
             now = ticker.begin()
             self._run_commands()
@@ -371,7 +389,7 @@ class DaemonService:
         out = self.config.trace
         if out is None:
             return
-        row = {
+        row: dict[str, Any] = {
             "tick": rec.tick,
             "work": self.ticker.last_duration,
             "begin": started,
@@ -380,8 +398,11 @@ class DaemonService:
             "stamp": rec.sample_stamp,
             "received": rec.sample_received,
             "sent": rec.command_sent,
-            "wall_sent": time.time() - (time.monotonic() - rec.command_sent),
         }
+        wall_minus_mono = time.time() - time.monotonic()
+        row["wall_sent"] = rec.command_sent + wall_minus_mono
+        if rec.sample_received is not None:
+            row["wall_received"] = rec.sample_received + wall_minus_mono
         out.write(json.dumps(row) + "\n")
 
     def _fail_pending(self) -> None:

@@ -42,6 +42,10 @@ class Ticker:
         self._next = clock()
         self._started: float | None = None
 
+    def restart(self) -> None:
+        """Start the schedule now (call right before the first tick)."""
+        self._next = self._clock()
+
     def begin(self) -> float:
         """Mark the start of a tick's work; returns the time."""
         now = self._clock()

@@ -116,6 +116,11 @@ class Adapter(ABC):
         self._command(sent, hold)
         return sent
 
+    def halt(self) -> None:
+        """Command zero velocity without reading the state first (the state may be what
+        failed); adapters that talk to a robot override it to send zero directly."""
+        self._command(np.zeros(3), None)
+
     def stop(self) -> FloatArray:
         """Send zero velocity."""
         return self.send_velocity(np.zeros(3))

@@ -1,0 +1,141 @@
+"""``legws bridge``: tools of the robot-side bridge; ``legws bridge fake`` runs a fake one.
+
+The real bridge runs on the robot's PC (``bridge/intera_bridge.py``). The fake one plays
+its part in this process (:class:`~legws_daemon.hardware.fake_bridge.FakeBridge`), so the
+``sawyer`` profile can be tried without a robot. The profile's transport normally has the
+daemon listen on a loopback endpoint; the fake bridge connects to it (its listen endpoints
+become connect endpoints) unless ``--listen``/``--connect``/``--zenoh-config`` say otherwise.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+
+import click
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
+from legws_daemon.scene.catalog import load_scene
+
+#: ``PROTOCOL/HOST:PORT``, the form of the profile's endpoints.
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/[^\s]+:\d{1,5}$")
+
+
+def bridge_transport(
+    profile: ProfileSpec, listen: tuple[str, ...], connect: tuple[str, ...]
+) -> TransportSpec:
+    """The fake bridge's transport: the profile's, turned round, or the given endpoints.
+
+    Without endpoints, the profile's listen endpoints (where the daemon listens) become
+    connect endpoints; with ``listen`` and/or ``connect``, exactly those are used.
+    """
+    for flag, endpoints in (("--listen", listen), ("--connect", connect)):
+        for endpoint in endpoints:
+            if not _ENDPOINT.match(endpoint):
+                raise InputError(
+                    f"invalid endpoint '{endpoint}'; expected PROTOCOL/HOST:PORT, "
+                    "e.g. tcp/127.0.0.1:7447",
+                    field=flag,
+                )
+    spec = profile.transport
+    if listen or connect:
+        return spec.model_copy(update={"listen": list(listen), "connect": list(connect)})
+    return spec.model_copy(update={"listen": [], "connect": [*spec.listen, *spec.connect]})
+
+
+@click.group("bridge")
+def bridge_group() -> None:
+    """The robot-side bridge (the real one is bridge/intera_bridge.py on the robot's PC)."""
+
+
+@bridge_group.command("fake")
+@click.option(
+    "--profile",
+    "profile_file",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Hardware profile (.toml): robot name (zenoh keys) and transport.",
+)
+@click.option(
+    "--scene",
+    default="desk",
+    show_default=True,
+    help="Scene name or .toml path; the arm starts at its EE home pose.",
+)
+@click.option(
+    "--zenoh-config",
+    type=click.Path(path_type=Path),
+    help="JSON5 zenoh configuration for a real network (replaces the profile's transport).",
+)
+@click.option(
+    "--listen", multiple=True, metavar="ENDPOINT", help="Listen here instead (repeatable)."
+)
+@click.option(
+    "--connect", multiple=True, metavar="ENDPOINT", help="Connect here instead (repeatable)."
+)
+@click.option(
+    "--rate",
+    type=click.FloatRange(1.0, 1000.0),
+    default=200.0,
+    show_default=True,
+    help="Integration and state publication rate, Hz.",
+)
+def fake_cmd(
+    profile_file: Path,
+    scene: str,
+    zenoh_config: Path | None,
+    listen: tuple[str, ...],
+    connect: tuple[str, ...],
+    rate: float,
+) -> None:
+    """Run a fake Sawyer bridge until SIGINT or SIGTERM.
+
+    It publishes joint states on legws/<robot>/bridge/state and integrates the joint
+    velocity commands from legws/<robot>/bridge/command (docs/bridge.md).
+    """
+    profile = load_profile(profile_file)
+    if zenoh_config is not None and (listen or connect):
+        raise InputError("--zenoh-config replaces the transport: give no --listen/--connect")
+    sc = load_scene(scene)
+
+    # zenoh, mujoco and the fake load only here: other commands never pay for them
+    from legws_daemon.transport.session import config_from_file, config_from_spec, open_session
+
+    if zenoh_config is not None:
+        config = config_from_file(zenoh_config)
+        where = str(zenoh_config)
+    else:
+        transport = bridge_transport(profile, listen, connect)
+        config = config_from_spec(transport)
+        where = ", ".join(
+            [f"listen {e}" for e in transport.listen] + [f"connect {e}" for e in transport.connect]
+        )
+
+    from legws_daemon.hardware.fake_bridge import FakeBridge
+
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with (
+            open_session(config) as session,
+            FakeBridge(session, profile.robot, sc, rate_hz=rate) as fake,
+        ):
+            click.echo(
+                f"fake bridge for '{profile.robot}' at {rate:g} Hz on {fake.state_key} and "
+                f"{fake.command_key} ({where or 'no endpoints'}); SIGINT or SIGTERM stops it"
+            )
+            while not stop.wait(0.2):
+                pass
+            received, rejected = fake.received, fake.rejected
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    click.echo(f"fake bridge stopped: {received} commands received, {rejected} rejected")

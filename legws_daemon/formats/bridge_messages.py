@@ -1,0 +1,102 @@
+"""The robot-side bridge contract: joint state in, joint velocity commands out.
+
+Keys live under ``legws/<robot>/bridge/`` (see ``docs/bridge.md``): the bridge publishes
+``state`` (≥ 100 Hz, its heartbeat) and subscribes to ``command`` (one per control tick).
+Joint order and the base frame are Intera's (``right_j0`` .. ``right_j6``). Both messages
+are JSON with ``"schema": 1``, validated on receipt; a payload that does not validate is an
+:class:`~legws_daemon.errors.InputError` naming the field, and is never used.
+
+The constants below are the contract's limits. The standalone robot-side program
+(``bridge/intera_bridge.py``) repeats them, and the tests check both copies against the
+kinematic model (:mod:`legws_daemon.sim.world`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import AllowInfNan, Field, Strict, StrictBool, model_validator
+
+from legws_daemon.formats.messages import Seq, _Message, parse
+from legws_daemon.formats.validation import Finite, field_error
+
+#: Intera's joint names, in the order of every joint vector on the wire.
+JOINT_NAMES: tuple[str, ...] = tuple(f"right_j{i}" for i in range(7))
+#: Joint speed limits, rad/s (Intera specification; same as ``sim.world.JOINT_SPEED_LIMITS``).
+JOINT_SPEED_LIMITS: tuple[float, ...] = (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545)
+#: Joint position limits, rad (the Sawyer description's ranges).
+JOINT_LOWER: tuple[float, ...] = (-3.0503, -3.8095, -3.0426, -3.0439, -2.9761, -2.9761, -4.7124)
+JOINT_UPPER: tuple[float, ...] = (3.0503, 2.2736, 3.0426, 3.0439, 2.9761, 2.9761, 4.7124)
+#: A commanded joint speed may exceed its limit by this much (floating-point slack), rad/s.
+SPEED_TOLERANCE = 1e-6
+#: Longest time-to-live of one command, s: no single message may keep the arm moving longer.
+MAX_TTL = 1.0
+
+#: A measured joint angle, rad: finite, within one turn either way.
+Angle = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-6.3, le=6.3)]
+#: A joint velocity, rad/s: finite, at most 10 rad/s in magnitude (speed limits checked apart).
+JointSpeed = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-10.0, le=10.0)]
+Joints = tuple[Angle, Angle, Angle, Angle, Angle, Angle, Angle]
+JointSpeeds = tuple[
+    JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed
+]
+Ttl = Annotated[float, Strict(), AllowInfNan(False), Field(gt=0.0, le=MAX_TTL)]
+
+GripperState = Literal["open", "closed", "moving", "unknown"]
+GripperRequest = Literal["open", "closed"]
+
+
+class BridgeState(_Message):
+    """``legws/<robot>/bridge/state``: what the robot measures (bridge -> daemon, ≥ 100 Hz).
+
+    The stream is the bridge's heartbeat: the daemon faults when it stops.
+    """
+
+    seq: Seq
+    stamp: Finite  # the bridge's clock, s (logged; staleness uses the receive time)
+    q: Joints  # joint angles right_j0..right_j6, rad
+    dq: JointSpeeds  # joint velocities, rad/s
+    gripper: GripperState
+    enabled: StrictBool  # the robot is enabled (motors powered)
+    estop: StrictBool  # an emergency stop is engaged
+
+
+class BridgeCommand(_Message):
+    """``legws/<robot>/bridge/command``: joint velocities for ``ttl`` seconds (daemon -> bridge).
+
+    ``gripper`` is the requested gripper state (``null``: no request); the bridge acts when
+    the request changes.
+    """
+
+    seq: Seq
+    stamp: Finite  # the daemon's clock, s (logged; the ttl runs from the receive time)
+    mode: Literal["joint_velocity"]
+    dq: JointSpeeds  # rad/s, each within its joint's speed limit
+    ttl: Ttl
+    gripper: GripperRequest | None = None
+
+    @model_validator(mode="after")
+    def _speed_limits(self) -> BridgeCommand:
+        for i, (v, limit) in enumerate(zip(self.dq, JOINT_SPEED_LIMITS, strict=True)):
+            if abs(v) > limit + SPEED_TOLERANCE:
+                raise field_error(
+                    ("dq", i),
+                    f"{JOINT_NAMES[i]} speed {v:g} rad/s exceeds its limit {limit:g} rad/s",
+                )
+        return self
+
+
+def bridge_keys(robot: str) -> dict[str, str]:
+    """The bridge's key expressions of one robot (``legws/<robot>/bridge/...``)."""
+    base = f"legws/{robot}/bridge"
+    return {"state": f"{base}/state", "command": f"{base}/command"}
+
+
+def parse_state(payload: bytes | str, source: str) -> BridgeState:
+    """Validate one state payload; any problem is an InputError naming the field."""
+    return parse(BridgeState, payload, source)
+
+
+def parse_command(payload: bytes | str, source: str) -> BridgeCommand:
+    """Validate one command payload; any problem is an InputError naming the field."""
+    return parse(BridgeCommand, payload, source)

@@ -1,0 +1,315 @@
+"""The part every joystick publisher shares: session, sequence numbers, recording, the loop.
+
+A :class:`Publisher` opens one zenoh session, declares a publisher on the robot's
+``legws/<robot>/joystick`` key and turns deflections into validated
+:class:`~legws_daemon.formats.messages.JoystickMessage` payloads (schema 1, increasing
+``seq``, ``stamp = time.time()``). Every message it puts can also be appended to a JSONL
+recording, one :func:`~legws_daemon.formats.messages.dump` per line, which
+``legws joystick replay`` reads back.
+
+The daemon's profile *listens* on its endpoints; a publisher must *connect* to them:
+:func:`dial_spec` turns the profile's transport table into the publisher's.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from types import FrameType, TracebackType
+from typing import IO
+
+import zenoh
+
+from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.messages import SCHEMA_VERSION, Buttons, JoystickMessage, dump
+from legws_daemon.formats.profile import ProfileSpec, TransportSpec
+from legws_daemon.formats.validation import validate
+from legws_daemon.transport.session import config_from_file, config_from_spec, keys, open_session
+
+#: A deflection (x, y, z) in the robot base frame.
+Axes = tuple[float, float, float]
+#: What an input device yields per tick: a deflection and the buttons.
+Sample = tuple[Axes, Buttons]
+#: Called once per tick; ``None`` means "publish nothing this tick".
+SampleFn = Callable[[], Sample | None]
+
+ZERO: Axes = (0.0, 0.0, 0.0)
+#: Highest publishing rate accepted, Hz (the profile's control rate has the same bound).
+MAX_RATE = 1000.0
+
+
+def clip_norm(axes: Sequence[float]) -> Axes:
+    """Scale a deflection down to norm 1 if it is longer (direction kept); each axis in [-1, 1].
+
+    Raises :class:`InputError` for anything but three finite numbers.
+    """
+    values = tuple(float(a) for a in axes)
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise InputError(f"expected three finite numbers, got {values!r}", field="axes")
+    norm = math.sqrt(sum(v * v for v in values))
+    scale = 1.0 / norm if norm > 1.0 else 1.0
+    x, y, z = (min(1.0, max(-1.0, v * scale)) for v in values)
+    return (x, y, z)
+
+
+def process_source(kind: str) -> str:
+    """A ``source`` label unique to this process, e.g. ``keyboard:4242``.
+
+    The daemon drops a message whose ``seq`` is not above the last one of the same source;
+    a restarted publisher counts from 0 again, so each process gets its own label.
+    """
+    return f"{kind[:50]}:{os.getpid()}"
+
+
+def dial_spec(spec: TransportSpec) -> TransportSpec:
+    """The publisher's transport: connect to what the daemon listens on, listen on nothing."""
+    connect = list(dict.fromkeys([*spec.connect, *spec.listen]))
+    data = {**spec.model_dump(), "listen": [], "connect": connect}
+    return validate(TransportSpec, data, "transport")
+
+
+def publisher_config(profile: ProfileSpec, zenoh_config: Path | None = None) -> zenoh.Config:
+    """The zenoh configuration of a publisher: the file if given, else :func:`dial_spec`."""
+    if zenoh_config is not None:
+        return config_from_file(zenoh_config)
+    return config_from_spec(dial_spec(profile.transport))
+
+
+def _check_rate(rate: float) -> float:
+    if not (math.isfinite(rate) and 0.0 < rate <= MAX_RATE):
+        raise InputError(f"must be in (0, {MAX_RATE:g}] Hz, got {rate!r}", field="rate")
+    return float(rate)
+
+
+def _check_duration(duration: float | None) -> float:
+    """``None`` -> infinity; otherwise a positive number of seconds."""
+    if duration is None:
+        return math.inf
+    if math.isnan(duration) or duration <= 0.0:
+        raise InputError(
+            f"must be a positive number of seconds, got {duration!r}", field="duration"
+        )
+    return float(duration)
+
+
+class Publisher:
+    """Publishes joystick messages on one robot's joystick key; a context manager.
+
+    Args:
+        config: the zenoh configuration (see :func:`publisher_config`).
+        key: the key expression, normally ``keys(profile.robot)["joystick"]``.
+        source: the ``source`` label of every message (1 to 64 characters).
+        record: a JSONL file every published message is appended to, or ``None``.
+
+    The session and the recording are opened by ``with`` and closed on leaving it.
+    :meth:`publish` may be called from any thread.
+    """
+
+    def __init__(
+        self, config: zenoh.Config, key: str, *, source: str, record: Path | None = None
+    ) -> None:
+        if not 1 <= len(source) <= 64:
+            raise InputError(f"must be 1 to 64 characters, got {source!r}", field="source")
+        if not key:
+            raise InputError("must not be empty", field="key")
+        self.config = config
+        self.key = key
+        self.source = source
+        self.record_path = record
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._stack: ExitStack | None = None
+        self._session: zenoh.Session | None = None
+        self._publisher: zenoh.Publisher | None = None
+        self._record: IO[str] | None = None
+
+    @classmethod
+    def for_profile(
+        cls,
+        profile: ProfileSpec,
+        *,
+        source: str,
+        zenoh_config: Path | None = None,
+        record: Path | None = None,
+    ) -> Publisher:
+        """A publisher on ``profile.robot``'s joystick key that connects to its daemon."""
+        config = publisher_config(profile, zenoh_config)
+        return cls(config, keys(profile.robot)["joystick"], source=source, record=record)
+
+    # -- lifetime -------------------------------------------------------------------------
+
+    def __enter__(self) -> Publisher:
+        if self._stack is not None:
+            raise LegwsError("publisher is already open")
+        with ExitStack() as stack:
+            if self.record_path is not None:
+                self._record = stack.enter_context(_open_record(self.record_path))
+            self._session = stack.enter_context(open_session(self.config))
+            self._publisher = self._session.declare_publisher(self.key)
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the session and the recording (idempotent)."""
+        with self._lock:
+            stack, self._stack = self._stack, None
+            self._publisher = None
+            self._session = None
+            self._record = None
+        if stack is not None:
+            stack.close()
+
+    @property
+    def seq(self) -> int:
+        """The ``seq`` the next message will carry (= number of messages published)."""
+        return self._seq
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The open zenoh session."""
+        if self._session is None:
+            raise LegwsError("publisher is not open (use it in a with block)")
+        return self._session
+
+    def matched(self) -> bool:
+        """Whether some subscriber (normally the daemon) listens on the joystick key."""
+        pub = self._publisher
+        if pub is None:
+            return False
+        status: object = pub.matching_status
+        return bool(getattr(status, "matching", status))
+
+    def wait_matched(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for a subscriber on the key; whether one appeared."""
+        deadline = time.monotonic() + timeout
+        while not self.matched():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    # -- publishing -----------------------------------------------------------------------
+
+    def publish(self, axes: Sequence[float], buttons: Buttons | None = None) -> JoystickMessage:
+        """Validate and put one message; returns it. The recording gets it too.
+
+        Raises :class:`InputError` (naming the field) if ``axes`` is not a valid deflection
+        (three numbers in [-1, 1], norm <= 1; see :func:`clip_norm`); nothing is sent then
+        and ``seq`` does not advance.
+        """
+        with self._lock:
+            if self._publisher is None:
+                raise LegwsError("publisher is not open (use it in a with block)")
+            data = {
+                "schema": SCHEMA_VERSION,
+                "seq": self._seq,
+                "stamp": time.time(),
+                "axes": [float(a) for a in axes],
+                "buttons": buttons if buttons is not None else Buttons(),
+                "source": self.source,
+            }
+            message = validate(JoystickMessage, data, self.key)
+            payload = dump(message)
+            try:
+                self._publisher.put(payload)
+            except Exception as err:  # zenoh raises its own error types
+                raise LegwsError(f"{self.key}: cannot publish: {err}") from None
+            self._seq += 1
+            if self._record is not None:
+                self._record.write(payload.decode() + "\n")
+                self._record.flush()
+            return message
+
+    def publish_zero(self) -> JoystickMessage:
+        """Publish zero deflection with no button pressed (the last message of every run)."""
+        return self.publish(ZERO)
+
+    def run(
+        self,
+        sample_fn: SampleFn,
+        rate: float,
+        duration: float | None = None,
+        stop_event: threading.Event | None = None,
+    ) -> int:
+        """Call ``sample_fn`` at ``rate`` Hz and publish what it returns, until stopped.
+
+        The loop ends when ``stop_event`` is set (by a signal handler, another thread or
+        ``sample_fn`` itself) or after ``duration`` seconds, and then always publishes one
+        zero-deflection message. Ticks are on a fixed schedule; ticks missed by an overrun
+        are skipped, not made up in a burst. Returns the number of messages published from
+        samples (without the final zero).
+        """
+        period = 1.0 / _check_rate(rate)
+        length = _check_duration(duration)
+        stop = stop_event if stop_event is not None else threading.Event()
+        start = time.monotonic()
+        end = start + length
+        tick = 0
+        published = 0
+        try:
+            while not stop.is_set() and time.monotonic() < end:
+                sample = sample_fn()
+                if sample is not None:
+                    self.publish(*sample)
+                    published += 1
+                tick += 1
+                now = time.monotonic()
+                if start + tick * period < now:  # overrun: skip to the next tick ahead
+                    tick = math.ceil((now - start) / period)
+                stop.wait(max(0.0, min(start + tick * period, end) - now))
+        finally:
+            if self._publisher is not None:
+                self.publish_zero()
+        return published
+
+
+@contextmanager
+def _open_record(path: Path) -> Iterator[IO[str]]:
+    try:
+        out = path.open("a", encoding="utf-8")
+    except OSError as err:
+        raise InputError(
+            f"cannot open for writing: {err.strerror or err}", source=str(path)
+        ) from None
+    with out:
+        yield out
+
+
+@contextmanager
+def stop_on_signals(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+    """Within the block, SIGINT and SIGTERM set the yielded event instead of killing us.
+
+    A second SIGINT while the event is already set raises :class:`KeyboardInterrupt` (a
+    stuck shutdown can still be interrupted). The previous handlers are restored on exit.
+    Outside the main thread no handler can be installed and the event is only yielded.
+    """
+    event = stop if stop is not None else threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield event
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        if signum == signal.SIGINT and event.is_set():
+            raise KeyboardInterrupt
+        event.set()
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield event
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

@@ -1,0 +1,131 @@
+"""``legws bridge fake``: bad input is one line and exit 2; a real run serves the adapter
+and stops cleanly on SIGTERM or SIGINT."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from legws_daemon.cli.bridge import bridge_group, bridge_transport
+from legws_daemon.cli.main import cli as legws_cli
+from legws_daemon.formats.bridge_messages import bridge_keys
+from legws_daemon.formats.profile import TransportSpec, load_profile
+from legws_daemon.hardware.sawyer import SawyerAdapter
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.transport.session import config_from_spec, open_session
+from tests.cli.helpers import Result, assert_bad_input
+
+REPO = Path(__file__).parents[2]
+PROFILE = REPO / "hw_profiles" / "sawyer.toml"
+#: ``legws`` with the bridge group (registered here until the entry point has it).
+SHIM = (
+    "import sys\n"
+    "from legws_daemon.cli.bridge import bridge_group\n"
+    "from legws_daemon.cli.main import cli, run\n"
+    "if 'bridge' not in cli.commands:\n"
+    "    cli.add_command(bridge_group)\n"
+    "sys.exit(run(sys.argv[1:]))\n"
+)
+
+Cli = Callable[..., Result]
+
+
+@pytest.fixture(autouse=True)
+def _bridge_registered(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Make ``legws bridge`` reachable in-process whether or not main.py registers it."""
+    if "bridge" not in legws_cli.commands:
+        monkeypatch.setitem(legws_cli.commands, "bridge", bridge_group)
+
+
+@pytest.mark.parametrize(
+    ("argv", "needles"),
+    [
+        (["--profile", "missing.toml"], ["missing.toml", "no such file"]),
+        (["--profile", PROFILE, "--listen", "tcp/localhost"], ["--listen", "invalid endpoint"]),
+        (["--profile", PROFILE, "--connect", "http://x:1"], ["--connect", "invalid endpoint"]),
+        (
+            ["--profile", PROFILE, "--zenoh-config", "z.json5", "--connect", "tcp/1.2.3.4:7447"],
+            ["--zenoh-config", "--connect"],
+        ),
+        (["--profile", PROFILE, "--scene", "moon"], ["unknown scene 'moon'", "desk"]),
+        (["--profile", PROFILE, "--zenoh-config", "nowhere.json5"], ["nowhere.json5"]),
+        (["--profile", PROFILE, "--rate", "0"], ["--rate"]),
+        ([], ["--profile"]),
+    ],
+)
+def test_bad_input_is_one_line(cli: Cli, argv: list[str | Path], needles: list[str]) -> None:
+    assert_bad_input(cli("bridge", "fake", *argv), *needles)
+
+
+def test_bad_profile_names_the_field(cli: Cli, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(PROFILE.read_text(encoding="utf-8").replace('mode = "peer"', 'mode = "p"'))
+    assert_bad_input(cli("bridge", "fake", "--profile", bad), str(bad), "transport.mode")
+
+
+def test_transport_connects_to_the_daemon_by_default() -> None:
+    profile = load_profile(PROFILE)
+    spec = bridge_transport(profile, (), ())
+    assert spec.listen == []
+    assert spec.connect == ["tcp/127.0.0.1:7447"]
+    assert spec.multicast_scouting is False
+    spec = bridge_transport(profile, ("tcp/127.0.0.1:17690",), ())
+    assert (spec.listen, spec.connect) == (["tcp/127.0.0.1:17690"], [])
+
+
+@pytest.mark.parametrize(("port", "signum"), [(17680, signal.SIGTERM), (17681, signal.SIGINT)])
+def test_serves_the_sawyer_adapter_and_stops_on_a_signal(port: int, signum: int) -> None:
+    keys = bridge_keys("sawyer")
+    heard = threading.Event()
+    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
+    with open_session(config_from_spec(listen)) as daemon:
+        probe = daemon.declare_subscriber(keys["state"], lambda sample: heard.set())
+        proc = subprocess.Popen(
+            [sys.executable, "-c", SHIM, "bridge", "fake", "--profile", str(PROFILE),
+             "--connect", f"tcp/127.0.0.1:{port}", "--rate", "150"],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        try:
+            assert heard.wait(60.0), "no state from `legws bridge fake`"
+            probe.undeclare()  # type: ignore[no-untyped-call]
+            with SawyerAdapter(load_profile(PROFILE), load_scene("desk"), daemon) as adapter:
+                s0 = adapter.read_state()
+                for _ in range(10):
+                    adapter.send_velocity([0.0, 0.03, 0.0])
+                    time.sleep(adapter.dt)
+                adapter.stop()
+                time.sleep(0.05)
+                moved = adapter.read_state().ee_position - s0.ee_position
+                assert moved[1] == pytest.approx(0.015, abs=5e-3)
+                np.testing.assert_allclose(moved[[0, 2]], 0.0, atol=2e-3)
+            proc.send_signal(signum)
+            out, err = proc.communicate(timeout=20.0)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10.0)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    assert "fake bridge for 'sawyer'" in out
+    assert f"connect tcp/127.0.0.1:{port}" in out
+    assert "fake bridge stopped" in out
+
+
+def test_the_command_module_loads_neither_zenoh_nor_mujoco() -> None:
+    """``legws --help`` and the other commands do not pay for the bridge's imports."""
+    code = (
+        "import sys, legws_daemon.cli.bridge\n"
+        "print('mujoco' in sys.modules, 'zenoh' in sys.modules)"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
+    assert proc.stdout.split() == ["False", "False"], proc.stderr

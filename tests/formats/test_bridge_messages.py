@@ -1,0 +1,172 @@
+"""Bridge messages: valid ones round-trip, every malformed payload is one InputError."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.bridge_messages import (
+    JOINT_LOWER,
+    JOINT_NAMES,
+    JOINT_SPEED_LIMITS,
+    JOINT_UPPER,
+    BridgeCommand,
+    BridgeState,
+    bridge_keys,
+    parse_command,
+    parse_state,
+)
+from legws_daemon.formats.messages import dump
+from legws_daemon.scene.scene import Scene
+from legws_daemon.sim.world import ARM_JOINTS, World
+from legws_daemon.sim.world import JOINT_SPEED_LIMITS as MODEL_SPEED_LIMITS
+
+STATE = {
+    "schema": 1,
+    "seq": 3,
+    "stamp": 1732612345.25,
+    "q": [0.0, -1.2, 0.1, 1.7, 0.0, 1.1, -0.2],
+    "dq": [0.0] * 7,
+    "gripper": "open",
+    "enabled": True,
+    "estop": False,
+}
+COMMAND = {
+    "schema": 1,
+    "seq": 9,
+    "stamp": 12.5,
+    "mode": "joint_velocity",
+    "dq": [0.1, -0.2, 0.0, 0.3, 0.0, 0.0, 0.5],
+    "ttl": 0.1,
+    "gripper": None,
+}
+
+
+def test_contract_constants_match_the_kinematic_model(desk: Scene) -> None:
+    assert JOINT_NAMES == ARM_JOINTS
+    np.testing.assert_array_equal(JOINT_SPEED_LIMITS, MODEL_SPEED_LIMITS)
+    world = World(desk, visual=False)
+    np.testing.assert_allclose(JOINT_LOWER, world.arm.lower)
+    np.testing.assert_allclose(JOINT_UPPER, world.arm.upper)
+    assert bridge_keys("sawyer") == {
+        "state": "legws/sawyer/bridge/state",
+        "command": "legws/sawyer/bridge/command",
+    }
+
+
+def test_round_trips() -> None:
+    state = parse_state(json.dumps(STATE), "state")
+    assert state.q[1] == -1.2
+    assert state.gripper == "open"
+    assert parse_state(dump(state), "state") == state
+    command = parse_command(json.dumps(COMMAND), "command")
+    assert command.dq[6] == 0.5
+    assert command.gripper is None
+    assert parse_command(dump(command), "command") == command
+    assert json.loads(dump(command))["schema"] == 1
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"q": [0.0] * 6}, "q"),
+        ({"q": [0.0] * 6 + ["1"]}, "q[6]"),
+        ({"q": [0.0] * 6 + [7.0]}, "q[6]"),
+        ({"dq": [0.0, 11.0, 0, 0, 0, 0, 0]}, "dq[1]"),
+        ({"gripper": "half"}, "gripper"),
+        ({"enabled": 1}, "enabled"),
+        ({"estop": None}, "estop"),
+        ({"seq": -1}, "seq"),
+        ({"stamp": "now"}, "stamp"),
+        ({"schema": 2}, "schema"),
+        ({"torque": [0.0] * 7}, "torque"),
+    ],
+)
+def test_bad_states_name_the_field(change: dict[str, object], field: str) -> None:
+    with pytest.raises(InputError) as info:
+        parse_state(json.dumps({**STATE, **change}), "legws/r/bridge/state")
+    assert f"legws/r/bridge/state: {field}" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"mode": "ee_velocity"}, "mode"),
+        ({"dq": [0.0] * 8}, "dq"),
+        ({"dq": [1.75, 0, 0, 0, 0, 0, 0]}, "dq[0]"),  # over right_j0's 1.74 rad/s
+        ({"dq": [0, 0, 0, 0, 0, 0, -4.6]}, "dq[6]"),
+        ({"ttl": 0.0}, "ttl"),
+        ({"ttl": 1.5}, "ttl"),
+        ({"gripper": "moving"}, "gripper"),
+        ({"seq": 1.5}, "seq"),
+        ({"speed": 1}, "speed"),
+    ],
+)
+def test_bad_commands_name_the_field(change: dict[str, object], field: str) -> None:
+    with pytest.raises(InputError) as info:
+        parse_command(json.dumps({**COMMAND, **change}), "legws/r/bridge/command")
+    assert f"legws/r/bridge/command: {field}" in str(info.value)
+
+
+def test_non_finite_values_are_rejected() -> None:
+    for key, bad in (("q", "q[2]"), ("dq", "dq[2]")):
+        doc = {**STATE, key: [0.0, 0.0, math.nan, 0.0, 0.0, 0.0, 0.0]}
+        with pytest.raises(InputError, match=re.escape(bad)):
+            parse_state(json.dumps(doc), "state")  # a NaN literal
+    doc = {**COMMAND, "dq": [0.0, 0.0, math.inf, 0.0, 0.0, 0.0, 0.0]}
+    with pytest.raises(InputError, match=re.escape("dq[2]")):
+        parse_command(json.dumps(doc), "command")
+
+
+def test_speed_limits_are_exact_up_to_floating_point_slack() -> None:
+    at_limit = {**COMMAND, "dq": list(JOINT_SPEED_LIMITS)}
+    assert parse_command(json.dumps(at_limit), "command").dq == tuple(JOINT_SPEED_LIMITS)
+    reverse = {**COMMAND, "dq": [-v for v in JOINT_SPEED_LIMITS]}
+    assert parse_command(json.dumps(reverse), "command").dq[0] == -1.74
+
+
+_JSON_SCALARS = st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=6)
+
+
+@settings(max_examples=2000, deadline=None)
+@given(st.binary(max_size=300) | st.text(max_size=300))
+def test_arbitrary_payloads_are_input_errors(payload: bytes | str) -> None:
+    for parser in (parse_state, parse_command):
+        message = ""
+        try:
+            parser(payload, "fuzz")
+        except InputError as err:  # the only error a payload may cause
+            message = str(err)
+        assert "\n" not in message
+
+
+@settings(max_examples=1500, deadline=None)
+@given(
+    st.dictionaries(
+        st.sampled_from([*STATE, *COMMAND, "x"]),
+        _JSON_SCALARS | st.lists(_JSON_SCALARS, max_size=8),
+    ),
+    st.booleans(),
+)
+def test_arbitrary_json_objects_are_input_errors(doc: dict[str, object], based: bool) -> None:
+    for base, parser in ((STATE, parse_state), (COMMAND, parse_command)):
+        text = json.dumps({**base, **doc} if based else doc)
+        message = ""
+        msg: BridgeState | BridgeCommand | None = None
+        try:
+            msg = parser(text, "fuzz")
+        except InputError as err:  # the only error a document may cause
+            message = str(err)
+        assert "\n" not in message
+        if msg is not None:  # anything accepted is within the contract
+            assert all(math.isfinite(v) for v in msg.dq)
+        if isinstance(msg, BridgeCommand):
+            limits = JOINT_SPEED_LIMITS
+            assert all(abs(v) <= lim + 1e-6 for v, lim in zip(msg.dq, limits, strict=True))

@@ -1,0 +1,253 @@
+"""The fake bridge keeps the robot side of the contract: deadman, limits, faults, state.
+
+Two zenoh peers on loopback (scouting off, always closed); commands are published raw, as
+the daemon would, and states are read back through the legws validator.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from functools import partial
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.bridge_messages import (
+    JOINT_UPPER,
+    BridgeState,
+    bridge_keys,
+    parse_state,
+)
+from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import Scene
+from legws_daemon.sim.world import World
+from legws_daemon.transport.session import config_from_spec, open_session
+
+KEYS = bridge_keys("sawyer")
+
+
+@pytest.fixture(scope="module")
+def desk() -> Scene:
+    return load_scene("desk")
+
+
+@contextmanager
+def peers(port: int) -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    """(daemon side listening on ``port``, robot side connecting to it), both closed after."""
+    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
+    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    with (
+        open_session(config_from_spec(listen)) as daemon,
+        open_session(config_from_spec(dial)) as robot,
+    ):
+        yield daemon, robot
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
+    """Poll ``condition`` every 10 ms for at most ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+class StateLog:
+    """Every state message received on the daemon side, validated."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.states: list[BridgeState] = []
+        self.errors: list[str] = []
+        self._lock = threading.Lock()
+        self.subscriber = session.declare_subscriber(KEYS["state"], self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        try:
+            state = parse_state(sample.payload.to_bytes(), KEYS["state"])
+        except InputError as err:
+            with self._lock:
+                self.errors.append(str(err))
+            return
+        with self._lock:
+            self.states.append(state)
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.states)
+
+    def last(self) -> BridgeState:
+        with self._lock:
+            return self.states[-1]
+
+
+def command(dq: list[float], ttl: float, seq: int = 0, gripper: str | None = None) -> bytes:
+    doc: dict[str, Any] = {
+        "schema": 1,
+        "seq": seq,
+        "stamp": time.time(),
+        "mode": "joint_velocity",
+        "dq": dq,
+        "ttl": ttl,
+        "gripper": gripper,
+    }
+    return json.dumps(doc).encode()  # NaN and Infinity are written as literals
+
+
+def joint0(speed: float) -> list[float]:
+    return [speed, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+
+
+def moved(fake: FakeBridge, start: float) -> bool:
+    return float(fake.q[0]) > start + 1e-3
+
+
+def rejected(fake: FakeBridge, n: int) -> bool:
+    return fake.rejected == n
+
+
+def connected(daemon: zenoh.Session, fake: FakeBridge) -> StateLog:
+    """Wait until the daemon side hears the fake (the peers connect in the background)."""
+    log = StateLog(daemon)
+    assert wait_for(lambda: log.count() > 0), "no state from the fake bridge"
+
+    def first_command_arrives() -> bool:
+        daemon.put(KEYS["command"], command([0.0] * 7, 0.05))
+        return wait_for(lambda: fake.received > 0, 0.1)
+
+    assert wait_for(first_command_arrives), "the fake bridge receives no command"
+    return log
+
+
+def test_starts_at_the_scene_home_and_validates_its_options(desk: Scene) -> None:
+    with peers(17660) as (_, robot):
+        fake = FakeBridge(robot, "sawyer", desk)
+        world = World(desk, visual=False)
+        world.set_q(fake.q)
+        np.testing.assert_allclose(world.ee_position(), desk.home.position, atol=1e-3)
+        assert fake.gripper == "open"
+        with pytest.raises(InputError, match="q0"):
+            FakeBridge(robot, "sawyer", desk, q0=[0.0] * 6)
+        with pytest.raises(InputError, match="q0"):
+            FakeBridge(robot, "sawyer", desk, q0=[9.0] + [0.0] * 6)
+        with pytest.raises(InputError, match="rate_hz"):
+            FakeBridge(robot, "sawyer", desk, rate_hz=0.0)
+
+
+def test_integrates_a_command_until_its_ttl(desk: Scene) -> None:
+    with peers(17661) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        q0 = fake.q
+        daemon.put(KEYS["command"], command(joint0(0.5), ttl=0.2, seq=1))
+        assert wait_for(lambda: fake.received >= 2)
+        time.sleep(0.35)  # past the ttl: the deadman has stopped the joint
+        q1 = fake.q
+        assert q1[0] - q0[0] == pytest.approx(0.5 * 0.2, abs=3e-3)
+        np.testing.assert_allclose(q1[1:], q0[1:], atol=1e-12)
+        time.sleep(0.1)
+        np.testing.assert_array_equal(fake.q, q1)  # no motion without a fresh command
+        assert wait_for(lambda: np.allclose(log.last().q, q1, atol=1e-12))
+        assert log.errors == []
+        assert fake.rejected == 0
+
+
+def test_invalid_commands_are_rejected_and_stop_the_arm(desk: Scene) -> None:
+    with peers(17662) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        connected(daemon, fake)
+        bad_commands = [joint0(math.nan), joint0(2.0), [0.0] * 6 + [math.inf]]
+        # NaN, over right_j0's limit (1.74 rad/s), infinite
+        for n, bad in enumerate(bad_commands, start=1):
+            start = float(fake.q[0])
+            daemon.put(KEYS["command"], command(joint0(0.3), ttl=1.0))
+            assert wait_for(partial(moved, fake, start))
+            daemon.put(KEYS["command"], command(bad, ttl=1.0))
+            assert wait_for(partial(rejected, fake, n))
+            q_stopped = fake.q
+            time.sleep(0.1)
+            np.testing.assert_array_equal(fake.q, q_stopped)
+        daemon.put(KEYS["command"], b"{not json")
+        assert wait_for(lambda: fake.rejected == 4)
+        assert fake.last_rejection is not None
+        assert "legws/sawyer/bridge/command" in fake.last_rejection
+
+
+def test_joint_position_limits_clip(desk: Scene) -> None:
+    upper = JOINT_UPPER[0]
+    q0 = [upper - 0.01, -1.0, 0.0, 1.5, 0.0, 1.0, 0.0]
+    with peers(17663) as (daemon, robot), FakeBridge(robot, "sawyer", desk, q0=q0) as fake:
+        connected(daemon, fake)
+        daemon.put(KEYS["command"], command(joint0(1.0), ttl=0.3))
+        time.sleep(0.5)
+        assert fake.q[0] == upper  # 0.3 rad commanded, stopped at the limit
+
+
+def test_estop_and_disable_hold_the_arm(desk: Scene) -> None:
+    with peers(17664) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        fake.set_estop(True)
+        assert wait_for(lambda: log.last().estop and not log.last().enabled)
+        q0 = fake.q
+        daemon.put(KEYS["command"], command(joint0(0.5), ttl=0.5))
+        time.sleep(0.2)
+        np.testing.assert_array_equal(fake.q, q0)
+        with pytest.raises(LegwsError, match="emergency stop"):
+            fake.set_enabled(True)
+        fake.set_estop(False)
+        assert wait_for(lambda: not log.last().estop)
+        assert not log.last().enabled  # releasing the e-stop does not re-enable
+        fake.set_enabled(True)
+        daemon.put(KEYS["command"], command(joint0(0.5), ttl=0.2))
+        assert wait_for(lambda: fake.q[0] > q0[0] + 0.05)
+
+
+def test_heartbeat_can_be_stopped_and_resumed(desk: Scene) -> None:
+    with peers(17665) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        t0, n0 = time.monotonic(), log.count()
+        time.sleep(0.5)
+        rate = (log.count() - n0) / (time.monotonic() - t0)
+        assert rate > 100.0  # the contract's >= 100 Hz (nominal 200 Hz)
+        fake.stop_publishing()
+        time.sleep(0.05)
+        n1 = log.count()
+        time.sleep(0.3)
+        assert log.count() == n1
+        fake.resume_publishing()
+        assert wait_for(lambda: log.count() > n1)
+        seqs = [s.seq for s in log.states]
+        assert seqs == sorted(seqs)
+    assert log.errors == []
+
+
+def test_gripper_moves_then_reports_the_request(desk: Scene) -> None:
+    with peers(17666) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        daemon.put(KEYS["command"], command([0.0] * 7, ttl=0.1, gripper="closed"))
+        assert wait_for(lambda: fake.gripper == "moving")
+        assert wait_for(lambda: log.last().gripper == "closed", GRIPPER_TIME + 1.0)
+        daemon.put(KEYS["command"], command([0.0] * 7, ttl=0.1, gripper=None))
+        time.sleep(0.05)
+        assert fake.gripper == "closed"  # null: no request, no change
+
+
+def test_close_stops_publishing(desk: Scene) -> None:
+    with peers(17667) as (daemon, robot):
+        fake = FakeBridge(robot, "sawyer", desk)
+        with fake:
+            log = connected(daemon, fake)
+        time.sleep(0.05)
+        n = log.count()
+        time.sleep(0.2)
+        assert log.count() == n
+        fake.close()  # idempotent
+        assert not robot.is_closed()  # the caller owns the session

@@ -1,0 +1,258 @@
+"""The sawyer adapter against the fake bridge, over two zenoh peers on loopback.
+
+Sessions: explicit loopback endpoints, multicast scouting off, always closed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
+from legws_daemon.formats.bridge_messages import BridgeCommand, bridge_keys, parse_command
+from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
+from legws_daemon.hardware.base import Adapter, adapter_class
+from legws_daemon.hardware.fake_bridge import FakeBridge
+from legws_daemon.hardware.sawyer import STOP_REPEATS, SawyerAdapter
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import Scene
+from legws_daemon.sim.world import World
+from legws_daemon.transport.session import config_from_spec, open_session
+
+PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
+KEYS = bridge_keys("sawyer")
+
+
+@pytest.fixture(scope="module")
+def desk() -> Scene:
+    return load_scene("desk")
+
+
+def sawyer_profile(**sawyer: object) -> ProfileSpec:
+    """The shipped profile with some ``[sawyer]`` settings changed."""
+    profile = load_profile(PROFILE)
+    return profile.model_copy(update={"sawyer": profile.sawyer.model_copy(update=sawyer)})
+
+
+@contextmanager
+def peers(port: int) -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    """(daemon side listening on ``port``, robot side connecting to it), both closed after."""
+    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
+    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    with (
+        open_session(config_from_spec(listen)) as daemon,
+        open_session(config_from_spec(dial)) as robot,
+    ):
+        yield daemon, robot
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
+    """Poll ``condition`` every 10 ms for at most ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+class CommandLog:
+    """Every command the robot side receives, validated."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.commands: list[BridgeCommand] = []
+        self._lock = threading.Lock()
+        self.subscriber = session.declare_subscriber(KEYS["command"], self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        command = parse_command(sample.payload.to_bytes(), KEYS["command"])
+        with self._lock:
+            self.commands.append(command)
+
+    def snapshot(self) -> list[BridgeCommand]:
+        with self._lock:
+            return list(self.commands)
+
+
+def test_registered_and_needs_a_session(desk: Scene) -> None:
+    assert adapter_class("sawyer") is SawyerAdapter
+    profile = sawyer_profile()
+    with pytest.raises(LegwsError, match="zenoh session"):
+        SawyerAdapter(profile, desk, None)
+    with peers(17650) as (daemon, _):
+        with pytest.raises(InputError, match=r"sawyer\.command"):
+            SawyerAdapter(sawyer_profile(command="ee_velocity"), desk, daemon)
+        adapter = SawyerAdapter(profile, desk, daemon)
+        with pytest.raises(LegwsError, match="not connected"):
+            adapter.read_state()
+
+
+def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
+    profile = sawyer_profile()
+    with (
+        peers(17651) as (daemon, robot),
+        FakeBridge(robot, "sawyer", desk) as fake,
+    ):
+        log = CommandLog(robot)
+        adapter = SawyerAdapter(profile, desk, daemon)
+        adapter.connect()
+        # the state is the fake's q, and the EE pose its forward kinematics
+        s0 = adapter.read_state()
+        np.testing.assert_allclose(s0.q, fake.q, atol=1e-12)  # nothing moves yet
+        world = World(desk, visual=False)
+        world.set_q(s0.q)
+        np.testing.assert_allclose(s0.ee_position, world.ee_position(), atol=1e-12)
+        np.testing.assert_allclose(s0.ee_position, desk.home.position, atol=1e-3)
+        assert abs(time.monotonic() - s0.stamp) < profile.sawyer.heartbeat_timeout
+        assert not s0.gripper_closed
+
+        # a zero command sends dq = 0 exactly and leaves q unchanged
+        for _ in range(5):
+            np.testing.assert_array_equal(adapter.stop(), 0.0)
+            time.sleep(adapter.dt)
+        np.testing.assert_array_equal(fake.q, s0.q)
+        assert wait_for(lambda: len(log.snapshot()) >= 5)
+        assert all(c.dq == (0.0,) * 7 for c in log.snapshot())
+        assert log.snapshot()[0].ttl == pytest.approx(2 * adapter.dt)
+
+        # 20 ticks of +x: the EE moves about 0.03 m/s times the time commanded
+        start = time.monotonic()
+        for k in range(20):
+            sent = adapter.send_velocity([0.03, 0.0, 0.0])
+            np.testing.assert_allclose(sent, [0.03, 0.0, 0.0])
+            time.sleep(max(0.0, start + (k + 1) * adapter.dt - time.monotonic()))
+        adapter.stop()
+        moving = time.monotonic() - start
+        time.sleep(0.05)  # a few newer states
+        s1 = adapter.read_state()
+        np.testing.assert_allclose(s1.q, fake.q, atol=1e-12)
+        shift = s1.ee_position - s0.ee_position
+        assert shift[0] == pytest.approx(0.03 * moving, abs=3e-3)
+        np.testing.assert_allclose(shift[1:], 0.0, atol=2e-3)
+        assert fake.rejected == 0
+
+        # the gripper: the request reaches the bridge, its state comes back
+        adapter.grip(True)
+        assert wait_for(lambda: adapter.read_state().gripper_closed)
+        assert fake.gripper == "closed"
+        n = len(log.snapshot())
+        adapter.stop()  # every later command carries the request
+        assert wait_for(lambda: len(log.snapshot()) > n)
+        assert log.snapshot()[n].gripper == "closed"
+        adapter.grip(False)
+        assert wait_for(lambda: fake.gripper == "open")
+        assert not adapter.read_state().gripper_closed
+
+        # disconnect: a few zero commands, then silence; the daemon's session stays open
+        sent_before = len(log.snapshot())
+        adapter.disconnect()
+        assert wait_for(lambda: len(log.snapshot()) >= sent_before + STOP_REPEATS)
+        assert all(c.dq == (0.0,) * 7 for c in log.snapshot()[sent_before:])
+        adapter.disconnect()  # idempotent: nothing more is sent
+        time.sleep(0.1)
+        assert len(log.snapshot()) == sent_before + STOP_REPEATS
+        assert not daemon.is_closed()
+        seqs = [c.seq for c in log.snapshot()]
+        assert seqs == sorted(seqs)
+        assert adapter.rejected == 0
+
+
+def test_no_bridge_times_out(desk: Scene) -> None:
+    profile = sawyer_profile(bridge_timeout=0.4)
+    with peers(17652) as (daemon, _):
+        adapter = SawyerAdapter(profile, desk, daemon)
+        start = time.monotonic()
+        with pytest.raises(BridgeTimeoutError) as info:
+            adapter.connect()
+        waited = time.monotonic() - start
+    assert 0.4 <= waited < 2.0
+    assert "legws/sawyer/bridge/state" in str(info.value)
+    assert "0.4 s" in str(info.value)
+    assert not adapter.connected
+
+
+def test_heartbeat_loss_and_estop_are_hardware_errors(desk: Scene) -> None:
+    profile = sawyer_profile(heartbeat_timeout=0.3)
+    with (
+        peers(17653) as (daemon, robot),
+        FakeBridge(robot, "sawyer", desk) as fake,
+        SawyerAdapter(profile, desk, daemon) as adapter,
+    ):
+        adapter.read_state()
+        fake.stop_publishing()
+        lost = time.monotonic()
+        assert wait_for(faulted_with(adapter, "heartbeat"), 2.0)
+        assert time.monotonic() - lost < profile.sawyer.heartbeat_timeout + 0.2
+        with pytest.raises(HardwareError, match="heartbeat"):
+            adapter.send_velocity([0.01, 0.0, 0.0])
+
+        fake.resume_publishing()  # recovery: fresh states are usable again
+        assert wait_for(partial(healthy, adapter))
+
+        fake.set_estop(True)
+        assert wait_for(faulted_with(adapter, "emergency stop"))
+        fake.set_estop(False)
+        assert wait_for(faulted_with(adapter, "disabled"))
+        fake.set_enabled(True)
+        assert wait_for(partial(healthy, adapter))
+
+
+def healthy(adapter: Adapter) -> bool:
+    """``read_state`` succeeds."""
+    try:
+        adapter.read_state()
+    except HardwareError:
+        return False
+    return True
+
+
+def faulted_with(adapter: Adapter, needle: str) -> Callable[[], bool]:
+    """A condition: ``read_state`` raises a HardwareError containing ``needle``."""
+
+    def check() -> bool:
+        try:
+            adapter.read_state()
+        except HardwareError as err:
+            return needle in str(err)
+        return False
+
+    return check
+
+
+def test_invalid_states_are_counted_and_ignored(desk: Scene) -> None:
+    profile = sawyer_profile(bridge_timeout=0.5)
+    bad = [b"not json", b'{"schema": 1}', b'{"schema": 2, "seq": 0}', b"[1, 2]"]
+    with peers(17654) as (daemon, robot):
+        adapter = SawyerAdapter(profile, desk, daemon)
+        stop = threading.Event()
+
+        def publish_garbage() -> None:
+            while not stop.wait(0.02):
+                robot.put(KEYS["state"], bad[0])
+
+        thread = threading.Thread(target=publish_garbage)
+        thread.start()
+        try:
+            with pytest.raises(BridgeTimeoutError, match="invalid message"):
+                adapter.connect()
+        finally:
+            stop.set()
+            thread.join(timeout=5.0)
+        assert adapter.rejected > 0
+
+        with FakeBridge(robot, "sawyer", desk) as fake, adapter:
+            before = adapter.rejected
+            for payload in bad:
+                robot.put(KEYS["state"], payload)
+            assert wait_for(lambda: adapter.rejected == before + len(bad))
+            assert adapter.last_rejection is not None
+            assert adapter.last_rejection.startswith("legws/sawyer/bridge/state: ")
+            np.testing.assert_allclose(adapter.read_state().q, fake.q, atol=1e-12)

@@ -1,0 +1,1 @@
+"""Tests of the joystick publishers (keyboard, CAN, replay) and their shared publisher."""

@@ -1,0 +1,91 @@
+"""Plain helpers of the joystick tests: loopback transports and a collecting subscriber.
+
+zenoh on loopback only, scouting off, sessions always closed; ports 17600-17649 belong to
+the joystick tests.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.messages import JoystickMessage, parse
+from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.transport.session import config_from_spec, open_session
+
+ROBOT = "test_robot"
+KEY = f"legws/{ROBOT}/joystick"
+
+
+def listen_spec(port: int) -> TransportSpec:
+    """The daemon side: listen on a loopback port."""
+    return TransportSpec(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False)
+
+
+def dial_spec(port: int) -> TransportSpec:
+    """The publisher side: connect to a loopback port, listen on nothing."""
+    return TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False)
+
+
+class Inbox:
+    """Joystick messages received by a subscriber (thread-safe), with bounded waits."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self.messages: list[JoystickMessage] = []
+        self.rejected: list[str] = []
+
+    def offer(self, payload: bytes) -> None:
+        try:
+            message = parse(JoystickMessage, payload, KEY)
+        except InputError as err:
+            with self._cond:
+                self.rejected.append(str(err))
+                self._cond.notify_all()
+            return
+        with self._cond:
+            self.messages.append(message)
+            self._cond.notify_all()
+
+    def wait_for(self, count: int, timeout: float = 10.0) -> list[JoystickMessage]:
+        """At least ``count`` messages, or AssertionError after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while len(self.messages) < count:
+                left = deadline - time.monotonic()
+                assert left > 0, f"got {len(self.messages)} of {count} messages in {timeout} s"
+                self._cond.wait(left)
+            return list(self.messages)
+
+    def wait_until(
+        self, done: Callable[[list[JoystickMessage]], bool], timeout: float = 10.0
+    ) -> list[JoystickMessage]:
+        """The messages once ``done(messages)`` holds, or AssertionError after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not done(self.messages):
+                left = deadline - time.monotonic()
+                assert left > 0, f"condition not met in {timeout} s: {self.messages[-3:]}"
+                self._cond.wait(left)
+            return list(self.messages)
+
+    def snapshot(self) -> list[JoystickMessage]:
+        with self._cond:
+            return list(self.messages)
+
+
+@contextmanager
+def daemon_side(port: int, key: str = KEY) -> Iterator[Inbox]:
+    """A listening session on ``port`` with a subscriber on ``key``; closed on exit."""
+    inbox = Inbox()
+    with open_session(config_from_spec(listen_spec(port))) as session:
+
+        def on_sample(sample: Any) -> None:
+            inbox.offer(sample.payload.to_bytes())
+
+        session.declare_subscriber(key, on_sample)
+        yield inbox
