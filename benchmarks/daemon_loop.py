@@ -8,7 +8,8 @@ Runs the real processes on loopback: ``legws daemon --trace`` (one JSON line per
 2. Highest sustained rate: the daemon at increasing ``--rate`` for a few seconds each;
    *sustained* when the achieved tick rate is >= 98 % of the nominal and fewer than 1 %
    of tick intervals exceed 1.5 periods.
-3. Latency of joystick input, from the publisher's ``put`` (its wall-clock stamp) to the
+3. Latency of joystick input (the user publishing at 1.07x the loop rate, so the phase
+   between the two sweeps), from the publisher's ``put`` (its wall-clock stamp) to the
    command leaving for the robot, for every tick that used a new sample; split into
    transport (publish -> received by the daemon), the wait for the next tick (a fixed-rate
    loop samples its input once per period: up to one period), and the tick's own work.
@@ -34,6 +35,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 PORT = 17790
+#: The user publishes at a rate unrelated to the loop's, so that the wait for the next tick
+#: sweeps the whole period instead of locking to one phase.
+USER_RATE = 1.07
 
 
 def profile_file(tmp: Path) -> Path:
@@ -58,7 +62,8 @@ def run_pair(
     time.sleep(3.0)  # start-up: imports, the MuJoCo model, the session
     user = subprocess.run(
         [sys.executable, "-m", "legws_daemon", "joystick", "sim-user", "--profile", str(profile),
-         "--goal", goal, "--rate", str(rate), "--duration", str(seconds), "--forever"],
+         "--goal", goal, "--rate", str(rate * USER_RATE), "--duration", str(seconds),
+         "--forever"],
         env=env, capture_output=True, timeout=seconds + 60, check=False,
     )  # fmt: skip
     daemon.wait(timeout=seconds + 60)

@@ -21,6 +21,7 @@ from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
 from legws_daemon.cli.render import render_cmd
+from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.errors import LegwsError
@@ -44,6 +45,7 @@ cli.add_command(daemon_cmd)
 joystick_group.add_command(sim_user_cmd)
 cli.add_command(joystick_group)
 cli.add_command(bridge_group)
+cli.add_command(replay_cmd)
 
 
 def _fail(message: str) -> int:

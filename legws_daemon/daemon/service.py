@@ -30,6 +30,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
+from legws_daemon.daemon.telemetry_worker import TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
 from legws_daemon.formats.messages import (
@@ -139,6 +140,7 @@ class DaemonService:
         self._t0 = time.monotonic()
         self._last_overrun_warning = -np.inf
         self.controller: Controller | None = None
+        self.worker = TelemetryWorker() if config.telemetry is not None else None
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -185,9 +187,9 @@ class DaemonService:
         if self._event_pub is not None:
             self._event_pub.put(dump(msg))
         tel = self.config.telemetry
-        if tel is not None:
+        if tel is not None and self.worker is not None:
             tick = self.controller.ticks if self.controller is not None else 0
-            tel.log_text(tick, time.monotonic() - self._t0, severity, text)
+            self.worker.submit(tel.log_text, tick, time.monotonic() - self._t0, severity, text)
 
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
         c = self.controller
@@ -267,9 +269,10 @@ class DaemonService:
     # --- telemetry ----------------------------------------------------------------------
     def _log_setup(self) -> None:
         tel, c = self.config.telemetry, self.controller
-        if tel is None or c is None:
+        if tel is None or c is None or self.worker is None:
             return
-        tel.log_setup(
+        self.worker.submit(
+            tel.log_setup,
             scene=c.scene,
             goals=c.stage.goals_home,
             goal_objects={g: g for g in c.stage.goal_names},
@@ -281,10 +284,11 @@ class DaemonService:
 
     def _log_tick(self, rec: TickRecord, slack: float | None) -> None:
         tel, c = self.config.telemetry, self.controller
-        if tel is None or c is None or rec.state is None:
+        if tel is None or c is None or rec.state is None or self.worker is None:
             return
         links_p, links_R = c.adapter.link_poses(rec.state.q)
-        tel.log_tick(
+        self.worker.submit(
+            tel.log_tick,
             rec.tick,
             time.monotonic() - self._t0,
             link_positions=links_p,
@@ -299,6 +303,7 @@ class DaemonService:
             slack=slack,
             committed=rec.committed,
             tick_seconds=self.ticker.last_duration,
+            droppable=True,
         )
 
     # --- the loop -------------------------------------------------------------------------
@@ -342,6 +347,15 @@ class DaemonService:
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
                 queryable.undeclare()  # type: ignore[no-untyped-call]
                 self._fail_pending()
+                if self.worker is not None:
+                    self.worker.close()
+                    if self.worker.dropped or self.worker.errors:
+                        log.warning(
+                            "telemetry: %d tick snapshots dropped, %d errors (last: %s)",
+                            self.worker.dropped,
+                            self.worker.errors,
+                            self.worker.last_error,
+                        )
                 if cfg.telemetry is not None:
                     cfg.telemetry.close()
         return 0

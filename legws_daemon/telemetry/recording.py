@@ -1,0 +1,282 @@
+"""Reading a daemon recording (``.rrd`` written by :class:`~.rerun_log.RerunLog`) headless.
+
+Uses :class:`rerun.chunk.RrdReader`: no viewer, no server. Every error (missing file, not
+an ``.rrd``, no legws telemetry in it) is an :class:`InputError` naming the file.
+
+Stages: each :meth:`RerunLog.log_setup` call writes one ``meta/goals`` document with its
+``stage_index`` (0, 1, ...); the viewer shows only the latest, the file keeps them all.
+Every EE sample and text-log row carries the index of the stage it was logged in (``-1``
+before the first set-up). The readers take an optional ``stage``: ``None`` means the last
+stage for :func:`read_goals` and :func:`read_params` (what the viewer shows) and every
+stage for :func:`read_ee_path` and :func:`read_text_log`; an ``int`` is a stage index
+(negative from the end); a ``str`` is a stage name.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from rerun.chunk import RrdReader
+
+from legws_daemon.core.geometry import FloatArray, IntArray
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+from legws_daemon.formats.goalset import goalset_from_data
+from legws_daemon.telemetry.rerun_log import (
+    EE_ARCHETYPE,
+    EE_PATH,
+    GOALS_DOC,
+    STAGE_ARCHETYPE,
+    TELEMETRY_FORMAT,
+    TEXT_LOG,
+)
+
+StageKey = int | str | None
+
+_COMMIT = re.compile(r"^commit goal=(?P<goal>.+) p=(?P<p>\S+)$")
+
+
+@dataclass(frozen=True, slots=True)
+class Stage:
+    """One ``log_setup`` of a recording.
+
+    Attributes:
+        index: stage index (0 for the first set-up).
+        name: the stage name given to ``log_setup`` (may be ``None``).
+        goals: the stage's goal set.
+        params: the stage's parameters.
+        p_thresh: the threshold the daemon plotted.
+        scene: scene name.
+        robot: robot name.
+        goal_objects: goal name -> object name.
+    """
+
+    index: int
+    name: str | None
+    goals: GoalSet
+    params: Params
+    p_thresh: float
+    scene: str | None
+    robot: str | None
+    goal_objects: dict[str, str]
+
+
+class EePath(NamedTuple):
+    """The recorded end-effector path, ordered by (stage, tick)."""
+
+    ticks: IntArray
+    times: FloatArray
+    positions: FloatArray
+    quaternions: FloatArray
+
+
+def parse_commit(text: str) -> tuple[str, float] | None:
+    """``(goal, p)`` of a ``commit goal=<name> p=<prob>`` text-log line, else ``None``."""
+    match = _COMMIT.match(text)
+    if match is None:
+        return None
+    try:
+        p = float(match["p"])
+    except ValueError:
+        return None
+    return (match["goal"], p) if math.isfinite(p) else None
+
+
+class _Batch(NamedTuple):
+    entity: str  # without the leading "/"
+    static: bool
+    batch: Any  # pyarrow.RecordBatch
+
+    def column(self, name: str) -> list[Any]:
+        """The column as Python values, or ``[]`` when the chunk lacks it."""
+        index = self.batch.schema.get_field_index(name)
+        return [] if index < 0 else list(self.batch.column(index).to_pylist())
+
+
+def _batches(path: Path, *entities: str) -> list[_Batch]:
+    """Every chunk of the given entities (all if none) as an Arrow record batch."""
+    source = str(path)
+    if not path.exists():
+        raise InputError("no such file", source=source)
+    if not path.is_file():
+        raise InputError("expected a rerun recording (.rrd), got a folder", source=source)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer": a recording that was cut short
+            stream = RrdReader(path).stream()
+            if entities:
+                stream = stream.filter(content=["/" + e for e in entities])
+            chunks = stream.to_chunks()
+    except (RuntimeError, ValueError, OSError) as exc:
+        reason = str(exc).split(": ", 1)[-1] if source in str(exc) else str(exc)
+        raise InputError(
+            f"not a readable rerun recording (.rrd): {reason}", source=source
+        ) from None
+    return [_Batch(c.entity_path.lstrip("/"), c.is_static, c.to_record_batch()) for c in chunks]
+
+
+def entity_paths(path: Path | str) -> set[str]:
+    """Entity paths of a recording, without the leading ``/`` and rerun's ``__`` entries."""
+    return {b.entity for b in _batches(Path(path)) if b.entity and not b.entity.startswith("__")}
+
+
+def read_stages(path: Path | str) -> list[Stage]:
+    """Every stage of a recording, by index.
+
+    Raises:
+        InputError: the file is missing or not an ``.rrd``, or holds no legws telemetry.
+    """
+    p = Path(path)
+    docs: dict[int, dict[str, Any]] = {}
+    for batch in _batches(p, GOALS_DOC):
+        for text in batch.column("TextDocument:text"):
+            if text:
+                doc = _parse_doc(text[0], p)
+                docs[doc["stage_index"]] = doc
+    if not docs:
+        raise InputError(f"no legws telemetry ({GOALS_DOC}) in the recording", source=str(p))
+    return [_stage(docs[i], p) for i in sorted(docs)]
+
+
+def _parse_doc(text: str, path: Path) -> dict[str, Any]:
+    where = {"source": str(path), "field": GOALS_DOC}
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise InputError(f"not legws telemetry (not JSON: {exc})", **where) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("stage_index"), int):
+        raise InputError("not legws telemetry (no stage_index)", **where)
+    version = doc.get("legws_telemetry")
+    if not isinstance(version, int) or version > TELEMETRY_FORMAT:
+        raise InputError(
+            f"telemetry format {version!r} is not supported (this legws reads up to "
+            f"{TELEMETRY_FORMAT})",
+            **where,
+        )
+    return doc
+
+
+def _stage(doc: dict[str, Any], path: Path) -> Stage:
+    source = f"{path} ({GOALS_DOC} stage {doc['stage_index']})"
+    goals, params = goalset_from_data(doc, source)
+    objects = doc.get("goal_objects") or {}
+    return Stage(
+        index=doc["stage_index"],
+        name=doc.get("stage"),
+        goals=goals,
+        params=params,
+        p_thresh=float(doc.get("p_thresh", params.p_thresh)),
+        scene=doc.get("scene"),
+        robot=doc.get("robot"),
+        goal_objects={str(k): str(v) for k, v in objects.items()},
+    )
+
+
+def select_stage(stages: list[Stage], stage: StageKey, source: str) -> Stage:
+    """The stage named or indexed by ``stage`` (``None``: the last one)."""
+    if stage is None:
+        return stages[-1]
+    if isinstance(stage, str):
+        named = [s for s in stages if s.name == stage]
+        if len(named) == 1:
+            return named[0]
+        if stage.lstrip("-").isdigit():
+            return select_stage(stages, int(stage), source)
+        known = ", ".join(f"{s.index}={s.name}" for s in stages)
+        what = "several stages are" if named else "no stage is"
+        raise InputError(f"{what} named '{stage}'; stages: {known}", source=source, field="stage")
+    if -len(stages) <= stage < len(stages):
+        return stages[stage]
+    raise InputError(
+        f"no stage {stage}; the recording has {len(stages)} (0..{len(stages) - 1})",
+        source=source,
+        field="stage",
+    )
+
+
+def read_goals(path: Path | str, stage: StageKey = None) -> GoalSet:
+    """The goal set of a stage (default: the last one, as the viewer shows it)."""
+    return select_stage(read_stages(path), stage, str(path)).goals
+
+
+def read_params(path: Path | str, stage: StageKey = None) -> Params:
+    """The parameters of a stage (default: the last one)."""
+    return select_stage(read_stages(path), stage, str(path)).params
+
+
+def _stage_index(path: Path, stage: StageKey) -> int | None:
+    if stage is None:
+        return None
+    return select_stage(read_stages(path), stage, str(path)).index
+
+
+def read_ee_path(path: Path | str, stage: StageKey = None) -> EePath:
+    """The exact (float64) EE poses of every tick, of one stage or all, ordered by tick.
+
+    Returns:
+        ticks ``(K,)``, times ``(K,)`` in seconds, positions ``(K, 3)`` and quaternions
+        ``(K, 4)`` ``[w, x, y, z]``.
+    """
+    p = Path(path)
+    want = _stage_index(p, stage)
+    rows: list[tuple[int, int, float, list[float], list[float]]] = []
+    for batch in _batches(p, EE_PATH):
+        if batch.static:
+            continue
+        ticks = batch.column("tick")
+        fields = [batch.column(f"{EE_ARCHETYPE}:{n}") for n in ("position", "quaternion", "t")]
+        stages = batch.column(f"{EE_ARCHETYPE}:stage")
+        if not ticks or not stages or not all(fields):
+            continue
+        for tick, pos, quat, t, st in zip(ticks, *fields, stages, strict=True):
+            if tick is None or not (pos and quat and t and st):
+                continue
+            if want is None or st[0] == want:
+                rows.append((st[0], tick, t[0], pos, quat))
+    rows.sort(key=lambda r: (r[0], r[1]))
+    return EePath(
+        np.array([r[1] for r in rows], dtype=np.int64),
+        np.array([r[2] for r in rows], dtype=np.float64),
+        np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 3),
+        np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, 4),
+    )
+
+
+def read_text_log(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, str]]:
+    """``(tick, level, text)`` of the ``log`` entity, in logging order (stable by tick)."""
+    p = Path(path)
+    want = _stage_index(p, stage)
+    rows: list[tuple[int, bytes, str, str]] = []
+    for batch in _batches(p, TEXT_LOG):
+        ticks, texts = batch.column("tick"), batch.column("TextLog:text")
+        if batch.static or not ticks or not texts:
+            continue
+        row_ids = batch.column("rerun.controls.RowId")
+        levels = batch.column("TextLog:level") or [None] * len(ticks)
+        stages = batch.column(f"{STAGE_ARCHETYPE}:stage") or [None] * len(ticks)
+        for tick, row_id, level, text, st in zip(
+            ticks, row_ids, levels, texts, stages, strict=True
+        ):
+            if tick is None or not text or (want is not None and (not st or st[0] != want)):
+                continue
+            rows.append((tick, row_id, level[0] if level else "", text[0]))
+    rows.sort(key=lambda r: (r[0], r[1]))  # row ids (TUIDs) are in logging order
+    return [(tick, level, text) for tick, _, level, text in rows]
+
+
+def read_commits(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, float]]:
+    """``(tick, goal, p)`` of the ``commit goal=<name> p=<prob>`` lines of the text log."""
+    out = []
+    for tick, _, text in read_text_log(path, stage):
+        commit = parse_commit(text)
+        if commit is not None:
+            out.append((tick, commit[0], commit[1]))
+    return out

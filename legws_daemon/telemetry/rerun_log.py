@@ -1,0 +1,785 @@
+"""Rerun telemetry of the daemon: one :class:`RerunLog` per run, called once per control tick.
+
+Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in seconds):
+
+* ``world/table``, ``world/planned/<obj>`` (wireframe boxes), ``world/grasps/<goal>`` (frame
+  and an arrow along the approach axis): static, replaced by each :meth:`RerunLog.log_setup`.
+* ``world/robot/links`` (line strip through the link origins), ``world/robot/link_<i>``
+  (frames), ``world/ee`` (EE frame, plus the exact float64 pose as ``legws.EePose``),
+  ``world/ee_trail``, ``world/objects/<obj>``, ``world/joystick``, ``world/command``.
+* ``plots/posterior/<goal>``, ``plots/threshold``, ``plots/slack``, ``plots/tick_ms``.
+* ``log`` (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
+* ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
+  document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
+  stage's name and index, scene, robot, threshold and goal -> object map). Static data
+  keeps only its latest value in the viewer, but the file keeps every write, so
+  :mod:`legws_daemon.telemetry.recording` can read every stage back.
+
+The EE trail is ``world/ee_trail``, not ``world/ee/trail``: a child of ``world/ee`` would be
+moved by the EE's own transform.
+
+Cost: the hot per-tick components are built straight from numpy as Arrow arrays with the
+descriptors of the rerun archetypes (taken once from templates), which is 2-4x cheaper
+than the archetype constructors; unchanged link frames, object boxes and labels are not
+re-sent. Rerun's batcher writes on its own thread, so no call waits for I/O.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa  # type: ignore[import-untyped]
+import rerun as rr
+import rerun.blueprint as rrb
+from numpy.typing import ArrayLike
+
+from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
+from legws_daemon.formats.validation import validate
+from legws_daemon.scene.grasps import extents
+from legws_daemon.scene.scene import ObjectPose, Scene
+
+_LOG = logging.getLogger(__name__)
+
+#: Version of the ``meta/goals`` documents.
+TELEMETRY_FORMAT = 1
+EE_PATH = "world/ee"
+GOALS_DOC = "meta/goals"
+PARAMS_DOC = "meta/params"
+TEXT_LOG = "log"
+#: Dynamic archetype of the exact EE pose logged at ``world/ee`` (float64, for replay).
+EE_ARCHETYPE = "legws.EePose"
+#: Dynamic archetype of the stage index attached to every ``log`` row.
+STAGE_ARCHETYPE = "legws.Stage"
+TARGET_FORMS = "save:PATH, spawn, connect or connect:URL"
+
+_GREY = np.array([150.0, 150.0, 150.0])
+_GREEN = np.array([40.0, 200.0, 70.0])
+_COMMITTED = 0xFFB000FF
+_OTHER = 0x707070FF
+_PALETTE = (0x1F77B4FF, 0xFF7F0EFF, 0x2CA02CFF, 0xD62728FF, 0x9467BDFF, 0x8C564BFF,
+            0xE377C2FF, 0x17BECFFF, 0xBCBD22FF, 0x7F7F7FFF)  # fmt: skip
+_COLOUR_LEVELS = 50
+_UNKNOWN_HALF_SIZE = (0.025, 0.025, 0.025)
+#: The threshold line is a constant: one point every this many ticks draws it.
+_THRESHOLD_EVERY = 10
+
+
+def parse_target(text: str) -> tuple[str, str | None]:
+    """Parse ``--rerun``: ``save:PATH``, ``spawn``, ``connect`` or ``connect:URL``.
+
+    Returns:
+        ``(kind, argument)``; the argument is ``None`` for ``spawn`` and a bare ``connect``
+        (rerun's default address).
+    """
+    kind, sep, arg = text.partition(":")
+    if kind == "spawn" and not sep:
+        return "spawn", None
+    if kind == "connect" and (not sep or arg):
+        return "connect", arg or None
+    if kind == "save" and arg:
+        return "save", arg
+    raise InputError(f"expected {TARGET_FORMS}, got {text!r}", field="--rerun")
+
+
+def commit_text(goal: str, p: float) -> str:
+    """The text-log line of a commit: ``commit goal=<name> p=<prob>``."""
+    return f"commit goal={goal} p={p:.6f}"
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """The 3D world, the plots and the text log side by side."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="world", origin="/", contents="world/**"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="posterior", origin="/", contents="plots/**"),
+                rrb.TextLogView(name="log", origin="/", contents=["log", "status/**"]),
+            ),
+            column_shares=[2, 1],
+        )
+    )
+
+
+# --- Arrow batches without the archetype converters -------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Raw:
+    """A ready Arrow array as a rerun component batch."""
+
+    array: Any
+
+    def as_arrow_array(self) -> Any:
+        return self.array
+
+
+class _Fast:
+    """Builds described component batches from numpy, with descriptors and Arrow types taken
+    from template archetypes (so they always match the installed rerun)."""
+
+    def __init__(self, *templates: rr.AsComponents) -> None:
+        self._spec: dict[str, tuple[rr.ComponentDescriptor, Any]] = {}
+        self._constants: dict[tuple[str, Any], rr.DescribedComponentBatch] = {}
+        for template in templates:
+            for batch in template.as_component_batches():
+                descriptor = batch.component_descriptor()
+                self._spec[str(descriptor)] = (descriptor, batch.as_arrow_array().type)
+
+    def _batch(self, name: str, array: Any) -> rr.DescribedComponentBatch:
+        return rr.DescribedComponentBatch(_Raw(array), self._spec[name][0])
+
+    def fixed(self, name: str, values: ArrayLike) -> rr.DescribedComponentBatch:
+        """Fixed-size float32 lists (vectors, quaternions, column-major matrices)."""
+        return self.wrap(name, pa.array(np.asarray(values, dtype=np.float32).ravel()))
+
+    def wrap(self, name: str, flat: Any) -> rr.DescribedComponentBatch:
+        """Fixed-size lists over a flat float32 Arrow array (or a zero-copy slice of one)."""
+        return self._batch(name, pa.FixedSizeListArray.from_arrays(flat, type=self._spec[name][1]))
+
+    def strips(self, name: str, points: ArrayLike) -> rr.DescribedComponentBatch:
+        """One line strip through ``(N, 3)`` points."""
+        kind = self._spec[name][1]
+        pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.ravel()), type=kind.value_type)
+        offsets = pa.array(np.array([0, len(pts)], dtype=np.int32))
+        return self._batch(name, pa.ListArray.from_arrays(offsets, inner, type=kind))
+
+    def plain(self, name: str, values: Iterable[Any]) -> rr.DescribedComponentBatch:
+        """Scalars, colours (``0xRRGGBBAA``), strings or integers of the component's type."""
+        return self._batch(name, pa.array(list(values), type=self._spec[name][1]))
+
+    def constant(self, name: str, value: Any) -> rr.DescribedComponentBatch:
+        """A one-element :meth:`plain` batch, built once per value."""
+        key = (name, value)
+        batch = self._constants.get(key)
+        if batch is None:
+            batch = self._constants[key] = self.plain(name, [value])
+        return batch
+
+
+@cache
+def _fast() -> _Fast:
+    eye = np.eye(3)
+    return _Fast(
+        rr.Transform3D(translation=[0, 0, 0], mat3x3=eye),
+        rr.Transform3D(quaternion=rr.Quaternion(xyzw=[0, 0, 0, 1])),
+        rr.Scalars(0.0),
+        rr.Arrows3D(origins=[[0, 0, 0]], vectors=[[0, 0, 1]], colors=[[1, 2, 3]]),
+        rr.LineStrips3D([[[0, 0, 0], [1, 1, 1]]]),
+        rr.Boxes3D(
+            centers=[[0, 0, 0]],
+            half_sizes=[[1, 1, 1]],
+            quaternions=[rr.Quaternion(xyzw=[0, 0, 0, 1])],
+            colors=[[1, 2, 3]],
+            labels=["x"],
+            fill_mode="solid",
+        ),
+        rr.DynamicArchetype(
+            EE_ARCHETYPE,
+            components={"position": [0.0] * 3, "quaternion": [0.0] * 4, "t": 0.0, "stage": 0},
+        ),
+        rr.DynamicArchetype(STAGE_ARCHETYPE, components={"stage": 0}),
+    )
+
+
+# --- small pure helpers --------------------------------------------------------------------------
+
+
+def _part(name: str) -> str:
+    return rr.escape_entity_path_part(name)
+
+
+def _xyzw(q_wxyz: ArrayLike) -> FloatArray:
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    return np.array([q[1], q[2], q[3], q[0]])
+
+
+def _yaw_xyzw(yaw: float) -> list[float]:
+    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
+
+
+def _half_size(scene: Scene, name: str) -> tuple[float, float, float]:
+    obj = scene.object(name)
+    sx, sy, sz = extents(obj.shape, tuple(obj.size))
+    return (sx / 2, sy / 2, sz / 2)
+
+
+def _rgba(rgb: ArrayLike, alpha: int = 255) -> int:
+    r, g, b = (round(float(c)) for c in np.clip(np.asarray(rgb, dtype=np.float64), 0, 255))
+    return (r << 24) | (g << 16) | (b << 8) | alpha
+
+
+def posterior_colour(p: float) -> int:
+    """Grey at probability 0 to green at 1, in :data:`_COLOUR_LEVELS` steps (``0xRRGGBBAA``)."""
+    level = round(min(max(p, 0.0), 1.0) * _COLOUR_LEVELS) / _COLOUR_LEVELS
+    return _rgba(_GREY + level * (_GREEN - _GREY))
+
+
+def parse_params_json(params_json: str) -> Params:
+    """The :class:`Params` of a JSON object of its fields (as ``Params.as_dict()`` gives)."""
+    try:
+        data = json.loads(params_json)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"expected a JSON object: {exc}", field="params_json") from None
+    return params_from_schema(validate(ParamsSchema, data, "params_json"), "params_json")
+
+
+def _check_settings(length: int, every: int, scale: float, link_every: int) -> None:
+    checks = [
+        ("trail_length", length, isinstance(length, int) and length >= 2, "an integer >= 2"),
+        ("trail_every", every, isinstance(every, int) and every >= 1, "an integer >= 1"),
+        ("command_scale", scale, isinstance(scale, int | float) and scale > 0, "a number > 0"),
+        ("link_frames_every", link_every, isinstance(link_every, int) and link_every >= 0,
+         "an integer >= 0"),
+    ]  # fmt: skip
+    for name, value, ok, expected in checks:
+        if not ok:
+            raise InputError(f"expected {expected}, got {value!r}", field=name)
+
+
+@dataclass(slots=True)
+class _ObjectState:
+    """What was last sent for one object box (to skip unchanged rows)."""
+
+    half_size: tuple[float, float, float]
+    pose: bytes = b""
+    style: tuple[int, str] | None = None
+
+
+@dataclass(slots=True)
+class _Trail:
+    """Ring buffer of recent EE positions; the strip is re-sent every ``every`` new points."""
+
+    capacity: int
+    every: int
+    points: FloatArray = field(init=False)
+    count: int = 0
+    pending: int = 0
+
+    def __post_init__(self) -> None:
+        self.points = np.zeros((self.capacity, 3))
+
+    def add(self, position: FloatArray, min_step: float = 1e-3) -> bool:
+        """Add a point (if it moved ``min_step``); True when the strip is due to be re-sent."""
+        if self.count:
+            last = self.points[(self.count - 1) % self.capacity]
+            if float(np.sum((position - last) ** 2)) < min_step**2:
+                return False
+        self.points[self.count % self.capacity] = position
+        self.count += 1
+        self.pending += 1
+        return self.count >= 2 and self.pending >= self.every
+
+    def ordered(self) -> FloatArray:
+        self.pending = 0
+        if self.count <= self.capacity:
+            return self.points[: self.count]
+        start = self.count % self.capacity
+        return np.concatenate((self.points[start:], self.points[:start]))
+
+    def clear(self) -> None:
+        self.count = self.pending = 0
+
+
+class RerunLog:
+    """Telemetry of one daemon run to a rerun recording (file, spawned viewer or server).
+
+    Args:
+        target: ``save:PATH`` (the parent folder must exist), ``spawn`` (starts a viewer)
+            or ``connect:URL`` (a running viewer or server; if it cannot be reached, rerun
+            waits 5 s here, then buffers).
+        robot: robot name, logged at ``meta/robot``.
+        application_id: rerun application id.
+        recording_id: rerun recording id (default: a new one).
+        trail_length: number of EE positions in ``world/ee_trail``.
+        trail_every: re-send the trail every this many new trail points.
+        command_scale: seconds; the command arrow is the EE velocity times this.
+        link_frames_every: send the ``world/robot/link_<i>`` frames every this many ticks
+            (0: never); the arm's line strip is sent every tick. Each moving link frame
+            costs about as much as a posterior plot point.
+
+    Per-tick calls never raise: a failure is counted in :attr:`dropped` and logged (once,
+    then every 1000th time) on the ``logging`` logger of this module. Not thread-safe: call
+    :meth:`log_tick` from one thread. :meth:`close` may be called from a signal handler.
+    """
+
+    def __init__(
+        self,
+        target: str,
+        *,
+        robot: str,
+        application_id: str = "legws",
+        recording_id: str | None = None,
+        trail_length: int = 200,
+        trail_every: int = 5,
+        command_scale: float = 2.0,
+        link_frames_every: int = 1,
+    ) -> None:
+        kind, arg = parse_target(target)
+        _check_settings(trail_length, trail_every, command_scale, link_frames_every)
+        self.robot = robot
+        self.dropped = 0
+        self._closed = False
+        self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
+        self._open_sink(kind, arg)
+        self._fast = _fast()
+        self._trail = _Trail(trail_length, trail_every)
+        self._command_scale = command_scale
+        self._link_frames_every = link_frames_every
+        self._stage = -1
+        self._static: dict[str, str] = {}
+        self._goal_object: dict[str, str] = {}
+        self._object_goals: dict[str, list[str]] = {}
+        self._objects: dict[str, _ObjectState] = {}
+        self._sizes: dict[str, tuple[float, float, float]] = {}
+        self._pending_clears: list[str] = []
+        self._links: list[bytes] = []  # per link frame, as last sent
+        self._arm: list[bytes] = []  # every link, as last sent in the line strip
+        self._paths: dict[str, str] = {}
+        self._p_thresh: float | None = None
+        self._threshold_due = False
+        self._mode: str | None = None
+        self._joystick_shown = False
+        self._ee_axes_sent = False
+        self._stream.send_recording_name(f"legws {robot}")
+        self._stream.log("meta/robot", rr.TextDocument(robot), static=True)
+        self._stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def _open_sink(self, kind: str, arg: str | None) -> None:
+        blueprint = default_blueprint()
+        if kind == "save":
+            assert arg is not None
+            path = Path(arg)
+            if not path.parent.is_dir():
+                raise InputError(f"folder {path.parent} does not exist", field="--rerun")
+            if path.is_dir():
+                raise InputError(f"{path} is a folder, expected a file path", field="--rerun")
+            try:
+                self._stream.save(path, default_blueprint=blueprint)
+            except (OSError, RuntimeError, ValueError) as exc:
+                raise InputError(f"cannot write {path}: {exc}", field="--rerun") from None
+        elif kind == "spawn":
+            self._stream.spawn(default_blueprint=blueprint)
+        else:
+            self._stream.connect_grpc(arg, default_blueprint=blueprint)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> RerunLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- setup (static) ------------------------------------------------------------------------
+
+    def log_setup(
+        self,
+        *,
+        scene: Scene,
+        goals: GoalSet,
+        goal_objects: dict[str, str],
+        planned: dict[str, ObjectPose],
+        p_thresh: float,
+        params_json: str,
+        stage: str | None = None,
+    ) -> None:
+        """Log a stage: table, planned layout, grasps, goal set, params, threshold.
+
+        Replaces the static data of the previous stage; objects of the previous scene that
+        this one lacks are cleared at the next tick.
+
+        Raises:
+            InputError: unknown goal or object names, a threshold outside (0, 1), or a
+                ``params_json`` that is not a valid Params object.
+        """
+        self._check_setup(scene, goals, goal_objects, planned, p_thresh)
+        if self._closed:
+            return
+        doc = self._stage_doc(scene, goals, goal_objects, planned, p_thresh, params_json, stage)
+        self._stage += 1
+        doc["stage_index"] = self._stage
+        static: dict[str, str] = {}
+        self._log_table(scene, static)
+        self._log_planned(scene, planned, static)
+        self._log_grasps(goals, static)
+        self._log_series(goals, static)
+        self._clear_static(static)
+        text = json.dumps(doc, indent=1, allow_nan=False)
+        self._stream.log(GOALS_DOC, rr.TextDocument(text), static=True)
+        self._stream.log(PARAMS_DOC, rr.TextDocument(params_json), static=True)
+        self._reset_stage(scene, goals, goal_objects, p_thresh)
+
+    @staticmethod
+    def _check_setup(
+        scene: Scene,
+        goals: GoalSet,
+        goal_objects: Mapping[str, str],
+        planned: Mapping[str, ObjectPose],
+        p_thresh: float,
+    ) -> None:
+        for goal, obj in goal_objects.items():
+            goals.index(goal)
+            scene.object(obj)
+        for obj in planned:
+            scene.object(obj)
+        if not (isinstance(p_thresh, int | float) and 0.0 < p_thresh < 1.0):
+            raise InputError(f"expected a number in (0, 1), got {p_thresh!r}", field="p_thresh")
+
+    def _stage_doc(
+        self,
+        scene: Scene,
+        goals: GoalSet,
+        goal_objects: Mapping[str, str],
+        planned: Mapping[str, ObjectPose],
+        p_thresh: float,
+        params_json: str,
+        stage: str | None,
+    ) -> dict[str, Any]:
+        doc = goalset_to_data(goals, parse_params_json(params_json))
+        doc.update(
+            legws_telemetry=TELEMETRY_FORMAT,
+            stage=stage,
+            robot=self.robot,
+            scene=scene.name,
+            p_thresh=float(p_thresh),
+            goal_objects=dict(goal_objects),
+            planned={n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in planned.items()},
+        )
+        return doc
+
+    def _log_table(self, scene: Scene, static: dict[str, str]) -> None:
+        ws = scene.workspace
+        box = rr.Boxes3D(
+            centers=[[ws.table_center[0], ws.table_center[1], ws.table_height - 0.02]],
+            half_sizes=[[ws.table_size[0] / 2, ws.table_size[1] / 2, 0.02]],
+            colors=[[209, 189, 153]],
+            fill_mode="solid",
+        )
+        self._stream.log("world/table", box, static=True)
+        static["world/table"] = "box"
+
+    def _log_planned(
+        self, scene: Scene, planned: Mapping[str, ObjectPose], static: dict[str, str]
+    ) -> None:
+        for name, pose in planned.items():
+            path = f"world/planned/{_part(name)}"
+            box = rr.Boxes3D(
+                centers=[[pose.x, pose.y, scene.z_center(name)]],
+                half_sizes=[_half_size(scene, name)],
+                quaternions=[rr.Quaternion(xyzw=_yaw_xyzw(pose.yaw))],
+                colors=[[90, 140, 230]],
+                labels=[f"{name} (planned)"],
+                show_labels=False,
+                fill_mode="majorwireframe",
+            )
+            self._stream.log(path, box, static=True)
+            static[path] = "box"
+
+    def _log_grasps(self, goals: GoalSet, static: dict[str, str]) -> None:
+        for i, name in enumerate(goals.names):
+            path = f"world/grasps/{_part(name)}"
+            frame = rr.Transform3D(
+                translation=goals.positions[i],
+                quaternion=rr.Quaternion(xyzw=_xyzw(goals.quaternions[i])),
+            )
+            approach = rr.Arrows3D(
+                origins=[[0.0, 0.0, -0.08]],
+                vectors=[[0.0, 0.0, 0.08]],
+                colors=[_PALETTE[i % len(_PALETTE)]],
+                labels=[name],
+            )
+            self._stream.log(path, frame, rr.TransformAxes3D(0.04), approach, static=True)
+            static[path] = "grasp"
+
+    def _log_series(self, goals: GoalSet, static: dict[str, str]) -> None:
+        for i, name in enumerate(goals.names):
+            path = self._posterior_path(name)
+            style = rr.SeriesLines(colors=[_PALETTE[i % len(_PALETTE)]], names=[name], widths=2)
+            self._stream.log(path, style, static=True)
+            static[path] = "series"
+        threshold = rr.SeriesLines(colors=[0x999999FF], names=["p_thresh"], widths=1)
+        self._stream.log("plots/threshold", threshold, static=True)
+        static["plots/threshold"] = "series"
+
+    def _clear_static(self, static: dict[str, str]) -> None:
+        """Overwrite the static data of entities the new stage no longer has."""
+        for path, kind in self._static.items():
+            if path in static:
+                continue
+            if kind == "box":
+                self._stream.log(path, rr.Boxes3D.cleared(), static=True)
+            elif kind == "grasp":
+                cleared = (rr.Transform3D.cleared(), rr.TransformAxes3D.cleared())
+                self._stream.log(path, *cleared, rr.Arrows3D.cleared(), static=True)
+            else:
+                self._stream.log(path, rr.SeriesLines.cleared(), static=True)
+        self._static = static
+
+    def _reset_stage(
+        self, scene: Scene, goals: GoalSet, goal_objects: Mapping[str, str], p_thresh: float
+    ) -> None:
+        self._sizes = {name: _half_size(scene, name) for name in scene.objects}
+        self._pending_clears.extend(
+            f"world/objects/{_part(n)}" for n in self._objects if n not in self._sizes
+        )
+        self._objects = {}
+        self._goal_object = {g: goal_objects[g] for g in goals.names if g in goal_objects}
+        self._object_goals = {}
+        for goal, obj in self._goal_object.items():
+            self._object_goals.setdefault(obj, []).append(goal)
+        self._p_thresh = float(p_thresh)
+        self._threshold_due = True
+        self._trail.clear()
+
+    def _posterior_path(self, goal: str) -> str:
+        path = self._paths.get(goal)
+        if path is None:
+            path = self._paths[goal] = f"plots/posterior/{_part(goal)}"
+        return path
+
+    # --- per tick ------------------------------------------------------------------------------
+
+    def log_tick(
+        self,
+        tick: int,
+        t: float,
+        *,
+        link_positions: FloatArray,
+        link_rotations: FloatArray,
+        ee_position: FloatArray,
+        ee_quaternion: FloatArray,
+        objects: dict[str, tuple[FloatArray, FloatArray]],
+        posterior: dict[str, float] | None,
+        joystick: FloatArray | None,
+        command: FloatArray,
+        mode: str,
+        slack: float | None,
+        committed: str | None,
+        tick_seconds: float | None = None,
+    ) -> None:
+        """Log one control tick (see the module docstring for the entities). Never raises."""
+        if self._closed:
+            return
+        try:
+            self._set_time(tick, t)
+            for path in self._pending_clears:
+                self._stream.log(path, rr.Clear(recursive=False))
+            self._pending_clears.clear()
+            self._log_links(tick, link_positions, link_rotations)
+            ee = self._log_ee(t, ee_position, ee_quaternion)
+            self._log_objects(objects, posterior or {}, committed)
+            self._log_arrows(ee, joystick, command)
+            self._log_plots(tick, posterior, slack, tick_seconds)
+            if mode != self._mode:
+                self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
+                self._mode = mode
+        except Exception as exc:  # telemetry must never stop the control loop
+            self._drop("tick", exc)
+
+    def _drop(self, what: str, exc: Exception) -> None:
+        self.dropped += 1
+        if self.dropped == 1 or self.dropped % 1000 == 0:
+            _LOG.warning("rerun telemetry: %s not logged (%d so far): %s", what, self.dropped, exc)
+
+    def _set_time(self, tick: int, t: float) -> None:
+        self._stream.set_time("tick", sequence=tick)
+        self._stream.set_time("time", duration=t)
+
+    def _log_links(self, tick: int, positions: FloatArray, rotations: FloatArray) -> None:
+        pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        rot = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+        k = len(pos)
+        every = self._link_frames_every
+        if len(self._links) != k:
+            self._links = [b""] * k
+            for i in range(k if every > 0 else 0):
+                self._stream.log(f"world/robot/link_{i}", rr.TransformAxes3D(0.05), static=True)
+        keys = [pos[i].tobytes() + rot[i].tobytes() for i in range(k)]
+        fast = self._fast
+        if keys != self._arm:
+            self._arm = keys
+            self._stream.log("world/robot/links", [fast.strips("LineStrips3D:strips", pos)])
+        if every <= 0 or keys == self._links or (tick % every and self._links[0]):
+            return
+        # one Arrow array per quantity, zero-copy slices per link; rerun stores column-major
+        translations = pa.array(pos.astype(np.float32).ravel())
+        matrices = pa.array(rot.transpose(0, 2, 1).astype(np.float32).ravel())
+        for i in range(k):
+            if keys[i] == self._links[i]:
+                continue
+            self._links[i] = keys[i]
+            frame = [
+                fast.wrap("Transform3D:translation", translations.slice(3 * i, 3)),
+                fast.wrap("Transform3D:mat3x3", matrices.slice(9 * i, 9)),
+            ]
+            self._stream.log(f"world/robot/link_{i}", frame)
+
+    def _log_ee(self, t: float, position: FloatArray, quaternion: FloatArray) -> FloatArray:
+        p = np.array(position, dtype=np.float64).reshape(3)
+        q = np.array(quaternion, dtype=np.float64).reshape(4)
+        fast = self._fast
+        pose = [
+            fast.fixed("Transform3D:translation", p),
+            fast.fixed("Transform3D:quaternion", _xyzw(q)),
+            fast.plain(f"{EE_ARCHETYPE}:position", p.tolist()),
+            fast.plain(f"{EE_ARCHETYPE}:quaternion", q.tolist()),
+            fast.plain(f"{EE_ARCHETYPE}:t", [float(t)]),
+            fast.plain(f"{EE_ARCHETYPE}:stage", [self._stage]),
+        ]
+        if not self._ee_axes_sent:
+            self._stream.log(EE_PATH, rr.TransformAxes3D(0.08), static=True)
+            self._ee_axes_sent = True
+        self._stream.log(EE_PATH, pose)
+        if self._trail.add(p):
+            strip = [fast.strips("LineStrips3D:strips", self._trail.ordered())]
+            self._stream.log("world/ee_trail", strip)
+        return p
+
+    def _log_objects(
+        self,
+        objects: Mapping[str, tuple[FloatArray, FloatArray]],
+        posterior: Mapping[str, float],
+        committed: str | None,
+    ) -> None:
+        fast = self._fast
+        committed_object = self._goal_object.get(committed) if committed else None
+        for name, (position, quaternion) in objects.items():
+            state = self._objects.get(name)
+            batches: list[rr.DescribedComponentBatch] = []
+            if state is None:
+                state = _ObjectState(self._sizes.get(name, _UNKNOWN_HALF_SIZE))
+                self._objects[name] = state
+                batches.append(fast.fixed("Boxes3D:half_sizes", state.half_size))
+                batches.append(fast.constant("Boxes3D:fill_mode", 3))  # solid
+            p = np.asarray(position, dtype=np.float64).reshape(3)
+            q = np.asarray(quaternion, dtype=np.float64).reshape(4)
+            pose = p.tobytes() + q.tobytes()
+            if pose != state.pose:
+                state.pose = pose
+                batches.append(fast.fixed("Boxes3D:centers", p))
+                batches.append(fast.fixed("Boxes3D:quaternions", _xyzw(q)))
+            style = self._object_style(name, posterior, committed_object)
+            if style != state.style:
+                state.style = style
+                batches.append(fast.plain("Boxes3D:colors", [style[0]]))
+                batches.append(fast.plain("Boxes3D:labels", [style[1]]))
+            if batches:
+                self._stream.log(f"world/objects/{_part(name)}", batches)
+
+    def _object_style(
+        self, name: str, posterior: Mapping[str, float], committed_object: str | None
+    ) -> tuple[int, str]:
+        """Colour and label; the probability is quantised so that a label is re-sent only
+        when it changes by a colour step."""
+        goals = self._object_goals.get(name)
+        if not goals:
+            return _OTHER, name
+        p = min(max(sum(float(posterior.get(g, 0.0)) for g in goals), 0.0), 1.0)
+        level = round(p * _COLOUR_LEVELS) / _COLOUR_LEVELS
+        if name == committed_object:
+            return _COMMITTED, f"{name} {level:.2f} committed"
+        return posterior_colour(level), f"{name} {level:.2f}"
+
+    def _log_arrows(self, ee: FloatArray, joystick: FloatArray | None, command: FloatArray) -> None:
+        fast = self._fast
+        origin = fast.fixed("Arrows3D:origins", ee)
+        if joystick is None:
+            if self._joystick_shown:
+                self._stream.log("world/joystick", rr.Clear(recursive=False))
+                self._joystick_shown = False
+        else:
+            stick = np.asarray(joystick, dtype=np.float64).ravel()[:3] * 0.1
+            arrow = [
+                origin,
+                fast.fixed("Arrows3D:vectors", stick),
+                fast.constant("Arrows3D:colors", 0x3080FFFF),
+            ]
+            self._stream.log("world/joystick", arrow)
+            self._joystick_shown = True
+        velocity = np.asarray(command, dtype=np.float64).ravel()[:3] * self._command_scale
+        arrow = [
+            origin,
+            fast.fixed("Arrows3D:vectors", velocity),
+            fast.constant("Arrows3D:colors", 0xFF5020FF),
+        ]
+        self._stream.log("world/command", arrow)
+
+    def _log_plots(
+        self,
+        tick: int,
+        posterior: Mapping[str, float] | None,
+        slack: float | None,
+        tick_s: float | None,
+    ) -> None:
+        fast = self._fast
+        for goal, p in (posterior or {}).items():
+            self._stream.log(self._posterior_path(goal), [fast.plain("Scalars:scalars", [p])])
+        if self._p_thresh is not None and (self._threshold_due or tick % _THRESHOLD_EVERY == 0):
+            value = [fast.constant("Scalars:scalars", self._p_thresh)]
+            self._stream.log("plots/threshold", value)
+            self._threshold_due = False
+        if slack is not None:
+            self._stream.log("plots/slack", [fast.plain("Scalars:scalars", [slack])])
+        if tick_s is not None:
+            self._stream.log("plots/tick_ms", [fast.plain("Scalars:scalars", [tick_s * 1e3])])
+
+    # --- events and lifecycle ------------------------------------------------------------------
+
+    def log_text(self, tick: int, t: float, level: str, text: str) -> None:
+        """A line of the text log (``INFO``, ``WARN``, ``ERROR``); tagged with the stage."""
+        if self._closed:
+            return
+        try:
+            lvl = level.upper()
+            lvl = "WARN" if lvl == "WARNING" else lvl
+            self._set_time(tick, t)
+            stage = [self._fast.plain(f"{STAGE_ARCHETYPE}:stage", [self._stage])]
+            self._stream.log(TEXT_LOG, rr.TextLog(text, level=lvl), stage)
+        except Exception as exc:  # telemetry must never stop the control loop
+            self._drop("text", exc)
+
+    def log_commit(self, tick: int, t: float, goal: str, p: float) -> None:
+        """Log a commit in the format :func:`commit_text` (read back by ``legws replay``)."""
+        self.log_text(tick, t, "INFO", commit_text(goal, p))
+
+    def flush(self, timeout: float = 5.0) -> None:
+        """Wait (at most ``timeout`` seconds) until everything logged has reached the sink."""
+        if self._closed:
+            return
+        try:
+            self._stream.flush(timeout_sec=timeout)
+        except Exception as exc:  # a slow viewer must not crash the daemon
+            self._drop("flush", exc)
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Flush (at most ``timeout`` s) and disconnect, completing a ``save:`` file.
+
+        Idempotent. With a ``connect:`` target whose server cannot be reached, rerun also
+        waits up to 5 s for a last connection attempt before dropping the data.
+        """
+        if self._closed:
+            return
+        self._closed = True  # first: a signal arriving during close must not re-enter it
+        try:
+            self._stream.flush(timeout_sec=timeout)
+        except Exception as exc:  # closing is best effort: still disconnect
+            self._drop("close", exc)
+        try:
+            self._stream.disconnect()
+        except Exception as exc:
+            self._drop("close", exc)

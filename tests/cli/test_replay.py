@@ -1,0 +1,149 @@
+"""``legws replay``: the observer re-run on a recorded EE path, its report and its errors."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import rerun as rr
+
+from legws_daemon.cli import main as cli_main
+from legws_daemon.cli.replay import replay_cmd
+from tests.cli.helpers import Result, assert_bad_input
+from tests.telemetry.helpers import record, straight_episode
+
+Cli = Callable[..., Result]
+
+
+@pytest.fixture(autouse=True)
+def registered(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``replay`` in the ``legws`` group for the in-process runner (undone after the test)."""
+    monkeypatch.setitem(cli_main.cli.commands, "replay", replay_cmd)
+
+
+@pytest.fixture(scope="module")
+def banana(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int]:
+    """A straight reach to the banana of breakfast_easy, the daemon committing on the way."""
+    path = tmp_path_factory.mktemp("replay") / "banana.rrd"
+    (commit,) = record(path, straight_episode("breakfast_easy", "banana"))
+    assert commit is not None
+    return path, commit
+
+
+@pytest.fixture(scope="module")
+def two_stages(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("replay") / "two.rrd"
+    record(
+        path,
+        straight_episode("breakfast_easy", "banana"),
+        straight_episode("breakfast_easy", "cereal_box"),
+    )
+    return path
+
+
+def _report(cli: Cli, *argv: str | Path) -> dict[str, Any]:
+    result = cli("replay", *argv, "--json")
+    assert result.code == 0, result
+    assert result.err == ""
+    report: dict[str, Any] = json.loads(result.out)
+    return report
+
+
+def test_replay_commits_on_the_goal_reached(cli: Cli, banana: tuple[Path, int]) -> None:
+    path, commit_tick = banana
+    report = _report(cli, path)
+    assert report["recording"] == str(path)
+    (stage,) = report["stages"]
+    commit = stage["commit"]
+    assert commit["goal"] == "banana"
+    assert commit["tick"] == commit_tick
+    assert commit["seconds"] == pytest.approx(commit_tick * 0.05)
+    assert commit["p"] >= 0.9
+    assert stage["recorded_commit"]["goal"] == "banana"
+    assert stage["recorded_commit"]["tick"] == commit_tick
+    assert stage["agrees"] is True
+    assert stage["final_posterior"]["banana"] > 0.9
+    assert sum(stage["final_posterior"].values()) == pytest.approx(1.0)
+    assert stage["params"] == stage["recorded_params"]
+
+
+def test_a_higher_threshold_commits_later_or_never(
+    cli: Cli, banana: tuple[Path, int], two_stages: Path
+) -> None:
+    path, commit_tick = banana
+    (stage,) = _report(cli, path, "--threshold", "0.99")["stages"]
+    assert stage["params"]["p_thresh"] == 0.99
+    assert stage["recorded_params"]["p_thresh"] == 0.9
+    assert stage["commit"]["goal"] == "banana"
+    assert stage["commit"]["tick"] > commit_tick
+    cereal = _report(cli, two_stages, "--stage", "s1", "--threshold", "0.99")["stages"]
+    assert cereal[0]["commit"] is None
+    assert cereal[0]["recorded_commit"]["goal"] == "cereal_box"
+    assert cereal[0]["agrees"] is None
+
+
+def test_overrides_reach_the_observer(cli: Cli, banana: tuple[Path, int]) -> None:
+    path, commit_tick = banana
+    (stage,) = _report(cli, path, "--beta", "20", "--cost", "ratio")["stages"]
+    assert (stage["params"]["beta"], stage["params"]["cost"]) == (20.0, "ratio")
+    assert stage["commit"]["goal"] == "banana"
+    assert stage["commit"]["tick"] != commit_tick  # a sharper, different observer
+
+
+def test_every_stage_is_replayed(cli: Cli, two_stages: Path) -> None:
+    stages = _report(cli, two_stages)["stages"]
+    assert [(s["index"], s["name"]) for s in stages] == [(0, "s0"), (1, "s1")]
+    assert [s["commit"]["goal"] for s in stages] == ["banana", "cereal_box"]
+    assert stages[1]["first_tick"] == stages[0]["last_tick"] + 1
+    assert [s["index"] for s in _report(cli, two_stages, "--stage", "1")["stages"]] == [1]
+
+
+def test_text_report(cli: Cli, banana: tuple[Path, int]) -> None:
+    path, commit_tick = banana
+    result = cli("replay", path)
+    assert result.code == 0 and result.err == ""
+    assert f"replayed commit: banana at tick {commit_tick} (" in result.out
+    assert f"recorded commit: banana at tick {commit_tick}, p = " in result.out
+    assert "(same goal)" in result.out
+    assert "final posterior: cereal_box 0.0" in result.out
+
+
+@pytest.mark.parametrize(
+    ("argv", "needles"),
+    [
+        (["--beta", "0"], ["--beta", "got 0.0"]),
+        (["--beta", "-1"], ["--beta"]),
+        (["--beta", "nan"], ["--beta"]),
+        (["--beta", "1e9"], ["--beta"]),
+        (["--threshold", "0.5"], ["--threshold", "(0.5, 1)"]),
+        (["--threshold", "1"], ["--threshold", "(0.5, 1)"]),
+        (["--threshold", "0.2"], ["--threshold"]),
+        (["--threshold", "inf"], ["--threshold"]),
+        (["--threshold", "x"], ["--threshold"]),
+        (["--cost", "linear"], ["--cost", "dragan"]),
+        (["--stage", "7"], ["stage", "no stage 7"]),
+        (["--stage", "nope"], ["stage", "'nope'", "0=s0"]),
+    ],
+)
+def test_bad_options_exit_2(
+    cli: Cli, banana: tuple[Path, int], argv: list[str], needles: list[str]
+) -> None:
+    assert_bad_input(cli("replay", banana[0], *argv), *needles)
+
+
+def test_bad_recordings_exit_2(cli: Cli, tmp_path: Path) -> None:
+    missing = tmp_path / "missing.rrd"
+    assert_bad_input(cli("replay", missing), str(missing), "no such file")
+    text = tmp_path / "notes.rrd"
+    text.write_text("hello")
+    assert_bad_input(cli("replay", text), str(text), "not a readable rerun recording")
+    other = tmp_path / "other.rrd"
+    stream = rr.RecordingStream("someone-else")
+    stream.save(other)
+    stream.log("points", rr.Points3D([[0, 0, 0]]))
+    stream.disconnect()
+    assert_bad_input(cli("replay", other), str(other), "no legws telemetry")
+    assert_bad_input(cli("replay"), "RECORDING")

@@ -1,0 +1,336 @@
+"""RerunLog writes a complete, verifiable recording with the documented entities."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from legws_daemon.errors import InputError
+from legws_daemon.telemetry.recording import entity_paths, read_ee_path, read_stages
+from legws_daemon.telemetry.rerun_log import RerunLog, _fast, parse_target, posterior_colour
+from tests.telemetry.helpers import (
+    Episode,
+    log_episode,
+    record,
+    setup,
+    straight_episode,
+    tick_kwargs,
+    verify,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def episode() -> Episode:
+    return straight_episode("breakfast_easy", "banana")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory, episode: Episode) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "run.rrd"
+    record(path, episode)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("save:/tmp/x.rrd", ("save", "/tmp/x.rrd")),
+        ("save:rel/x:y.rrd", ("save", "rel/x:y.rrd")),
+        ("spawn", ("spawn", None)),
+        ("connect", ("connect", None)),
+        (
+            "connect:rerun+http://127.0.0.1:9876/proxy",
+            ("connect", "rerun+http://127.0.0.1:9876/proxy"),
+        ),
+    ],
+)
+def test_parse_target(text: str, expected: tuple[str, str | None]) -> None:
+    assert parse_target(text) == expected
+
+
+@pytest.mark.parametrize("text", ["", "save", "save:", "spawn:x", "connect:", "file:x.rrd", "x"])
+def test_parse_target_rejects(text: str) -> None:
+    with pytest.raises(InputError, match="--rerun") as err:
+        parse_target(text)
+    assert "\n" not in str(err.value)
+    assert "save:PATH" in str(err.value)
+
+
+def test_save_needs_an_existing_folder(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="does not exist"):
+        RerunLog(f"save:{tmp_path / 'missing' / 'x.rrd'}", robot="r")
+    with pytest.raises(InputError, match="is a folder"):
+        RerunLog(f"save:{tmp_path}", robot="r")
+
+
+def test_recording_has_the_documented_entities(recording: Path, episode: Episode) -> None:
+    paths = entity_paths(recording)
+    scene, goals = episode.scene, episode.goals
+    expected = {
+        "world/table",
+        "world/ee",
+        "world/ee_trail",
+        "world/robot/links",
+        "world/robot/link_0",
+        "world/robot/link_7",
+        "world/joystick",
+        "world/command",
+        "plots/threshold",
+        "plots/slack",
+        "plots/tick_ms",
+        "status/mode",
+        "log",
+        "meta/goals",
+        "meta/params",
+        "meta/robot",
+    }
+    expected |= {f"world/objects/{name}" for name in scene.objects}
+    expected |= {f"world/planned/{name}" for name in scene.default_layout()}
+    expected |= {f"world/grasps/{g}" for g in goals.names}
+    expected |= {f"plots/posterior/{g}" for g in goals.names}
+    assert expected <= paths, expected - paths
+
+
+def test_recording_verifies(recording: Path) -> None:
+    result = verify(recording)
+    assert result.returncode == 0, result.stderr
+
+
+def test_blueprint_is_in_the_file(recording: Path) -> None:
+    assert len(RrdReader(recording).blueprints()) == 1
+    assert [s.application_id for s in RrdReader(recording).recordings()] == ["legws"]
+
+
+def _rows(path: Path, entity: str, component: str) -> list[tuple[int | None, Any]]:
+    """``(tick or None if static, value)`` of one component of one entity, in logging order.
+
+    Chunks are not stored in logging order (a static chunk may come first): row ids are.
+    """
+    rows = []
+    for chunk in RrdReader(path).stream().filter(content=f"/{entity}").to_chunks():
+        batch = chunk.to_record_batch()
+        if component not in batch.schema.names:
+            continue
+        ticks = batch.column("tick").to_pylist() if "tick" in batch.schema.names else None
+        row_ids = batch.column("rerun.controls.RowId").to_pylist()
+        for i, value in enumerate(batch.column(component).to_pylist()):
+            rows.append((row_ids[i], None if ticks is None else ticks[i], value))
+    return [(tick, value) for _, tick, value in sorted(rows, key=lambda r: r[0])]
+
+
+def test_joystick_is_cleared_when_released(recording: Path, episode: Episode) -> None:
+    clears = _rows(recording, "world/joystick", "Clear:is_recursive")
+    last_moving = int(np.argmax(np.all(episode.positions == episode.positions[-1], axis=1))) - 1
+    assert [tick for tick, _ in clears] == [last_moving + 1]
+
+
+def test_objects_are_coloured_by_posterior(recording: Path) -> None:
+    colours = [c[0] for _, c in _rows(recording, "world/objects/banana", "Boxes3D:colors") if c]
+    labels = [x[0] for _, x in _rows(recording, "world/objects/banana", "Boxes3D:labels") if x]
+    assert colours[0] == posterior_colour(0.5)  # two goals, uniform prior
+    assert labels[0] == "banana 0.50"
+    assert labels[-1].endswith("committed")
+    bowl = _rows(recording, "world/objects/bowl", "Boxes3D:labels")
+    assert [x for _, x in bowl] == [["bowl"]]  # not a goal: sent once
+
+
+def test_posterior_colour_goes_from_grey_to_green() -> None:
+    assert posterior_colour(0.0) == 0x969696FF
+    assert posterior_colour(1.0) == 0x28C846FF
+    assert posterior_colour(2.0) == posterior_colour(1.0)
+
+
+def test_fast_batches_match_the_archetypes() -> None:
+    """The Arrow arrays built without the archetype converters are the archetypes' own."""
+    fast = _fast()
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    q_xyzw = [0.1, 0.2, 0.3, 0.9]
+    pts = np.arange(12.0).reshape(4, 3)
+    cases = [
+        (fast.fixed("Transform3D:mat3x3", R.T), rr.Transform3D(mat3x3=R)),
+        (fast.fixed("Transform3D:translation", [1, 2, 3]), rr.Transform3D(translation=[1, 2, 3])),
+        (
+            fast.fixed("Transform3D:quaternion", q_xyzw),
+            rr.Transform3D(quaternion=rr.Quaternion(xyzw=q_xyzw)),
+        ),
+        (fast.strips("LineStrips3D:strips", pts), rr.LineStrips3D([pts])),
+        (fast.plain("Scalars:scalars", [0.25]), rr.Scalars(0.25)),
+        (
+            fast.constant("Boxes3D:fill_mode", 3),
+            rr.Boxes3D(half_sizes=[1, 1, 1], fill_mode="solid"),
+        ),
+        (
+            fast.plain("Boxes3D:colors", [0x11223344]),
+            rr.Boxes3D(half_sizes=[1, 1, 1], colors=[0x11223344]),
+        ),
+    ]
+    for batch, archetype in cases:
+        name = str(batch.component_descriptor())
+        (want,) = [
+            b for b in archetype.as_component_batches() if str(b.component_descriptor()) == name
+        ]
+        assert batch.as_arrow_array().equals(want.as_arrow_array()), name
+
+
+def test_log_tick_never_raises(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "bad.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode)
+        good = tick_kwargs(episode, 0, None)
+        log.log_tick(0, 0.0, **good)
+        log.log_tick(1, 0.05, **{**good, "ee_position": np.zeros(2)})
+        log.log_tick(2, 0.10, **{**good, "link_positions": "not an array"})
+        log.log_tick(3, 0.15, **{**good, "objects": {"bowl": (np.zeros(3), None)}})
+        log.log_tick(4, 0.20, **good)
+        assert log.dropped == 3
+        log.log_text(5, 0.25, "INFO", None)  # type: ignore[arg-type]
+    assert verify(path).returncode == 0
+    # a tick that fails part-way keeps what was logged before the failure (tick 3's EE)
+    assert read_ee_path(path).ticks.tolist() == [0, 3, 4]
+
+
+def test_close_is_idempotent_and_later_calls_are_ignored(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "closed.rrd"
+    log = RerunLog(f"save:{path}", robot="r")
+    setup(log, episode)
+    log.log_tick(0, 0.0, **tick_kwargs(episode, 0, None))
+    log.close()
+    log.close()
+    log.log_tick(1, 0.05, **tick_kwargs(episode, 1, None))
+    log.log_text(1, 0.05, "INFO", "ignored")
+    log.flush()
+    assert log.closed and log.dropped == 0
+    assert verify(path).returncode == 0
+    assert read_ee_path(path).ticks.tolist() == [0]
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [("trail_length", 1), ("trail_every", 0), ("command_scale", 0.0), ("link_frames_every", -1)],
+)
+def test_settings_are_checked(tmp_path: Path, setting: str, value: float) -> None:
+    settings: dict[str, Any] = {setting: value}
+    with pytest.raises(InputError, match=setting):
+        RerunLog(f"save:{tmp_path / 'x.rrd'}", robot="r", **settings)
+
+
+@pytest.mark.parametrize(
+    ("every", "sent"), [(0, []), (1, [0, 1, 2, 3]), (2, [0, 2, 4]), (3, [0, 3])]
+)
+def test_link_frames_every(tmp_path: Path, episode: Episode, every: int, sent: list[int]) -> None:
+    """Frames every ``every`` ticks, and the last pose once the arm stops (ticks 3-5)."""
+    path = tmp_path / "links.rrd"
+    with RerunLog(f"save:{path}", robot="r", link_frames_every=every) as log:
+        setup(log, episode)
+        for tick in range(6):
+            kwargs = tick_kwargs(episode, min(tick, 3), None)
+            log.log_tick(tick, tick * 0.05, **kwargs)
+    assert [t for t, _ in _rows(path, "world/robot/link_7", "Transform3D:translation")] == sent
+    assert len(_rows(path, "world/robot/links", "LineStrips3D:strips")) == 4
+    assert ("world/robot/link_0" in entity_paths(path)) == (every > 0)
+
+
+def test_setup_rejects_unknown_names(tmp_path: Path, episode: Episode) -> None:
+    with RerunLog(f"save:{tmp_path / 'x.rrd'}", robot="r") as log:
+        base: dict[str, Any] = {
+            "scene": episode.scene,
+            "goals": episode.goals,
+            "goal_objects": {"banana": "banana"},
+            "planned": {},
+            "p_thresh": 0.9,
+            "params_json": "{}",
+        }
+        with pytest.raises(InputError, match="unknown goal 'nope'"):
+            log.log_setup(**{**base, "goal_objects": {"nope": "banana"}})
+        with pytest.raises(InputError, match="unknown object 'nope'"):
+            log.log_setup(**{**base, "goal_objects": {"banana": "nope"}})
+        with pytest.raises(InputError, match="p_thresh"):
+            log.log_setup(**{**base, "p_thresh": 1.0})
+        with pytest.raises(InputError, match="params_json"):
+            log.log_setup(**{**base, "params_json": '{"betta": 1}'})
+
+
+def test_a_new_stage_replaces_the_static_data(tmp_path: Path) -> None:
+    first = straight_episode("breakfast_easy", "banana", hold=0)
+    second = straight_episode("desk", "white_mug", hold=0)
+    path = tmp_path / "stages.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        log_episode(log, first, stage="easy")
+        tick0 = len(first.positions)
+        log_episode(log, second, tick0=tick0, stage="desk")
+    assert verify(path).returncode == 0
+    assert [(s.index, s.name, s.scene) for s in read_stages(path)] == [
+        (0, "easy", "breakfast_easy"),
+        (1, "desk", "desk"),
+    ]
+    # a planned box and a grasp of the first scene only: last static value is empty
+    assert _rows(path, "world/planned/banana", "Boxes3D:half_sizes")[-1] == (None, [])
+    assert _rows(path, "world/grasps/banana", "Arrows3D:vectors")[-1] == (None, [])
+    assert _rows(path, "world/planned/white_mug", "Boxes3D:half_sizes")[-1][1] != []
+    # an object of the first scene only is cleared at the first tick of the second stage
+    assert [t for t, _ in _rows(path, "world/objects/banana", "Clear:is_recursive")] == [tick0]
+    assert not _rows(path, "world/objects/white_mug", "Clear:is_recursive")
+
+
+_CHILD = textwrap.dedent(
+    """
+    import signal, sys, time
+    from legws_daemon.telemetry.rerun_log import RerunLog
+    from tests.telemetry.helpers import setup, straight_episode, tick_kwargs
+
+    ep = straight_episode()
+    log = RerunLog("save:" + sys.argv[1], robot="r")
+
+    def stop(signum, frame):
+        log.close()
+        sys.exit(0)
+
+    signal.signal(signal.SIGTERM, stop)
+    setup(log, ep)
+    tick = 0
+    while True:
+        log.log_tick(tick, tick * 0.05, **tick_kwargs(ep, tick % len(ep.positions), None))
+        tick += 1
+        if tick == 30:
+            print("ready", flush=True)
+        time.sleep(0.002)
+    """
+)
+
+
+def test_a_recording_closed_by_a_sigterm_handler_verifies(tmp_path: Path) -> None:
+    path = tmp_path / "killed.rrd"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(path)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=os.environ.copy(),
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "ready", proc.stderr and proc.stderr.read()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    result = verify(path)
+    assert result.returncode == 0, result.stderr
+    ticks = read_ee_path(path).ticks
+    assert len(ticks) >= 30
+    assert ticks.tolist() == list(range(len(ticks)))
