@@ -14,6 +14,7 @@ import click
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.formats.layout_file import load_layout
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
@@ -37,7 +38,11 @@ def install_stop_handlers(stop: threading.Event) -> None:
     show_default=True,
     help="Hardware profile: a name in hw_profiles/ or a .toml path.",
 )
-@click.option("--scene", default="desk", show_default=True, help="Scene name or .toml path.")
+@click.option("--scene", help="Scene name or .toml path (default desk): pick one of its goals.")
+@click.option(
+    "--taskgraph",
+    help="Task graph: a name in taskgraphs/ or a .toml path (its scene is used).",
+)
 @click.option(
     "--layout",
     "layout_file",
@@ -74,7 +79,8 @@ def install_stop_handlers(stop: threading.Event) -> None:
 )
 def daemon_cmd(
     profile: str,
-    scene: str,
+    scene: str | None,
+    taskgraph: str | None,
     layout_file: Path | None,
     rerun_target: str | None,
     zenoh_config: Path | None,
@@ -92,13 +98,19 @@ def daemon_cmd(
 
     logging.basicConfig(level=logging.INFO, format="legws daemon: %(message)s", force=True)
 
+    if scene is not None and taskgraph is not None:
+        raise click.UsageError("give --scene or --taskgraph, not both")
     spec = load_profile_named(profile)
     if rate is not None:
         control = spec.control.model_copy(update={"rate_hz": rate})
         spec = validate(
             ProfileSpec, {**spec.model_dump(), "control": control.model_dump()}, "--rate"
         )
-    sc = load_scene(scene)
+    graph = None
+    if taskgraph is not None:
+        graph, sc = load_taskgraph(resolve_taskgraph(taskgraph))
+    else:
+        sc = load_scene(scene or "desk")
     layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
     require_feasible(sc, layout, str(layout_file) if layout_file else sc.source)
     params = Params(v_max=spec.control.v_max, dt=1.0 / spec.control.rate_hz)
@@ -116,6 +128,14 @@ def daemon_cmd(
             stack.callback(telemetry.close)
         trace = stack.enter_context(trace_file.open("w")) if trace_file else None
         config = DaemonConfig(
-            spec, sc, layout, params, zcfg, telemetry=telemetry, duration=duration, trace=trace
+            spec,
+            sc,
+            layout,
+            params,
+            zcfg,
+            telemetry=telemetry,
+            duration=duration,
+            trace=trace,
+            graph=graph,
         )
         return DaemonService(config).run(stop)

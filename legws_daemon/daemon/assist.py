@@ -54,6 +54,7 @@ class Grip:
     label: str
     closed: bool
     seconds: float = GRIP_SECONDS
+    changes: bool = True  # False: the gripper already is so; the step only waits
 
 
 Primitive = Move | Grip
@@ -74,6 +75,13 @@ class AssistStep:
 def grasp_rotation(rotation: FloatArray, symmetry: int, current: FloatArray) -> FloatArray:
     """Of a symmetric grasp's equivalent orientations, the one nearest ``current``."""
     return symmetric_rotations(rotation, symmetry, current)[0]
+
+
+#: Seconds the food stays at the mouth before the gripper lets go.
+FEED_SECONDS = 2.0
+#: The food is offered this far short of the mouth pose, along the approach axis, m: the
+#: person takes the last centimetres (no gripper at the face).
+BITE_DISTANCE = 0.04
 
 
 def pick_plan(
@@ -105,12 +113,49 @@ def place_plan(position: FloatArray, current_rotation: FloatArray) -> list[Primi
     ]
 
 
+def dip_plan(position: FloatArray, current_rotation: FloatArray) -> list[Primitive]:
+    """Carry the held food above the bowl, dip it to ``position``, bring it back up."""
+    p = np.asarray(position, dtype=np.float64)
+    R = np.asarray(current_rotation, dtype=np.float64)
+    above = p + np.array([0.0, 0.0, LIFT_HEIGHT])
+    return [
+        Move("carry", above, R, tolerance=2 * POSITION_TOLERANCE),
+        Move("dip", p, R),
+        Grip("soak", closed=True, seconds=0.5, changes=False),
+        Move("raise", above, R),
+    ]
+
+
+def feed_plan(
+    position: FloatArray, rotation: FloatArray, symmetry: int, current: FloatArray
+) -> list[Primitive]:
+    """Bring the held food to the mouth along the approach axis, wait, let go, back off."""
+    R = grasp_rotation(np.asarray(rotation, dtype=np.float64), symmetry, current)
+    p = np.asarray(position, dtype=np.float64)
+    pre = p - PREGRASP_DISTANCE * R[:, 2]
+    offer = p - BITE_DISTANCE * R[:, 2]
+    return [
+        Move("approach", pre, R, tolerance=2 * POSITION_TOLERANCE),
+        Move("offer", offer, R),
+        Grip("wait", closed=True, seconds=FEED_SECONDS, changes=False),
+        Grip("release", closed=False),
+        Move("back_off", pre, R),
+    ]
+
+
 def return_plan(home_position: FloatArray, home_rotation: FloatArray) -> list[Primitive]:
     """Open the gripper and move back to the home pose."""
     return [
         Grip("open", closed=False),
         Move("home", np.asarray(home_position, np.float64), np.asarray(home_rotation, np.float64)),
     ]
+
+
+def home_move(home_position: FloatArray, home_rotation: FloatArray) -> Move:
+    """Back to the home pose, where every stage's inference starts."""
+    return Move(
+        "home", np.asarray(home_position, np.float64), np.asarray(home_rotation, np.float64)
+    )
 
 
 @dataclass
@@ -131,6 +176,11 @@ class Assistant:
     index: int = 0
     elapsed: float = 0.0
     _gripped: bool = field(default=False, repr=False)
+
+    @property
+    def gripper_acted(self) -> bool:
+        """Whether a gripper step of the plan has completed (an object was taken or let go)."""
+        return any(isinstance(p, Grip) and p.changes for p in self.plan[: self.index])
 
     @property
     def finished(self) -> bool:

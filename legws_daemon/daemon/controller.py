@@ -38,7 +38,11 @@ from legws_daemon.core.params import Params
 from legws_daemon.daemon.assist import (
     Assistant,
     CancelDetector,
+    Grip,
     Primitive,
+    dip_plan,
+    feed_plan,
+    home_move,
     pick_plan,
     place_plan,
     return_plan,
@@ -49,8 +53,13 @@ from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.runner import TaskRun, scene_graph
+from legws_daemon.task.targets import Target, goal_set, target
 
 Emit = Callable[[str, dict[str, Any]], None]
+#: The assistance target of a reset (going home), which no cancel interrupts.
+RESET_TARGET = "(reset)"
 #: Builds a connected adapter for a scene (the service decides which kind).
 AdapterFactory = Callable[[Scene], Adapter]
 
@@ -75,20 +84,28 @@ class TickRecord:
 
 @dataclass
 class StageState:
-    """The stage being run: its candidate goals and the layout they stand in."""
+    """The stage being run: its candidate goals' poses and the layout they stand in.
+
+    ``goals_home`` (the goal set seen from home) and ``certificate`` are ``None`` for a
+    stage with a single candidate, which needs no inference.
+    """
 
     name: str
-    goal_names: tuple[str, ...]
+    targets: list[Target]
     layout: Layout
-    certificate: float
-    goals_home: GoalSet
+    certificate: float | None
+    goals_home: GoalSet | None
     extras: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.targets)
 
-def goals_from(scene: Scene, layout: Layout, names: tuple[str, ...], x0: Pose) -> GoalSet:
-    """The grasp poses of ``names`` in ``layout``, seen from the EE pose ``x0``."""
-    g = scene.goal_set(layout, names)
-    return GoalSet(g.names, g.positions, g.quaternions, g.symmetry, x0)
+    def target(self, goal: str) -> Target:
+        for t in self.targets:
+            if t.name == goal:
+                return t
+        raise KeyError(goal)
 
 
 class Controller:
@@ -101,6 +118,7 @@ class Controller:
         make_adapter: builds and connects the adapter for a scene.
         params: observer and certificate parameters (``dt`` and ``v_max`` from the profile).
         emit: receives events ``(kind, detail)``.
+        graph: the task graph to run (default: pick one of the scene's candidate goals).
         clock: monotonic clock.
     """
 
@@ -112,6 +130,7 @@ class Controller:
         make_adapter: AdapterFactory,
         params: Params,
         emit: Emit,
+        graph: TaskGraph | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.profile = profile
@@ -129,35 +148,57 @@ class Controller:
         self.assistant: Assistant | None = None
         self.committed: str | None = None
         self.last_state: RobotState | None = None
+        self.observer: IntentObserver | None = None
         self._gripper: bool | None = None
+        self._auto_commit = True
         self._last_assist_v = np.zeros(3)
         self._hold: FloatArray = scene.home.rotation
-        self.stage = self._new_stage("pick", scene.goal_names, layout)
-        self.adapter.place_objects(layout)
-        self.observer: IntentObserver | None = None
-        self._restart_inference()
+        self.layout: Layout = dict(layout)
+        self.graph = graph if graph is not None else scene_graph(scene)
+        self.task = TaskRun(self.graph, scene)
+        self.adapter.place_objects(self.layout)
+        self.stage = self._begin_stage()
 
     # --- stages and inference -------------------------------------------------------
-    def _new_stage(self, name: str, goal_names: tuple[str, ...], layout: Layout) -> StageState:
-        goals_home = self.scene.goal_set(layout, goal_names)
-        cert = certify(goals_home, self.params).objective
-        return StageState(name, goal_names, dict(layout), cert, goals_home)
+    def _begin_stage(self) -> StageState:
+        """Targets of the stage(s) that come next; inference starts (or, with a single
+        candidate, the commit is immediate)."""
+        targets = self.task.targets(self.layout) if not self.task.finished else []
+        goals_home = cert = None
+        if len(targets) >= 2:
+            goals_home = goal_set(targets, self.scene.home)
+            cert = certify(goals_home, self.params).objective
+        self.stage = StageState(self.task.label, targets, dict(self.layout), cert, goals_home)
+        self.committed = None
+        self.observer = None
+        if self.task.finished:
+            self.mode = "idle"
+            self.emit("task_done", {"task": self.graph.name, "history": self.task.history})
+        elif len(targets) == 1:
+            self._auto_commit = True
+            self.mode = "teleop"
+            state = self._read_state_safely()
+            if state is not None:
+                self._commit(targets[0].name, 1.0, state, confirmed=False, single=True)
+        else:
+            self.mode = "teleop"
+            self._restart_inference()
+        return self.stage
 
     def _restart_inference(self) -> None:
         """A fresh observer whose start pose is where the EE is now."""
+        self.committed = None
+        if self.stage.goals_home is None:
+            self.observer = None
+            return
         state = self._read_state_safely()
-        if state is None:
-            x0 = self.scene.home
-        else:
+        goals = self.stage.goals_home
+        if state is not None:
             x0 = Pose(state.ee_position, state.ee_quaternion)
             self._hold = quat_to_matrix(state.ee_quaternion)
-        try:
-            goals = goals_from(self.scene, self.stage.layout, self.stage.goal_names, x0)
-        except InputError:
-            # the EE sits on a goal (closer than MIN_GOAL_DISTANCE): start from home instead
-            goals = self.stage.goals_home
+            with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
+                goals = goal_set(self.stage.targets, x0)
         self.observer = IntentObserver(goals, self.params)
-        self.committed = None
 
     def posterior(self) -> dict[str, float]:
         if self.observer is None:
@@ -167,12 +208,11 @@ class Controller:
 
     def live_slack(self) -> float | None:
         """The certificate seen from the current EE pose (how reliably intent can be read
-        from here), or ``None`` when the EE sits on a goal."""
-        state = self.last_state
-        if state is None or self.mode != "teleop":
+        from here), or ``None`` (no inference, or the EE sits on a goal)."""
+        state, goals = self.last_state, self.stage.goals_home
+        if state is None or self.mode != "teleop" or goals is None:
             return None
         x0 = Pose(state.ee_position, state.ee_quaternion)
-        goals = self.stage.goals_home
         if np.min(np.linalg.norm(goals.positions - x0.position, axis=1)) < 2 * MIN_GOAL_DISTANCE:
             return None
         live = GoalSet(goals.names, goals.positions, goals.quaternions, goals.symmetry, x0)
@@ -225,7 +265,15 @@ class Controller:
         self, state: RobotState, axes: FloatArray | None, confirm: bool
     ) -> tuple[FloatArray, FloatArray | None]:
         obs = self.observer
-        assert obs is not None
+        if obs is None:
+            # a single-candidate stage: it starts by itself, but after a failed attempt
+            # only when the user confirms (no retrying for ever on its own)
+            if len(self.stage.targets) == 1 and (self._auto_commit or confirm):
+                self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
+                return np.zeros(3), None
+            if axes is None:
+                return np.zeros(3), None
+            return self.profile.control.v_max * axes, self._hold
         post = obs.update(state.ee_position, state.ee_quaternion)
         if obs.committed is not None:
             goal = obs.goals.names[obs.committed]
@@ -240,18 +288,31 @@ class Controller:
             return np.zeros(3), None  # deadman: nothing moves, not even the orientation
         return self.profile.control.v_max * axes, self._hold
 
-    def _commit(self, goal: str, p: float, state: RobotState, *, confirmed: bool) -> None:
+    def _commit(
+        self, goal: str, p: float, state: RobotState, *, confirmed: bool, single: bool = False
+    ) -> None:
         self.committed = goal
-        g = self.stage.goals_home
-        i = g.index(goal)
+        t = self.stage.target(goal)
         R_now = quat_to_matrix(state.ee_quaternion)
-        plan: list[Primitive] = pick_plan(g.positions[i], g.rotations[i], int(g.symmetry[i]), R_now)
+        plan: list[Primitive]
+        if t.action == "pick" or t.action == "return":
+            plan = pick_plan(t.position, t.rotation, t.symmetry, R_now)
+            if t.action == "return":  # put it back: lower onto the spot and let go
+                plan = [plan[0], plan[1], Grip("release", closed=False), plan[3]]
+        elif t.action == "place":
+            plan = place_plan(t.position, R_now)
+        elif t.action == "dip":
+            plan = dip_plan(t.position, R_now)
+        else:
+            plan = feed_plan(t.position, t.rotation, t.symmetry, R_now)
+        plan.append(home_move(self.scene.home.position, self.scene.home.rotation))
         self._start_assist(plan, goal)
-        t = self.observer.ticks * self.dt if self.observer is not None else 0.0
+        seconds = self.observer.ticks * self.dt if self.observer is not None else 0.0
         self.emit(
             "commit",
-            {"goal": goal, "p": round(p, 4), "tick": self.ticks, "seconds": round(t, 3),
-             "stage": self.stage.name, "confirmed": confirmed, "posterior": self.posterior()},
+            {"goal": goal, "p": round(p, 4), "tick": self.ticks, "seconds": round(seconds, 3),
+             "stage": t.stage, "action": t.action, "confirmed": confirmed, "single": single,
+             "posterior": self.posterior()},
         )  # fmt: skip
 
     def _start_assist(self, plan: list[Primitive], target: str) -> None:
@@ -267,11 +328,8 @@ class Controller:
         assert a is not None
         button = sample is not None and sample.message.buttons.cancel
         reason = self.cancel.update(axes, self._last_assist_v, button)
-        if reason is not None and a.target != "home":
-            self.mode = "teleop"
-            self.emit("cancel", {"reason": reason, "goal": a.target, "phase": a.phase})
-            self.assistant = None
-            self._restart_inference()
+        if reason is not None and a.target != RESET_TARGET:
+            self._cancel(a, reason)
             return np.zeros(3), None, "cancelled"
         step = a.step(state.ee_position, quat_to_matrix(state.ee_quaternion), sample is not None)
         if step.grip is not None and step.grip != self._gripper:
@@ -284,6 +342,7 @@ class Controller:
         self._last_assist_v = step.velocity
         if step.failed is not None:
             self.emit("warning", {"assist": a.target, "phase": step.phase, "error": step.failed})
+            self._auto_commit = False
             self.assistant = None
             self.mode = "teleop"
             self._restart_inference()
@@ -295,16 +354,39 @@ class Controller:
             return np.zeros(3), None, step.phase  # deadman pauses the plan
         return step.velocity, step.hold, step.phase
 
+    def _cancel(self, a: Assistant, reason: str) -> None:
+        """Give control back. Before the plan's gripper acted, the same stage's inference
+        restarts from here; after it (grasped, released), the stage's effect has happened:
+        the stage counts as done and the next one starts from here."""
+        self.assistant = None
+        self.emit("cancel", {"reason": reason, "goal": a.target, "phase": a.phase})
+        if a.gripper_acted:
+            self.task.advance(a.target, self.layout)
+            self.emit("stage_done", {"goal": a.target, "cancelled": True, "ticks": self.ticks})
+            self._begin_stage()
+            if self.mode == "assist":
+                return  # a single-candidate stage follows: the robot goes on
+        self.mode = "teleop"
+        self._restart_inference()
+
     def _finish_assist(self, a: Assistant) -> None:
         self.assistant = None
-        if a.target == "home":
-            self.mode = "teleop"
-            self._restart_inference()
-            self.emit("recovered" if self.fault else "reset", {"stage": self.stage.name})
+        if a.target == RESET_TARGET:
+            self.emit("recovered" if self.fault else "reset", {"task": self.graph.name})
             self.fault = None
+            self.task = TaskRun(self.graph, self.scene)
+            self.adapter.place_objects(self.layout)
+            self._begin_stage()
             return
-        self.mode = "idle"
-        self.emit("stage_done", {"stage": self.stage.name, "goal": a.target, "ticks": self.ticks})
+        self._stage_done(a.target)
+
+    def _stage_done(self, goal: str) -> None:
+        stage = self.task.advance(goal, self.layout)
+        self.emit(
+            "stage_done",
+            {"stage": stage.name, "goal": goal, "action": stage.action, "ticks": self.ticks},
+        )
+        self._begin_stage()
 
     def _send(self, velocity: FloatArray, hold: FloatArray | None) -> FloatArray:
         if self.mode in ("fault", "stopped", "idle"):
@@ -328,8 +410,18 @@ class Controller:
             self.adapter.halt()
 
     # --- operator commands ------------------------------------------------------------
-    def command(self, request: CommandRequest, scenes: Callable[[str], Scene]) -> dict[str, Any]:
-        """Carry out an operator command; returns the reply's detail."""
+    def command(
+        self,
+        request: CommandRequest,
+        scenes: Callable[[str], Scene],
+        graphs: Callable[[str], tuple[TaskGraph, Scene]],
+    ) -> dict[str, Any]:
+        """Carry out an operator command; returns the reply's detail.
+
+        Args:
+            request: the validated command.
+            scenes / graphs: load a scene / a task graph (and its scene) by name.
+        """
         if request.command == "stop":
             self.mode = "stopped"
             self.assistant = None
@@ -338,47 +430,58 @@ class Controller:
             return {"mode": self.mode}
         if request.command == "reset":
             return self._reset()
+        if request.command == "status":
+            return {"mode": self.mode}
+        assert request.argument is not None
         if request.command == "load_scene":
-            assert request.argument is not None
-            return self.load_scene(scenes(request.argument), None)
+            return self.load(scenes(request.argument), None, None)
         if request.command == "load_taskgraph":
-            raise InputError("task graphs are not loaded by this daemon yet", field="command")
+            graph, scene = graphs(request.argument)
+            if scene.name == self.scene.name:
+                scene = self.scene
+            return self.load(scene, None, graph)
         return {"mode": self.mode}
 
     def _reset(self) -> dict[str, Any]:
-        """Clear a stop or fault, put back what the robot holds, go home, infer again."""
-        if self.mode == "fault":
-            state = self._read_state_safely()
-            if state is None:
-                raise HardwareError(f"the robot is still failing: {self.fault}")
+        """Clear a stop or fault and start the task again: put back what the robot holds,
+        go home, objects back at the layout (on the stand-in), infer from the first stage."""
         state = self._read_state_safely()
         if state is None:
-            raise HardwareError("no robot state")
-        R = quat_to_matrix(state.ee_quaternion)
+            raise HardwareError(f"the robot is still failing: {self.fault or 'no state'}")
         plan: list[Primitive] = []
-        holding = self.committed is not None and self._gripper
-        if holding and self.committed in self.stage.goals_home.names:
-            g = self.stage.goals_home
-            plan += place_plan(g.positions[g.index(self.committed)], R)
+        held = self.task.held if self._gripper else None
+        if self._gripper and held is not None:
+            t = target(
+                self.scene, self.layout, "reset", "return", held, held, self.task.picked_from
+            )
+            back = pick_plan(
+                t.position, t.rotation, t.symmetry, quat_to_matrix(state.ee_quaternion)
+            )
+            plan += [back[0], back[1]]
         plan += return_plan(self.scene.home.position, self.scene.home.rotation)
-        self._start_assist(plan, "home")
+        self.observer = None
+        self._start_assist(plan, RESET_TARGET)
         return {"mode": self.mode, "plan": [p.label for p in plan]}
 
-    def load_scene(self, scene: Scene, layout: Layout | None) -> dict[str, Any]:
-        """Swap to another scene (the robot stops first); the stage restarts."""
+    def load(self, scene: Scene, layout: Layout | None, graph: TaskGraph | None) -> dict[str, Any]:
+        """Swap to another scene or task graph (the robot stops first); the task restarts."""
         self._send(np.zeros(3), None)
-        old = self.adapter
-        adapter = self._make_adapter(scene)
-        old.disconnect()
-        self.adapter = adapter
-        self.scene = scene
-        lay = layout if layout is not None else scene.default_layout()
-        self.stage = self._new_stage("pick", scene.goal_names, lay)
-        adapter.place_objects(lay)
-        self.mode, self.fault, self.assistant, self._gripper = "teleop", None, None, None
-        self._restart_inference()
-        self.emit("loaded", {"scene": scene.name, "certificate": self.stage.certificate})
-        return {"scene": scene.name, "certificate": self.stage.certificate}
+        if scene is not self.scene:
+            old = self.adapter
+            adapter = self._make_adapter(scene)
+            old.disconnect()
+            self.adapter = adapter
+            self.scene = scene
+        self.layout = dict(layout if layout is not None else scene.default_layout())
+        self.graph = graph if graph is not None else scene_graph(scene)
+        self.task = TaskRun(self.graph, scene)
+        self.fault, self.assistant, self._gripper = None, None, None
+        self.adapter.place_objects(self.layout)
+        self._begin_stage()
+        detail = {"scene": scene.name, "task": self.graph.name, "stage": self.stage.name,
+                  "certificate": self.stage.certificate}  # fmt: skip
+        self.emit("loaded", detail)
+        return detail
 
     def shutdown(self) -> None:
         """Zero velocity and disconnect (idempotent)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -41,10 +42,12 @@ from legws_daemon.formats.messages import (
     parse,
 )
 from legws_daemon.formats.profile import ProfileSpec
+from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.hardware.base import Adapter, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.task.graph import TaskGraph
 from legws_daemon.transport.session import keys, open_session
 
 log = logging.getLogger("legws.daemon")
@@ -108,7 +111,11 @@ class DaemonConfig:
     telemetry: Telemetry | None = None
     duration: float | None = None
     trace: IO[str] | None = None
+    graph: TaskGraph | None = None
     scene_loader: Callable[[str], Scene] = field(default=lambda name: catalog_scene(name))
+    graph_loader: Callable[[str], tuple[TaskGraph, Scene]] = field(
+        default=lambda name: catalog_taskgraph(name)
+    )
 
 
 @dataclass
@@ -141,6 +148,7 @@ class DaemonService:
         self._last_overrun_warning = -np.inf
         self.controller: Controller | None = None
         self.worker = TelemetryWorker() if config.telemetry is not None else None
+        self._logged_stage: object = None
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -258,10 +266,10 @@ class DaemonService:
             except queue.Empty:
                 return
             try:
-                detail = c.command(pending.request, self.config.scene_loader)
+                detail = c.command(
+                    pending.request, self.config.scene_loader, self.config.graph_loader
+                )
                 pending.reply = {"ok": True, "command": pending.request.command, **detail}
-                if pending.request.command == "load_scene":
-                    self._log_setup()
             except LegwsError as err:
                 pending.reply = {"ok": False, "command": pending.request.command, "error": str(err)}
             pending.done.set()
@@ -269,13 +277,13 @@ class DaemonService:
     # --- telemetry ----------------------------------------------------------------------
     def _log_setup(self) -> None:
         tel, c = self.config.telemetry, self.controller
-        if tel is None or c is None or self.worker is None:
-            return
+        if tel is None or c is None or self.worker is None or c.stage.goals_home is None:
+            return  # nothing to infer in this stage (a single candidate, or the task is done)
         self.worker.submit(
             tel.log_setup,
             scene=c.scene,
             goals=c.stage.goals_home,
-            goal_objects={g: g for g in c.stage.goal_names},
+            goal_objects={g: g for g in c.stage.goal_names if g in c.scene.objects},
             planned=c.stage.layout,
             p_thresh=c.params.p_thresh,
             params_json=json.dumps(c.params.as_dict()),
@@ -315,14 +323,22 @@ class DaemonService:
             status_pub = session.declare_publisher(self.keys["status"])
             self._event_pub = session.declare_publisher(self.keys["events"])
             controller = Controller(
-                self.profile, cfg.scene, cfg.layout, self.make_adapter, cfg.params, self._emit
+                self.profile,
+                cfg.scene,
+                cfg.layout,
+                self.make_adapter,
+                cfg.params,
+                self._emit,
+                graph=cfg.graph,
             )
             self.controller = controller
+            self._logged_stage = controller.stage
             self._log_setup()
             self._emit(
                 "started",
                 {"adapter": "sim" if self.fallback else self.adapter_kind,
-                 "scene": cfg.scene.name, "certificate": controller.stage.certificate},
+                 "scene": cfg.scene.name, "task": controller.graph.name,
+                 "stage": controller.stage.name, "certificate": controller.stage.certificate},
             )  # fmt: skip
             subscriber = session.declare_subscriber(
                 self.keys["joystick"],
@@ -373,6 +389,9 @@ class DaemonService:
             self._run_commands()
             sample = self.inbox.latest(now, control.deadman_timeout)
             rec = c.tick(sample)
+            if c.stage is not self._logged_stage:
+                self._logged_stage = c.stage
+                self._log_setup()
             slack = None
             if rec.tick % status_every == 0:
                 slack = c.live_slack()
@@ -434,6 +453,13 @@ def catalog_scene(name: str) -> Scene:
     if "/" in name or "\\" in name or name.endswith(".toml") or name.startswith("."):
         raise InputError(f"expected a scene name from the catalog, got {name!r}", field="argument")
     return load_scene(name)
+
+
+def catalog_taskgraph(name: str) -> tuple[TaskGraph, Scene]:
+    """A task graph by name from ``taskgraphs/`` only (a remote command names no path)."""
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", name):
+        raise InputError(f"expected a task graph name, got {name!r}", field="argument")
+    return load_taskgraph(resolve_taskgraph(name))
 
 
 def _jsonable(value: Any) -> Any:

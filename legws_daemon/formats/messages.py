@@ -93,6 +93,7 @@ class EventMessage(_Message):
         "commit",
         "cancel",
         "stage_done",
+        "task_done",
         "fault",
         "recovered",
         "fallback",

@@ -18,6 +18,7 @@ from legws_daemon.core.geometry import FloatArray, matrix_to_quat, quat_to_matri
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
+from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.sim.kinematics import home_configuration, small_rotation_error, velocity_step
 from legws_daemon.sim.world import World
@@ -89,8 +90,35 @@ class SimAdapter(Adapter):
                 self._grip_offset = (R.T @ (pos - p), R.T @ quat_to_matrix(quat))
         elif not closed and self._closed:
             self._closed = False
+            if self.held is not None:
+                self._settle(self.held)
             self.held = None
             self._grip_offset = None
+
+    def _settle(self, name: str) -> None:
+        """A released object drops onto what is below it (the table or another object)."""
+        w = self._world()
+        pos, quat = w.object_pose(name)
+        o = self.scene.objects[name]
+        half = extents(o.shape, tuple(o.size))[2] / 2
+        support = self.scene.workspace.table_height
+        for other in self.scene.objects:
+            if other == name:
+                continue
+            opos, _ = w.object_pose(other)
+            ox, oy, oz = extents(
+                self.scene.objects[other].shape, tuple(self.scene.objects[other].size)
+            )
+            top = opos[2] + oz / 2
+            inside = abs(pos[0] - opos[0]) <= ox / 2 and abs(pos[1] - opos[1]) <= oy / 2
+            if inside and top <= pos[2] - half + 1e-6:
+                support = max(support, top)
+        # upright again: keep only the yaw of the held pose
+        R = quat_to_matrix(quat)
+        yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+        w.set_object_pose(
+            name, [pos[0], pos[1], support + half], [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        )
 
     def _carry(self) -> None:
         if self.held is None or self._grip_offset is None:

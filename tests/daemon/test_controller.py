@@ -14,6 +14,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.daemon.assist import CANCEL_SECONDS, LIFT_HEIGHT
 from legws_daemon.daemon.controller import Controller
 from legws_daemon.daemon.inbox import JoystickInbox, Sample
+from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
 from legws_daemon.errors import HardwareError, InputError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec, load_profile
@@ -22,6 +23,7 @@ from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
+LOADERS = (catalog_scene, catalog_taskgraph)
 
 
 class FlakyAdapter(SimAdapter):
@@ -128,10 +130,14 @@ def test_commits_on_the_goal_driven_to_and_picks_it(rig: Rig) -> None:
         if rig.c.mode != "assist":
             break
     assert rig.c.mode == "idle"
-    assert rig.kinds()[-1] == "stage_done"
+    assert rig.kinds()[-2:] == ["stage_done", "task_done"]
     assert rig.adapter.held == goal
-    z1 = rig.adapter.object_poses()[goal][0][2]
-    assert z1 - z0 == pytest.approx(LIFT_HEIGHT, abs=0.01)
+    # lifted, then carried home, where the next stage's inference would start
+    ee = rig.adapter.read_state().ee_position
+    np.testing.assert_allclose(ee, rig.c.scene.home.position, atol=0.005)
+    obj = rig.adapter.object_poses()[goal][0]
+    assert obj[2] - z0 > LIFT_HEIGHT
+    assert np.linalg.norm(obj - ee) < 0.06  # in the gripper
     # idle: the robot holds still whatever the stick says
     p = rig.adapter.read_state().ee_position
     rec = rig.c.tick(rig.sample([1.0, 0.0, 0.0]))
@@ -214,9 +220,9 @@ def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:
     assert rig.kinds().count("fault") == 1
     assert "heartbeat" in (rig.c.fault or "")
     with pytest.raises(HardwareError):
-        rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), load_scene)
+        rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), *LOADERS)
     rig.adapter.failing = False
-    rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), load_scene)
+    rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), *LOADERS)
     for _ in range(1000):
         rig.c.tick(rig.sample([0.0, 0.0, 0.0]))
         if rig.c.mode == "teleop":
@@ -230,7 +236,7 @@ def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:
 
 def test_stop_holds_until_reset_and_load_scene_swaps(rig: Rig) -> None:
     req = CommandRequest.model_validate
-    rig.c.command(req({"schema": 1, "command": "stop"}), load_scene)
+    rig.c.command(req({"schema": 1, "command": "stop"}), *LOADERS)
     p = rig.adapter.read_state().ee_position
     for _ in range(5):
         rec = rig.c.tick(rig.sample([1.0, 0.0, 0.0]))
@@ -238,10 +244,10 @@ def test_stop_holds_until_reset_and_load_scene_swaps(rig: Rig) -> None:
     np.testing.assert_array_equal(rig.adapter.read_state().ee_position, p)
     assert rig.c.mode == "stopped"
     out = rig.c.command(
-        req({"schema": 1, "command": "load_scene", "argument": "breakfast_easy"}), load_scene
+        req({"schema": 1, "command": "load_scene", "argument": "breakfast_easy"}), *LOADERS
     )
     assert out["scene"] == "breakfast_easy"
     assert rig.c.mode == "teleop"
     assert set(rig.c.posterior()) == set(load_scene("breakfast_easy").goal_names)
     with pytest.raises(InputError):
-        rig.c.command(req({"schema": 1, "command": "load_scene", "argument": "nope"}), load_scene)
+        rig.c.command(req({"schema": 1, "command": "load_scene", "argument": "nope"}), *LOADERS)

@@ -1,0 +1,187 @@
+"""Task-graph files (``taskgraphs/*.toml``): read, validate, explain what is wrong.
+
+Structure is checked by the schema; meaning by :func:`check_graph` against the scene:
+every candidate an object or place of the scene, no cycle, every stage reachable from the
+first, no empty candidate set, alternatives of a choice with disjoint candidates, and
+actions that fit what the gripper holds on every path. Errors name the file, the line of
+the stage and the field, e.g.
+``taskgraphs/tea.toml:14: stages[1].candidates: unknown object 'mug'; ...``.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.validation import Name, read_text, read_toml, validate
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import Scene
+from legws_daemon.task.graph import HOLDS_AFTER, NEEDS_HELD, Stage, TaskGraph, find_cycle, reachable
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class StageSpec(_Model):
+    name: Name
+    prompt: str = ""
+    candidates: Annotated[list[Name], Field(min_length=1, max_length=32)]
+    action: Literal["pick", "place", "dip", "feed", "return"]
+    next: list[Name] = []
+
+
+class TaskGraphSpec(_Model):
+    schema_version: Literal[1]
+    name: Name
+    scene: Name
+    description: str = ""
+    repeat: Literal["once", "until_consumed"] = "once"
+    fixed: list[Name] = []
+    stages: Annotated[list[StageSpec], Field(min_length=1, max_length=64)]
+
+
+class _Locator:
+    """Line numbers of stages and their fields in the file's text (for messages)."""
+
+    def __init__(self, text: str) -> None:
+        self.lines = text.splitlines()
+        self.headers = [i for i, ln in enumerate(self.lines) if ln.strip() == "[[stages]]"]
+
+    def line(self, stage: int | None, field: str | None) -> int | None:
+        if stage is None or stage >= len(self.headers):
+            start, end = 0, (self.headers[0] if self.headers else len(self.lines))
+        else:
+            start = self.headers[stage]
+            end = self.headers[stage + 1] if stage + 1 < len(self.headers) else len(self.lines)
+        if field is not None:
+            pattern = re.compile(rf"^\s*{re.escape(field)}\s*=")
+            for i in range(start, end):
+                if pattern.match(self.lines[i]):
+                    return i + 1
+        return start + 1 if stage is not None else None
+
+
+def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str) -> TaskGraph:
+    """Semantic checks; returns the graph or raises one :class:`InputError`."""
+
+    def fail(stage: int | None, field: str, message: str) -> InputError:
+        line = where.line(stage, field.split(".")[-1].split("[")[0] if field else None)
+        src = f"{source}:{line}" if line else source
+        path = f"stages[{stage}].{field}" if stage is not None else field
+        return InputError(message, source=src, field=path)
+
+    index = {s.name: i for i, s in enumerate(spec.stages)}
+    for i, s in enumerate(spec.stages):
+        if index[s.name] != i:
+            raise fail(i, "name", f"stage name '{s.name}' is used twice")
+    objects = set(scene.objects)
+    places = {p.name for p in scene.spec.places}
+    known = ", ".join([*scene.objects, *sorted(places)])
+    for i, s in enumerate(spec.stages):
+        for j, c in enumerate(s.candidates):
+            if c not in objects and c not in places:
+                raise fail(
+                    i, f"candidates[{j}]", f"unknown object or place '{c}' in scene "
+                    f"'{scene.name}'; known: {known}"
+                )  # fmt: skip
+            if c in s.candidates[:j]:
+                raise fail(i, f"candidates[{j}]", f"'{c}' is listed twice")
+            if c in places and s.action not in ("feed", "place"):
+                raise fail(
+                    i, f"candidates[{j}]", f"'{c}' is a place: it can be fed or placed at, "
+                    f"not used by '{s.action}'"
+                )  # fmt: skip
+            if s.action == "pick" and c in objects and c not in scene.movable:
+                raise fail(
+                    i, f"candidates[{j}]", f"'{c}' is fixed in the scene: it cannot be picked"
+                )
+        for j, n in enumerate(s.next):
+            if n not in index:
+                raise fail(i, f"next[{j}]", f"unknown stage '{n}'; stages: {', '.join(index)}")
+    for j, f in enumerate(spec.fixed):
+        if f not in objects:
+            raise fail(None, f"fixed[{j}]", f"unknown object '{f}'; objects: {', '.join(objects)}")
+    stages = {
+        s.name: Stage(s.name, tuple(s.candidates), s.action, tuple(s.next), s.prompt)
+        for s in spec.stages
+    }
+    cycle = find_cycle(stages)
+    if cycle:
+        raise fail(
+            index[cycle[-2]], "next", f"cycle {' -> '.join(cycle)}; use repeat = "
+            f"\"until_consumed\" to run a graph again"
+        )  # fmt: skip
+    start = spec.stages[0].name
+    seen = reachable(stages, start)
+    for i, s in enumerate(spec.stages):
+        if s.name not in seen:
+            raise fail(i, "name", f"stage '{s.name}' cannot be reached from '{start}'")
+    for i, s in enumerate(spec.stages):
+        owner: dict[str, str] = {}
+        for n in s.next:
+            for c in stages[n].candidates:
+                if c in owner:
+                    raise fail(
+                        i, "next", f"alternatives '{owner[c]}' and '{n}' share candidate "
+                        f"'{c}': the commit could not tell which branch the user took"
+                    )  # fmt: skip
+                owner[c] = n
+    graph = TaskGraph(
+        spec.name, spec.scene, stages, spec.repeat, tuple(spec.fixed), spec.description, source
+    )
+    for path in graph.paths():
+        held = False
+        for name in path:
+            act = stages[name].action
+            need = NEEDS_HELD[act]
+            if need is not None and need != held:
+                what = "holds nothing" if need else "already holds an object"
+                before = " -> ".join(path[: path.index(name)]) or "the start"
+                raise fail(
+                    index[name], "action", f"'{act}' after {before}: the gripper {what} there"
+                )
+            after = HOLDS_AFTER[act]
+            held = held if after is None else after
+        if spec.repeat == "until_consumed" and held:
+            raise fail(index[path[-1]], "action", "the graph repeats but ends holding an object")
+    if spec.repeat == "until_consumed" and spec.stages[0].action != "pick":
+        raise fail(0, "action", "a repeated graph must start with 'pick' (what it consumes)")
+    return graph
+
+
+def load_taskgraph(path: Path, scene: Scene | None = None) -> tuple[TaskGraph, Scene]:
+    """Read and validate a task graph and its scene; errors name file, line and field."""
+    text = read_text(path)
+    spec = validate(TaskGraphSpec, read_toml(path), str(path))
+    if spec.name != path.stem:
+        raise InputError(
+            f"expected '{path.stem}' (the file's name), got '{spec.name}'",
+            source=str(path),
+            field="name",
+        )
+    if scene is None:
+        try:
+            scene = load_scene(spec.scene)
+        except InputError as err:
+            raise InputError(str(err), source=str(path), field="scene") from None
+    return check_graph(spec, scene, _Locator(text), str(path)), scene
+
+
+def taskgraphs_dir() -> Path:
+    return Path(__file__).resolve().parents[2] / "taskgraphs"
+
+
+def resolve_taskgraph(name_or_path: str) -> Path:
+    """``tea`` -> ``taskgraphs/tea.toml``; a path is used as is."""
+    if name_or_path.endswith(".toml") or "/" in name_or_path:
+        return Path(name_or_path)
+    path = taskgraphs_dir() / f"{name_or_path}.toml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in taskgraphs_dir().glob("*.toml"))) or "(none)"
+        raise InputError(f"unknown task graph '{name_or_path}'; known: {known}", field="taskgraph")
+    return path

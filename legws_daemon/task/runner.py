@@ -1,0 +1,94 @@
+"""A run through a task graph: which stages may come next, what is held, what is used up."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+from legws_daemon.task.graph import Stage, TaskGraph
+from legws_daemon.task.targets import Target, target
+
+
+def scene_graph(scene: Scene) -> TaskGraph:
+    """The one-stage graph of a plain scene: pick one of its candidate goals."""
+    stage = Stage("pick", tuple(scene.goal_names), "pick", (), "Which object?")
+    return TaskGraph(f"{scene.name}_pick", scene.name, {"pick": stage}, source=scene.source)
+
+
+class TaskRun:
+    """The state of one run: the options for the next stage, the held object, progress.
+
+    Args:
+        graph: the task graph.
+        scene: its scene.
+    """
+
+    def __init__(self, graph: TaskGraph, scene: Scene) -> None:
+        self.graph = graph
+        self.scene = scene
+        self.options: tuple[Stage, ...] = (graph.stages[graph.start],)
+        self.held: str | None = None
+        self.consumed: set[str] = set()
+        self.picked_from: dict[str, ObjectPose] = {}
+        self.history: list[tuple[str, str]] = []  # (stage, goal) in order
+        self.rounds = 1
+        self._skip_empty()
+
+    @property
+    def finished(self) -> bool:
+        return not self.options
+
+    @property
+    def label(self) -> str:
+        """The stage name, or ``a|b`` while the user chooses between stages."""
+        return "|".join(s.name for s in self.options) if self.options else "done"
+
+    def candidates(self) -> list[tuple[str, Stage]]:
+        """``(goal, stage)`` for every goal the user may go for now."""
+        out: list[tuple[str, Stage]] = []
+        for s in self.options:
+            for c in s.candidates:
+                if s.action == "pick" and c in self.consumed:
+                    continue
+                if s.action == "return" and c != self.held:
+                    continue
+                out.append((c, s))
+        return out
+
+    def targets(self, layout: Mapping[str, ObjectPose]) -> list[Target]:
+        return [
+            target(self.scene, layout, s.name, s.action, c, self.held, self.picked_from)
+            for c, s in self.candidates()
+        ]
+
+    def stage_of(self, goal: str) -> Stage:
+        for c, s in self.candidates():
+            if c == goal:
+                return s
+        raise KeyError(goal)
+
+    def advance(self, goal: str, layout: Layout) -> Stage:
+        """The committed ``goal``'s stage is done: update what is held, move on."""
+        stage = self.stage_of(goal)
+        self.history.append((stage.name, goal))
+        if stage.action == "pick":
+            self.held = goal
+            self.consumed.add(goal)
+            if goal in layout:
+                self.picked_from[goal] = layout[goal]
+        elif stage.action in ("place", "feed", "return"):
+            self.held = None
+        nxt = self.graph.successors(stage.name)
+        again = not nxt and self.graph.repeat == "until_consumed"
+        if again:
+            nxt = (self.graph.stages[self.graph.start],)
+        self.options = nxt
+        self._skip_empty()
+        if again and self.options:
+            self.rounds += 1
+        return stage
+
+    def _skip_empty(self) -> None:
+        """No candidate left (everything consumed): the run is over."""
+        if self.options and not self.candidates():
+            self.options = ()

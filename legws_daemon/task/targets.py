@@ -1,0 +1,106 @@
+"""The pose each action aims at, for every candidate of a stage.
+
+The observer infers over these poses, the certificate certifies them, and assistance
+moves to them: ``pick`` — the object's grasp; ``place`` — above the container or surface,
+gripper down, with the held object clearing its top; ``dip`` — the held food's tip just
+below the bowl's rim; ``feed`` and a ``place`` at a named place — the place's pose;
+``return`` — the grasp the object was picked with. Orientation about the vertical is
+free (symmetry 0) where the action does not care.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, quat_to_matrix
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.scene.grasps import FINGER_DEPTH, extents
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+
+#: Gripper pointing down (grasp-frame z along world -z): the top-grasp orientation.
+DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: Gap between a held object's bottom and the container's top when it is released, m.
+DROP_CLEARANCE = 0.03
+#: How deep food goes into a dip, below the bowl's rim, m.
+DIP_DEPTH = 0.015
+#: Held-object height assumed when the held object is not known, m.
+DEFAULT_HELD_HEIGHT = 0.03
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """One candidate's goal pose."""
+
+    name: str
+    stage: str
+    action: str
+    position: FloatArray
+    rotation: FloatArray
+    symmetry: int
+
+
+def _held_above_grasp(scene: Scene, held: str | None) -> float:
+    """Distance from the grasp point down to the held object's bottom."""
+    if held is None or held not in scene.objects:
+        return DEFAULT_HELD_HEIGHT - FINGER_DEPTH
+    o = scene.objects[held]
+    h = extents(o.shape, tuple(o.size))[2]
+    return h - min(FINGER_DEPTH, h / 2)
+
+
+def _top(scene: Scene, name: str, pose: ObjectPose) -> FloatArray:
+    o = scene.objects[name]
+    h = extents(o.shape, tuple(o.size))[2]
+    return np.array([pose.x, pose.y, scene.workspace.table_height + h])
+
+
+def target(
+    scene: Scene,
+    layout: Mapping[str, ObjectPose],
+    stage: str,
+    action: str,
+    name: str,
+    held: str | None = None,
+    picked_from: Mapping[str, ObjectPose] | None = None,
+) -> Target:
+    """The goal pose of candidate ``name`` for ``action`` in ``layout``."""
+    places = {p.name: p for p in scene.spec.places}
+    if name in places:
+        p = places[name]
+        R = quat_to_matrix(np.array(p.quaternion))
+        return Target(name, stage, action, np.array(p.position), R, p.symmetry)
+    poses = scene.poses(dict(layout))
+    if action == "pick":
+        arr = np.array([[[poses[name].x, poses[name].y, poses[name].yaw]]])
+        pos, rot, sym = scene.grasp_batch([name], arr)
+        return Target(name, stage, action, pos[0, 0], rot[0, 0], int(sym[0]))
+    if action == "return":
+        origin = (picked_from or {}).get(name, poses[name])
+        arr = np.array([[[origin.x, origin.y, origin.yaw]]])
+        pos, rot, sym = scene.grasp_batch([name], arr)
+        return Target(name, stage, action, pos[0, 0], rot[0, 0], int(sym[0]))
+    top = _top(scene, name, poses[name])
+    below = _held_above_grasp(scene, held)
+    if action == "dip":
+        position = top + np.array([0.0, 0.0, below - DIP_DEPTH])
+    else:  # place (and feed at an object, which the task graph does not allow)
+        position = top + np.array([0.0, 0.0, below + DROP_CLEARANCE])
+    return Target(name, stage, action, position, DOWN.copy(), 0)
+
+
+def goal_set(targets: Sequence[Target], x0: Pose) -> GoalSet:
+    """The observer's goals for >= 2 targets, seen from ``x0``."""
+    return GoalSet(
+        tuple(t.name for t in targets),
+        np.array([t.position for t in targets]),
+        matrix_to_quat(np.array([t.rotation for t in targets])),
+        np.array([t.symmetry for t in targets], dtype=np.int64),
+        x0,
+    )
+
+
+def layout_of(scene: Scene, layout: Layout | None) -> Layout:
+    return dict(layout) if layout is not None else scene.default_layout()
