@@ -13,6 +13,8 @@ Runs the real processes on loopback: ``legws daemon --trace`` (one JSON line per
    command leaving for the robot, for every tick that used a new sample; split into
    transport (publish -> received by the daemon), the wait for the next tick (a fixed-rate
    loop samples its input once per period: up to one period), and the tick's own work.
+4. Shutdown: SIGTERM to exit with a Rerun recording open (the file then passes
+   ``rerun rrd verify``), five runs.
 
 Usage:
     python benchmarks/daemon_loop.py [--rates 50,100,200,400,800] [--seconds 8]
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -113,6 +116,31 @@ def latency_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
+def shutdown_seconds(tmp: Path, runs: int) -> list[float]:
+    """SIGTERM to exit of a running daemon with a Rerun recording, seconds, per run."""
+    profile = profile_file(tmp)
+    out = []
+    for k in range(runs):
+        rrd = tmp / f"shutdown-{k}.rrd"
+        args = [sys.executable, "-m", "legws_daemon", "daemon", "--profile", str(profile),
+                "--rerun", f"save:{rrd}"]  # fmt: skip
+        proc = subprocess.Popen(args, env={**os.environ, "CI": "true"}, stderr=subprocess.PIPE)
+        assert proc.stderr is not None
+        for line in proc.stderr:  # wait until the loop runs
+            if b"keys legws/" in line:
+                break
+        time.sleep(2.0)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=30)
+        out.append(time.monotonic() - t0)
+        verify = subprocess.run([str(Path(sys.executable).parent / "rerun"), "rrd", "verify",
+                                 str(rrd)], capture_output=True, check=False)  # fmt: skip
+        if code != 0 or verify.returncode != 0:
+            raise SystemExit(f"shutdown run {k}: exit {code}, verify {verify.returncode}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rates", default="50,100,200,400,800")
@@ -139,6 +167,9 @@ def main() -> None:
             if stats["sustained"]:
                 best = rate
         results["highest_sustained_hz"] = best
+        stops = shutdown_seconds(tmp, 5)
+        results["shutdown_s"] = {"median": float(np.median(stops)), "max": max(stops)}
+        print("shutdown", results["shutdown_s"], flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(results, indent=1) + "\n")
     print(f"highest sustained rate: {best} Hz; wrote {a.out}")

@@ -3,26 +3,22 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import click
 import numpy as np
 
 from legws_daemon.cli.joystick import PublisherOptions, publisher_options
 from legws_daemon.core.params import Params
-from legws_daemon.formats.layout_file import load_layout
-from legws_daemon.scene.catalog import load_scene
 
 
 @click.command("sim-user")
 @publisher_options()
-@click.option("--goal", required=True, help="The object the simulated user wants.")
-@click.option("--scene", default="desk", show_default=True, help="Scene the daemon runs.")
 @click.option(
-    "--layout",
-    "layout_file",
-    type=click.Path(path_type=Path, dir_okay=False),
-    help="Layout JSON the daemon runs (default: the scene's).",
+    "--goal",
+    "goals",
+    multiple=True,
+    help="A goal the user wants (repeatable, in order: one per decision of a task graph). "
+    "None: choose at random at each decision.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed.")
 @click.option(
@@ -45,30 +41,25 @@ from legws_daemon.scene.catalog import load_scene
 )
 def sim_user_cmd(
     options: PublisherOptions,
-    goal: str,
-    scene: str,
-    layout_file: Path | None,
+    goals: tuple[str, ...],
     seed: int,
     sigma: float,
     cancel_after: float | None,
     until_done: bool,
 ) -> None:
-    """Steer toward GOAL like the paper's noisy user, from the daemon's published EE pose.
+    """Steer like the paper's noisy user, from the daemon's published status.
 
-    Pushes toward the goal's grasp position with Gaussian velocity noise; after the
-    daemon commits it lets go (zero deflection, dead-man held) and watches the robot
-    finish; at the object without a commit it presses confirm.
+    At each decision it goes for the first --goal on offer (or a random one), pushing
+    toward its position with Gaussian velocity noise; after the daemon commits it lets go
+    (zero deflection, dead-man held) and watches the robot act; at the goal without a
+    commit it presses confirm. It ends when the daemon's task is done (--until-done).
     """
     from legws_daemon.joystick.publisher import Sample, stop_on_signals
     from legws_daemon.joystick.sim_user import SimUser, StatusWatch
     from legws_daemon.transport.session import keys
 
     profile = options.load_profile()
-    sc = load_scene(scene)
-    layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
-    goals = sc.goal_set(layout)
-    target = goals.positions[goals.index(goal)]
-    user = SimUser(target, sigma, profile.control.v_max, np.random.default_rng(seed), cancel_after)
+    user = SimUser(goals, sigma, profile.control.v_max, np.random.default_rng(seed), cancel_after)
     watch = StatusWatch(keys(profile.robot)["status"])
     with stop_on_signals() as stop, options.publisher(profile, "sim-user") as pub:
         sub = pub.session.declare_subscriber(watch.key, lambda s: watch.offer(s.payload.to_bytes()))
@@ -80,9 +71,12 @@ def sim_user_cmd(
             now = time.monotonic()
             return user.sample(watch.latest(now), now)
 
-        click.echo(f"legws: simulated user steering to '{goal}' on {pub.key}", err=True)
+        wanted = ", ".join(goals) or "a random goal at each decision"
+        click.echo(f"legws: simulated user going for {wanted} on {pub.key}", err=True)
         try:
             pub.run(sample, options.rate_for(profile), options.duration, stop)
         finally:
             sub.undeclare()  # type: ignore[no-untyped-call]
         click.echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
+        for decision, goal in user.chosen:
+            click.echo(f"legws: at {decision} the user went for {goal}", err=True)

@@ -60,10 +60,14 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
             last = m.latest()
             assert last is not None
             assert last["mode"] == "idle"
-            assert last["committed"] == "white_mug"
-            assert set(last["posterior"]) == {"white_mug", "black_stapler", "maroon_pen_cup"}
-            assert last["certificate"] is not None
-            assert last["gripper_closed"] is True
+            assert last["stage"] == "done"
+            assert last["gripper_closed"] is True  # the mug is in the gripper, at home
+            teleop = [s for _, s in m.status if s["mode"] == "teleop"]
+            assert set(teleop[-1]["posterior"]) == {"white_mug", "black_stapler", "maroon_pen_cup"}
+            assert set(teleop[-1]["targets"]) == set(teleop[-1]["posterior"])
+            assert teleop[-1]["certificate"] is not None
+            assert next(s["committed"] for _, s in m.status if s["mode"] == "assist") == "white_mug"
+            assert m.kinds()[-2:] == ["stage_done", "task_done"]
             ok, reply = m.command("status")
             assert ok
             assert reply["robot"] == ROBOT
