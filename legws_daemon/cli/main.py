@@ -17,6 +17,7 @@ from legws_daemon.cli.assets import assets_cmd
 from legws_daemon.cli.bridge import bridge_group
 from legws_daemon.cli.certify import certify_cmd
 from legws_daemon.cli.daemon import daemon_cmd
+from legws_daemon.cli.demo import demo_cmd
 from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
@@ -46,6 +47,7 @@ joystick_group.add_command(sim_user_cmd)
 cli.add_command(joystick_group)
 cli.add_command(bridge_group)
 cli.add_command(replay_cmd)
+cli.add_command(demo_cmd)
 
 
 def _fail(message: str) -> int:

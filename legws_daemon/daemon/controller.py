@@ -151,6 +151,7 @@ class Controller:
         self.observer: IntentObserver | None = None
         self._gripper: bool | None = None
         self._auto_commit = True
+        self.decisions = 0
         self._last_assist_v = np.zeros(3)
         self._hold: FloatArray = scene.home.rotation
         self.layout: Layout = dict(layout)
@@ -163,6 +164,7 @@ class Controller:
     def _begin_stage(self) -> StageState:
         """Targets of the stage(s) that come next; inference starts (or, with a single
         candidate, the commit is immediate)."""
+        self.decisions += 1
         targets = self.task.targets(self.layout) if not self.task.finished else []
         goals_home = cert = None
         if len(targets) >= 2:
@@ -311,7 +313,8 @@ class Controller:
         self.emit(
             "commit",
             {"goal": goal, "p": round(p, 4), "tick": self.ticks, "seconds": round(seconds, 3),
-             "stage": t.stage, "action": t.action, "confirmed": confirmed, "single": single,
+             "stage": t.stage, "decision": self.stage.name, "action": t.action,
+             "confirmed": confirmed, "single": single, "certificate": self.stage.certificate,
              "posterior": self.posterior()},
         )  # fmt: skip
 

@@ -223,6 +223,7 @@ class DaemonService:
             "overruns": self.ticker.overruns,
             "rejected": self.inbox.rejected,
             "slack": slack,
+            "decision": c.decisions,
             "targets": {t.name: t.position.tolist() for t in c.stage.targets},
         }
         if state is not None:

@@ -83,6 +83,7 @@ class StatusMessage(_Message):
     overruns: Seq = 0  # control ticks that ran past their period
     rejected: Seq = 0  # joystick messages that did not validate
     slack: Finite | None = None  # certificate seen from the current EE pose
+    decision: Seq = 0  # counts the decisions of the run (a new stage, or a restart)
     targets: dict[Label, Vec3] = {}  # goal positions of the current decision (base frame, m)
 
 

@@ -54,7 +54,7 @@ class SimUser:
     cancel_after: float | None = None
     cancelled: bool = False
     chosen: list[tuple[str, str]] = field(default_factory=list)  # (decision, goal)
-    _decision: tuple[str, tuple[str, ...]] | None = None
+    _decision: tuple[int, str, tuple[str, ...]] | None = None
     _goal: str | None = None
     _assist_since: float | None = None
 
@@ -64,7 +64,7 @@ class SimUser:
 
     def _choose(self, status: StatusMessage) -> str | None:
         offered = tuple(sorted(status.targets))
-        key = (status.stage or "", offered)
+        key = (status.decision, status.stage or "", offered)
         if key != self._decision:
             self._decision = key
             used = {g for _, g in self.chosen}
@@ -76,7 +76,7 @@ class SimUser:
             else:
                 self._goal = None
             if self._goal is not None:
-                self.chosen.append((key[0], self._goal))
+                self.chosen.append((key[1], self._goal))
         return self._goal
 
     def deflection(self, position: FloatArray, target: FloatArray) -> Axes:

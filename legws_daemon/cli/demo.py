@@ -1,0 +1,62 @@
+"""``legws demo tea|lego|feeding``: the daemon and a simulated user through a whole task."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from legws_daemon.formats.profile import load_profile_named
+from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+
+
+@click.command("demo")
+@click.argument("taskgraph")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder for the recording and the summary (default: out/demo-<taskgraph>).",
+)
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="The user's choices and noise."
+)
+@click.option(
+    "--timeout",
+    type=click.FloatRange(min=1.0),
+    default=600.0,
+    show_default=True,
+    help="Stop the run after this many seconds.",
+)
+@click.option("--profile", default="sim", show_default=True, help="Hardware profile (a sim one).")
+def demo_cmd(taskgraph: str, out: Path | None, seed: int, timeout: float, profile: str) -> None:
+    """Run TASKGRAPH (tea, lego, feeding or a file) on the stand-in with a simulated user.
+
+    Starts `legws daemon` on a private loopback port with a Rerun recording, steers like
+    the paper's noisy user choosing a goal at random (seeded) at every decision, and
+    writes recording.rrd, summary.json and summary.md: per decision, what the user went
+    for, what the daemon committed to and when, and the certificate.
+    """
+    from legws_daemon.demo.run import markdown, run_demo
+
+    spec = load_profile_named(profile)
+    if spec.adapter != "sim":
+        raise click.UsageError(f"the demo runs on a sim profile; '{profile}' is {spec.adapter}")
+    graph, _ = load_taskgraph(resolve_taskgraph(taskgraph))  # one-line errors before starting
+    folder = out if out is not None else Path("out") / f"demo-{graph.name}"
+
+    def show(event: dict[str, Any]) -> None:
+        kind, d = event["kind"], event["detail"]
+        if kind == "commit":
+            how = "no inference" if d["single"] else f"p={d['p']} after {d['seconds']:.2f} s"
+            click.echo(f"  {d.get('decision', d['stage'])}: commit {d['goal']} ({how})", err=True)
+        elif kind in ("stage_done", "task_done", "fault", "warning", "cancel", "fallback"):
+            detail = {k: v for k, v in d.items() if k not in ("posterior", "history")}
+            click.echo(f"  {kind} {detail}", err=True)
+
+    click.echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
+    result = run_demo(graph.name if taskgraph == graph.name else taskgraph, spec, folder,
+                      seed=seed, timeout=timeout, log=show)  # fmt: skip
+    click.echo(markdown(result))
+    if not result.completed:
+        raise click.ClickException(f"the task did not complete; see {folder / 'daemon.log'}")

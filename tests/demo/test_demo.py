@@ -1,0 +1,129 @@
+"""Demos: every shipped graph completes with the simulated user, every branch is taken across
+seeds (in-process, as fast as possible), and ``legws demo`` end to end with real processes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from legws_daemon.core.params import Params
+from legws_daemon.daemon.controller import Controller
+from legws_daemon.daemon.inbox import JoystickInbox
+from legws_daemon.demo.run import summarise
+from legws_daemon.formats.messages import StatusMessage
+from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.joystick.sim_user import SimUser
+from legws_daemon.scene.scene import Scene
+from legws_daemon.telemetry.recording import read_text_log
+from tests.daemon.procs import rerun_exe
+
+
+@pytest.fixture(scope="module")
+def fast() -> ProfileSpec:
+    p = load_profile_named("sim")
+    return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
+
+
+def status_of(c: Controller) -> StatusMessage:
+    """What the daemon would publish (the fields the simulated user reads)."""
+    s = c.adapter.read_state()
+    return StatusMessage.model_validate(
+        {"schema": 1, "robot": "r", "seq": c.ticks, "stamp": 0.0, "mode": c.mode,
+         "stage": c.stage.name, "adapter": "sim", "decision": c.decisions,
+         "ee": {"position": s.ee_position.tolist(), "quaternion": s.ee_quaternion.tolist()},
+         "targets": {t.name: t.position.tolist() for t in c.stage.targets}},
+    )  # fmt: skip
+
+
+def run_inprocess(
+    profile: ProfileSpec, name: str, seed: int, limit: int = 40_000
+) -> tuple[Controller, list[dict[str, Any]], SimUser]:
+    """The controller and the simulated user of method.md §2, tick by tick, no wall clock."""
+    graph, scene = load_taskgraph(resolve_taskgraph(name))
+    events: list[dict[str, Any]] = []
+
+    def make(sc: Scene) -> SimAdapter:
+        a = SimAdapter(profile, sc)
+        a.connect()
+        return a
+
+    c = Controller(
+        profile, scene, scene.default_layout(), make, Params(),
+        lambda k, d: events.append({"kind": k, "detail": d}), graph=graph,
+    )  # fmt: skip
+    user = SimUser([], 0.03, 0.05, np.random.default_rng(seed))
+    inbox = JoystickInbox()
+    for tick in range(1, limit):
+        if c.mode == "idle":
+            break
+        out = user.sample(status_of(c), tick * c.dt)
+        assert out is not None
+        axes, buttons = out
+        msg = {"schema": 1, "seq": tick, "stamp": 0.0, "axes": list(axes),
+               "buttons": buttons.model_dump()}  # fmt: skip
+        c.tick(inbox.offer(json.dumps(msg).encode(), float(tick)))
+    return c, events, user
+
+
+@pytest.mark.parametrize("name", ["tea", "lego", "feeding"])
+def test_every_demo_completes_every_stage(fast: ProfileSpec, name: str) -> None:
+    c, events, user = run_inprocess(fast, name, seed=0)
+    assert c.mode == "idle"
+    assert events[-1]["kind"] == "task_done"
+    decisions = summarise(events, user.chosen)
+    assert decisions
+    assert all(d.correct for d in decisions)
+    stages = [e["detail"]["stage"] for e in events if e["kind"] == "stage_done"]
+    graph, _ = load_taskgraph(resolve_taskgraph(name))
+    assert set(stages) <= set(graph.stages)
+    if name == "lego":
+        assert len(stages) == 8  # four bricks, each picked and sorted
+    if name == "tea":
+        assert stages == ["choose_tea", "steep", "choose_snack", "serve"]
+
+
+def test_feeding_takes_both_branches_across_seeds(fast: ProfileSpec) -> None:
+    branches = set()
+    for seed in range(6):
+        _, events, _ = run_inprocess(fast, "feeding", seed)
+        stages = tuple(e["detail"]["stage"] for e in events if e["kind"] == "stage_done")
+        branches.add(stages)
+        if len(branches) == 2:
+            break
+    assert branches == {("choose_food", "dip", "feed"), ("choose_food", "feed")}
+
+
+@pytest.mark.slow
+def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    t0 = time.monotonic()
+    run = subprocess.run(
+        [sys.executable, "-m", "legws_daemon", "demo", "tea", "--out", str(out), "--seed", "1",
+         "--timeout", "300"],
+        capture_output=True, text=True, timeout=400, check=False,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert time.monotonic() - t0 < 400
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] is True
+    assert [d["decision"] for d in summary["decisions"]] == [
+        "choose_tea", "steep", "choose_snack", "serve"
+    ]  # fmt: skip
+    assert all(d["correct"] for d in summary["decisions"])
+    assert [d["single"] for d in summary["decisions"]] == [False, True, False, True]
+    assert "| choose_tea | pick |" in (out / "summary.md").read_text()
+    rrd = out / "recording.rrd"
+    verify = subprocess.run([rerun_exe(), "rrd", "verify", str(rrd)], capture_output=True,
+                            timeout=60, check=False)  # fmt: skip
+    assert verify.returncode == 0
+    commits = [t for _, _, t in read_text_log(rrd) if t.startswith("commit ")]
+    assert len(commits) == 4
