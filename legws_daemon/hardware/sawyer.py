@@ -4,8 +4,11 @@ The bridge (``bridge/intera_bridge.py`` on the robot's PC, or :mod:`~legws_daemo
 fake_bridge` without a robot) publishes joint states on ``legws/<robot>/bridge/state`` and
 applies joint velocity commands from ``legws/<robot>/bridge/command`` (contract:
 ``docs/bridge.md``). The adapter keeps a kinematic model of the Sawyer to turn the measured
-joint angles into the EE pose, and an EE velocity into joint velocities with the same
-damped least-squares step as the stand-in (joint speed and position limits respected).
+joint angles into the EE pose, and an EE velocity into joint velocities with mink's
+differential IK (:class:`~legws_daemon.sim.mink_ik.MinkVelocityIK`: a QP whose joint speed
+and position limits are hard constraints, so the twist is tracked as well as they allow).
+A solver failure is not covered up by another method: the command raises, and the daemon
+halts the arm and reports the fault.
 
 Thread safety: the state callback runs on a zenoh thread and only fills the newest-state
 slot (under a lock); every other method is meant for one control thread.
@@ -16,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import zenoh
@@ -36,8 +39,11 @@ from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
 from legws_daemon.hardware.sim import ORIENTATION_GAIN
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.kinematics import small_rotation_error, velocity_step
+from legws_daemon.sim.kinematics import small_rotation_error
 from legws_daemon.sim.world import World
+
+if TYPE_CHECKING:
+    from legws_daemon.sim.mink_ik import MinkVelocityIK
 
 #: Zero-velocity commands sent by :meth:`SawyerAdapter.disconnect`, and their spacing (s).
 STOP_REPEATS = 3
@@ -88,6 +94,7 @@ class SawyerAdapter(Adapter):
         self._subscriber: zenoh.Subscriber[None] | None = None
         self._publisher: zenoh.Publisher | None = None
         self._fk: World | None = None  # own model: link_poses may run on another thread
+        self._ik: MinkVelocityIK | None = None
         self._seq = 0
         self._gripper: Literal["open", "closed"] | None = None
 
@@ -107,6 +114,11 @@ class SawyerAdapter(Adapter):
             return
         if self._fk is None:
             self._fk = World(self.scene, visual=False)
+        if self._ik is None:
+            # imported here: mink and qpsolvers add ~0.25 s to the import, for this adapter only
+            from legws_daemon.sim.mink_ik import MinkVelocityIK
+
+            self._ik = MinkVelocityIK(self._fk)
         with self._lock:
             self._latest = None
         self._first.clear()
@@ -195,6 +207,11 @@ class SawyerAdapter(Adapter):
             raise LegwsError("the sawyer adapter is not connected")
         return self._fk
 
+    def _solver(self) -> MinkVelocityIK:
+        if self._ik is None:
+            raise LegwsError("the sawyer adapter is not connected")
+        return self._ik
+
     def read_state(self) -> RobotState:
         """The newest measured state, with the EE pose from the kinematic model.
 
@@ -216,7 +233,13 @@ class SawyerAdapter(Adapter):
 
     # --- commands -----------------------------------------------------------------
     def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
-        """Joint velocities realising the EE velocity from the newest measured ``q``."""
+        """Joint velocities realising the EE velocity from the newest measured ``q``.
+
+        Raises:
+            InputError: a non-finite orientation to hold (nothing is sent).
+            InfeasibleError: the IK's QP found no solution (nothing is sent; the daemon
+                halts the arm on any error).
+        """
         msg, _ = self._fresh()
         dq = np.zeros(7)
         if np.any(velocity):
@@ -226,8 +249,9 @@ class SawyerAdapter(Adapter):
             R = model.ee_rotation()
             target = R if hold is None else np.asarray(hold, dtype=np.float64)
             twist = np.concatenate([velocity, ORIENTATION_GAIN * small_rotation_error(R, target)])
-            velocity_step(model, twist, self.dt)
-            dq = np.clip((model.q - q) / self.dt, -_SPEED_LIMITS, _SPEED_LIMITS)
+            dq = self._solver().joint_velocity(q, twist, self.dt)
+            # the contract's limits (bridge_messages); the IK keeps to the same values
+            dq = np.clip(dq, -_SPEED_LIMITS, _SPEED_LIMITS)
         # a zero command moves nothing: no orientation correction, no null-space drift
         self._publish(dq)
 
