@@ -154,7 +154,10 @@ class Controller:
         self.decisions = 0
         self._last_assist_v = np.zeros(3)
         self._hold: FloatArray = scene.home.rotation
-        self.layout: Layout = dict(layout)
+        self.planned: Layout = dict(layout)  # where the objects should stand
+        self.observed: Layout = {}  # where a tracker says they are (a real robot)
+        self.layout: Layout = dict(layout)  # what inference uses: planned, then observed
+        self._misplaced: tuple[int, str] | None = None
         self.graph = graph if graph is not None else scene_graph(scene)
         self.task = TaskRun(self.graph, scene)
         self.adapter.place_objects(self.layout)
@@ -201,6 +204,54 @@ class Controller:
             with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
                 goals = goal_set(self.stage.targets, x0)
         self.observer = IntentObserver(goals, self.params)
+
+    def observe(self, poses: Layout) -> None:
+        """Object poses reported on ``legws/<robot>/objects`` (a real robot's tracker).
+
+        Inference of the next decision uses them. The current decision's certificate is
+        recomputed from them; when it is no longer positive (and the plan's was), a
+        ``warning`` event names the object to move back and where to.
+        """
+        known = {n: p for n, p in poses.items() if n in self.scene.movable}
+        if not known:
+            return
+        self.observed.update(known)
+        self.layout = {**self.planned, **self.observed}
+        targets = self.stage.targets
+        if len(targets) < 2 or self.task.finished:
+            return
+        names = [t.name for t in targets]
+        current = self._decision_certificate(self.layout)
+        self.stage.extras["observed_certificate"] = current
+        planned = self.stage.certificate
+        if current > 0 or planned is None or planned <= 0:
+            self._misplaced = None
+            return
+        best, best_gain = None, 0.0
+        for n in names:
+            if n in self.observed and n in self.planned:
+                trial = {**self.layout, n: self.planned[n]}
+                gain = self._decision_certificate(trial) - current
+                if gain > best_gain:
+                    best, best_gain = n, gain
+        if best is None:
+            return
+        key = (self.decisions, best)
+        if key == self._misplaced:
+            return
+        self._misplaced = key
+        to = self.planned[best]
+        self.emit(
+            "warning",
+            {"certificate": round(current, 4), "planned_certificate": round(planned, 4),
+             "move": best, "to": {"x": to.x, "y": to.y, "yaw": to.yaw},
+             "stage": self.stage.name},
+        )  # fmt: skip
+
+    def _decision_certificate(self, layout: Layout) -> float:
+        run = self.task
+        targets = run.targets(layout)
+        return certify(goal_set(targets, self.scene.home), self.params).objective
 
     def posterior(self) -> dict[str, float]:
         if self.observer is None:

@@ -37,6 +37,7 @@ from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
+    ObjectsMessage,
     StatusMessage,
     dump,
     parse,
@@ -46,7 +47,7 @@ from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgrap
 from legws_daemon.hardware.base import Adapter, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.transport.session import keys, open_session
 
@@ -149,6 +150,10 @@ class DaemonService:
         self.controller: Controller | None = None
         self.worker = TelemetryWorker() if config.telemetry is not None else None
         self._logged_stage: object = None
+        self._objects_lock = threading.Lock()
+        self._objects: dict[str, ObjectPose] = {}
+        self.objects_rejected = 0
+        self.objects_error: str | None = None
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -213,7 +218,7 @@ class DaemonService:
             "stage": c.stage.name,
             "posterior": c.posterior(),
             "committed": c.committed,
-            "certificate": c.stage.certificate,
+            "certificate": c.stage.extras.get("observed_certificate", c.stage.certificate),
             "adapter": "sim" if self.fallback else self.adapter_kind,
             "fallback": self.fallback,
             "fault": c.fault,
@@ -259,6 +264,24 @@ class DaemonService:
         else:
             query.reply_err(body)
 
+    def _on_objects(self, sample: zenoh.Sample) -> None:
+        """zenoh thread: validate a tracker's object poses; the loop applies them."""
+        try:
+            msg = parse(ObjectsMessage, sample.payload.to_bytes(), self.keys["objects"])
+        except InputError as err:
+            self.objects_rejected += 1
+            self.objects_error = str(err)
+            return
+        poses = {n: ObjectPose(p.x, p.y, p.yaw) for n, p in msg.objects.items()}
+        with self._objects_lock:
+            self._objects.update(poses)
+
+    def _apply_objects(self) -> None:
+        with self._objects_lock:
+            poses, self._objects = self._objects, {}
+        if poses and self.controller is not None:
+            self.controller.observe(poses)
+
     def _run_commands(self) -> None:
         c = self.controller
         assert c is not None
@@ -292,6 +315,15 @@ class DaemonService:
             stage=c.stage.name,
         )
 
+    @staticmethod
+    def _observed_objects(c: Controller) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Reported object poses as 3-D poses (objects rest on the table)."""
+        out = {}
+        for name, p in c.observed.items():
+            position = np.array([p.x, p.y, c.scene.z_center(name)])
+            out[name] = (position, np.array([np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]))
+        return out
+
     def _log_tick(self, rec: TickRecord, slack: float | None) -> None:
         tel, c = self.config.telemetry, self.controller
         if tel is None or c is None or rec.state is None or self.worker is None:
@@ -305,7 +337,7 @@ class DaemonService:
             link_rotations=links_R,
             ee_position=rec.state.ee_position,
             ee_quaternion=rec.state.ee_quaternion,
-            objects=c.adapter.object_poses(),
+            objects=c.adapter.object_poses() or self._observed_objects(c),
             posterior=rec.posterior if rec.mode == "teleop" or rec.committed else None,
             joystick=rec.joystick,
             command=rec.command,
@@ -347,6 +379,7 @@ class DaemonService:
                 lambda s: self.inbox.offer(s.payload.to_bytes(), time.monotonic()),
             )
             queryable = session.declare_queryable(self.keys["command"], self._on_query)
+            objects = session.declare_subscriber(self.keys["objects"], self._on_objects)
             log.info(
                 "robot %s on %s at %g Hz (deadman %g s); keys legws/%s/{joystick,status,events,"
                 "command}",
@@ -364,6 +397,7 @@ class DaemonService:
                 self._publish_status(status_pub, None, None)
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
                 queryable.undeclare()  # type: ignore[no-untyped-call]
+                objects.undeclare()  # type: ignore[no-untyped-call]
                 self._fail_pending()
                 if self.worker is not None:
                     self.worker.close()
@@ -389,6 +423,7 @@ class DaemonService:
         while not stop.is_set() and (end is None or time.monotonic() < end):
             now = ticker.begin()
             self._run_commands()
+            self._apply_objects()
             sample = self.inbox.latest(now, control.deadman_timeout)
             rec = c.tick(sample)
             if c.stage is not self._logged_stage:

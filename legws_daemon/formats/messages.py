@@ -15,7 +15,15 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Finite, Quat, Vec3, field_error, validate
+from legws_daemon.formats.validation import (
+    Angle,
+    Coordinate,
+    Finite,
+    Quat,
+    Vec3,
+    field_error,
+    validate,
+)
 
 SCHEMA_VERSION = 1
 #: Largest payload accepted, bytes: a joystick or command message is a few hundred.
@@ -121,6 +129,24 @@ class CommandRequest(_Message):
         if not needs and self.argument is not None:
             raise field_error(("argument",), f"'{self.command}' takes no argument")
         return self
+
+
+class PlanarPose(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    x: Coordinate
+    y: Coordinate
+    yaw: Angle = 0.0
+
+
+class ObjectsMessage(_Message):
+    """Where objects really are (a tracker, or a person with a tape measure): planar poses
+    in the robot base frame. The daemon recomputes the certificate from them."""
+
+    seq: Seq
+    stamp: Finite
+    objects: Annotated[dict[Label, PlanarPose], Field(max_length=64)]
+    source: Label = "unknown"
 
 
 M = TypeVar("M", bound=_Message)

@@ -20,7 +20,7 @@ from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.scene.scene import Scene
+from legws_daemon.scene.scene import ObjectPose, Scene
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
 LOADERS = (catalog_scene, catalog_taskgraph)
@@ -251,3 +251,26 @@ def test_stop_holds_until_reset_and_load_scene_swaps(rig: Rig) -> None:
     assert set(rig.c.posterior()) == set(load_scene("breakfast_easy").goal_names)
     with pytest.raises(InputError):
         rig.c.command(req({"schema": 1, "command": "load_scene", "argument": "nope"}), *LOADERS)
+
+
+def test_a_misplaced_object_is_named_when_the_certificate_is_lost(rig: Rig) -> None:
+    planned = rig.c.stage.certificate
+    assert planned is not None
+    assert planned > 0
+    stapler = rig.c.planned["black_stapler"]
+    # a tracker reports the mug right next to the stapler: the goals can no longer be told apart
+    rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.02, stapler.y + 0.01, 0.0)})
+    kind, detail = rig.events[-1]
+    assert kind == "warning"
+    assert detail["move"] == "white_mug"
+    assert detail["certificate"] <= 0 < detail["planned_certificate"]
+    mug = rig.c.planned["white_mug"]
+    assert detail["to"] == {"x": mug.x, "y": mug.y, "yaw": mug.yaw}
+    n = len(rig.events)
+    rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.021, stapler.y + 0.01, 0.0)})
+    assert len(rig.events) == n  # said once per decision and object
+    # moved back: the certificate is positive again, no warning
+    rig.c.observe({"white_mug": mug})
+    assert rig.c.stage.extras["observed_certificate"] == pytest.approx(planned)
+    rig.c.observe({"unknown_thing": mug, "table": mug})  # not movable objects: ignored
+    assert len(rig.events) == n

@@ -142,6 +142,15 @@ def test_deadman_malformed_input_and_commands(tmp_path: Path) -> None:
             assert m.latest()["rejected"] - rejected0 >= 2 * len(bad)  # type: ignore[index]
             assert m.latest()["deadman"] is True  # type: ignore[index]
 
+            # a tracker reports the mug next to the stapler: the daemon names the object to move
+            stapler = {"x": 0.70, "y": -0.05, "yaw": 0.0}
+            objects = {"schema": 1, "seq": 1, "stamp": 0.0, "objects": {"white_mug": stapler}}
+            pub.put(keys(ROBOT)["objects"], json.dumps(objects).encode())
+            pub.put(keys(ROBOT)["objects"], b"not json")  # rejected, ignored
+            assert m.wait_for(
+                lambda m: any(e["detail"].get("move") == "white_mug" for e in m.events), 5
+            )
+
             ok, reply = m.command("stop")
             assert ok
             assert reply["mode"] == "stopped"
