@@ -4,32 +4,35 @@ Decision vector: ``(x, y, yaw)`` of each movable object, normalised to ``[0, 1]`
 ``y`` span the workspace bounds, ``yaw`` spans ``[-pi, pi)`` and wraps. Proposals outside
 ``[0, 1]`` are clipped (positions) or wrapped (yaw), never resampled.
 
-Objective: the certificate ``J`` of the candidate goals' grasps minus additive penalties,
-so an infeasible layout always loses to a feasible one:
+Objective: the certificate ``J`` of the candidate goals minus additive penalties, so an
+infeasible layout always loses to a feasible one. The goals are the placed objects' grasps
+by default (:class:`GraspGoals`); a :class:`GoalModel` generalises them (other goal poses,
+and goals that stay put: certified, not in the decision vector):
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);
-* ``UNREACHABLE_PENALTY`` per grasp the reachability map screens out;
+* ``UNREACHABLE_PENALTY`` per goal the reachability map screens out;
 * ``INFEASIBLE_OFFSET`` once when either is non-zero.
 
 Measures: mean pairwise distance between the movable objects, and the distance of their
-centroid from the workspace centre.
+centroid from the workspace centre (goals that stay put count as points too).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.scene.constraints import LayoutConstraints
-from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.sim.reachability import ReachabilityMap
 
 #: Penalty per metre of constraint violation (1 cm costs 1 unit of slack).
@@ -55,16 +58,66 @@ class Evaluation:
         return np.asarray((self.violation == 0.0) & (self.unreachable == 0))
 
 
+@dataclass(frozen=True, slots=True)
+class GoalPoses:
+    """Goal poses of ``B`` layouts with ``M`` goals each."""
+
+    positions: FloatArray  # (B, M, 3)
+    rotations: FloatArray  # (B, M, 3, 3)
+    symmetry: IntArray  # (M,)
+
+
+class GoalModel(ABC):
+    """Where the certified goals are, given the poses of the objects being placed.
+
+    Attributes:
+        names: the goals, in the certificate's order.
+    """
+
+    names: tuple[str, ...]
+
+    @abstractmethod
+    def poses(self, objects: FloatArray) -> GoalPoses:
+        """Goal poses for placed-object poses ``(B, K, 3)`` (the problem's ``names`` order)."""
+
+    @abstractmethod
+    def unreachable(self, screen: ReachabilityMap, objects: FloatArray) -> FloatArray:
+        """``(B,)`` number of goals the reachability map screens out."""
+
+    @property
+    def anchors(self) -> FloatArray:
+        """``(F, 2)`` table-plane positions of the goals that stay put (for the measures)."""
+        return np.zeros((0, 2))
+
+
+class GraspGoals(GoalModel):
+    """The default goals: the grasp of every placed object (method.md §5)."""
+
+    def __init__(self, scene: Scene, names: Sequence[str]) -> None:
+        self.scene = scene
+        self.names = tuple(names)
+
+    def poses(self, objects: FloatArray) -> GoalPoses:
+        pos, rot, sym = self.scene.grasp_batch(self.names, objects)
+        return GoalPoses(pos, rot, sym)
+
+    def unreachable(self, screen: ReachabilityMap, objects: FloatArray) -> FloatArray:
+        ok = screen.screen(self.scene, self.names, objects)
+        return np.asarray((~ok).sum(axis=1), dtype=np.float64)
+
+
 class LayoutProblem:
     """Place ``movable`` objects of ``scene`` so that the candidate goals are legible.
 
     Args:
-        scene: the scene; objects not in ``movable`` stay where the scene puts them.
+        scene: the scene; objects not in ``movable`` stay where ``base`` (or the scene)
+            puts them.
         movable: the objects to place (default: the scene's candidate goals).
         params: model parameters of the certificate.
-        screen: reachability map used to penalise unreachable grasps (``None``: no screen).
-
-    The candidate goals certified are the movable objects.
+        screen: reachability map used to penalise unreachable goals (``None``: no screen).
+        goals: the certified goals (default: the grasps of the movable objects, which
+            must then be at least 2).
+        base: poses of the objects that stay put (default: the scene file's).
     """
 
     def __init__(
@@ -73,17 +126,30 @@ class LayoutProblem:
         movable: Sequence[str] | None = None,
         params: Params | None = None,
         screen: ReachabilityMap | None = None,
+        *,
+        goals: GoalModel | None = None,
+        base: Mapping[str, ObjectPose] | None = None,
     ) -> None:
         names = tuple(movable) if movable is not None else scene.goal_names
-        if len(names) < 2:
+        if goals is None and len(names) < 2:
             raise InputError(
                 f"expected at least 2 movable objects, got {len(names)}", field="--movable"
             )
+        if not names:
+            raise InputError("expected at least 1 object to place", field="--movable")
+        if goals is not None and len(goals.names) < 2:
+            raise InputError(f"expected at least 2 goals, got {len(goals.names)}", field="goals")
         if len(set(names)) != len(names):
             raise InputError("an object is named twice", field="--movable")
         self.scene = scene
-        self.constraints = LayoutConstraints.of(scene, names)
+        constraints = LayoutConstraints.of(scene, names)
+        if base is not None:
+            poses = scene.poses(base)
+            fixed_xy = [[poses[n].x, poses[n].y] for n in constraints.fixed_names]
+            constraints = replace(constraints, fixed_xy=np.array(fixed_xy).reshape(-1, 2))
+        self.constraints = constraints
         self.names = names
+        self.goals = goals if goals is not None else GraspGoals(scene, names)
         self.params = params or Params()
         self.screen = screen
         ws = scene.workspace
@@ -115,6 +181,10 @@ class LayoutProblem:
     def measures(self, poses: FloatArray) -> FloatArray:
         """Mean pairwise distance and centroid offset from the workspace centre, ``(B, 2)``."""
         xy = poses[..., :2]
+        anchors = self.goals.anchors
+        if len(anchors):
+            fixed = np.broadcast_to(anchors, (len(xy), *anchors.shape))
+            xy = np.concatenate([xy, fixed], axis=1)
         k = xy.shape[1]
         iu = np.triu_indices(k, 1)
         d = np.linalg.norm(xy[:, :, None] - xy[:, None, :], axis=-1)[:, iu[0], iu[1]]
@@ -125,11 +195,14 @@ class LayoutProblem:
         """Objective, certificate, penalties and measures of normalised solutions ``(B, 3K)``."""
         poses = self.decode(x)
         sc = self.scene
-        pos, rot, sym = sc.grasp_batch(self.names, poses)
-        J = certify_batch(sc.home.position, sc.home.rotation, pos, rot, sym, self.params).objective
+        g = self.goals.poses(poses)
+        home = sc.home
+        J = certify_batch(
+            home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params
+        ).objective
         violation = self.constraints.violation(poses)
         if self.screen is not None:
-            unreachable = (~self.screen.screen(sc, self.names, poses)).sum(axis=1).astype(float)
+            unreachable = self.goals.unreachable(self.screen, poses)
         else:
             unreachable = np.zeros(len(poses))
         infeasible = (violation > 0) | (unreachable > 0)
