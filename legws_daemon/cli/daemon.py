@@ -12,13 +12,35 @@ from types import FrameType
 import click
 
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
+from legws_daemon.design.plan import Plan
+from legws_daemon.errors import InputError
 from legws_daemon.formats.layout_file import load_layout
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
+from legws_daemon.scene.scene import Scene
+from legws_daemon.task.graph import TaskGraph
 from legws_daemon.transport.session import config_from_file, config_from_spec
+
+
+def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
+    """``auto``: the cached plan of the graph (planned now if there is none); else a folder
+    (or its ``plan.json``) written by ``legws plan``."""
+    if arg == "auto":
+        from legws_daemon.design.stage_plan import plan_taskgraph
+
+        return plan_taskgraph(graph, scene)
+    from legws_daemon.formats.plan_file import load_plan
+
+    path = Path(arg)
+    plan = load_plan(path / "plan.json" if path.is_dir() else path, scene)
+    if plan.taskgraph != graph.name:
+        raise InputError(
+            f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'", field="--plan"
+        )
+    return plan
 
 
 def install_stop_handlers(stop: threading.Event) -> None:
@@ -42,6 +64,13 @@ def install_stop_handlers(stop: threading.Event) -> None:
 @click.option(
     "--taskgraph",
     help="Task graph: a name in taskgraphs/ or a .toml path (its scene is used).",
+)
+@click.option(
+    "--plan",
+    "plan_arg",
+    metavar="DIR|auto",
+    help="Stage-specific layouts for --taskgraph: a folder from `legws plan --out`, or auto "
+    "(plan now, or take the cached plan).",
 )
 @click.option(
     "--layout",
@@ -81,6 +110,7 @@ def daemon_cmd(
     profile: str,
     scene: str | None,
     taskgraph: str | None,
+    plan_arg: str | None,
     layout_file: Path | None,
     rerun_target: str | None,
     zenoh_config: Path | None,
@@ -100,15 +130,19 @@ def daemon_cmd(
 
     if scene is not None and taskgraph is not None:
         raise click.UsageError("give --scene or --taskgraph, not both")
+    if plan_arg is not None and taskgraph is None:
+        raise click.UsageError("--plan needs --taskgraph")
     spec = load_profile_named(profile)
     if rate is not None:
         control = spec.control.model_copy(update={"rate_hz": rate})
         spec = validate(
             ProfileSpec, {**spec.model_dump(), "control": control.model_dump()}, "--rate"
         )
-    graph = None
+    graph = plan = None
     if taskgraph is not None:
         graph, sc = load_taskgraph(resolve_taskgraph(taskgraph))
+        if plan_arg is not None:
+            plan = _load_plan(plan_arg, graph, sc)
     else:
         sc = load_scene(scene or "desk")
     layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
@@ -137,5 +171,6 @@ def daemon_cmd(
             duration=duration,
             trace=trace,
             graph=graph,
+            plan=plan,
         )
         return DaemonService(config).run(stop)

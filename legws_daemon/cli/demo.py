@@ -29,7 +29,16 @@ from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgrap
     help="Stop the run after this many seconds.",
 )
 @click.option("--profile", default="sim", show_default=True, help="Hardware profile (a sim one).")
-def demo_cmd(taskgraph: str, out: Path | None, seed: int, timeout: float, profile: str) -> None:
+@click.option(
+    "--plan/--no-plan",
+    default=True,
+    show_default=True,
+    help="Stage-specific layouts from `legws plan` (cached after the first run), or the "
+    "scene's default layout throughout.",
+)
+def demo_cmd(
+    taskgraph: str, out: Path | None, seed: int, timeout: float, profile: str, plan: bool
+) -> None:
     """Run TASKGRAPH (tea, lego, feeding or a file) on the stand-in with a simulated user.
 
     Starts `legws daemon` on a private loopback port with a Rerun recording, steers like
@@ -42,8 +51,18 @@ def demo_cmd(taskgraph: str, out: Path | None, seed: int, timeout: float, profil
     spec = load_profile_named(profile)
     if spec.adapter != "sim":
         raise click.UsageError(f"the demo runs on a sim profile; '{profile}' is {spec.adapter}")
-    graph, _ = load_taskgraph(resolve_taskgraph(taskgraph))  # one-line errors before starting
+    graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))  # errors before starting
     folder = out if out is not None else Path("out") / f"demo-{graph.name}"
+    plan_dir = None
+    if plan:
+        from legws_daemon.design.stage_plan import plan_taskgraph
+
+        click.echo(f"legws: planning the layout of each decision of {graph.name}", err=True)
+        planned = plan_taskgraph(graph, scene, progress=False)
+        plan_dir = planned.directory
+        for d in planned.decisions:
+            cert = "no inference" if d.certificate is None else f"J = {d.certificate:.3f}"
+            click.echo(f"  {d.label}: {cert}", err=True)
 
     def show(event: dict[str, Any]) -> None:
         kind, d = event["kind"], event["detail"]
@@ -56,7 +75,7 @@ def demo_cmd(taskgraph: str, out: Path | None, seed: int, timeout: float, profil
 
     click.echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
     result = run_demo(graph.name if taskgraph == graph.name else taskgraph, spec, folder,
-                      seed=seed, timeout=timeout, log=show)  # fmt: skip
+                      seed=seed, timeout=timeout, plan=plan_dir, log=show)  # fmt: skip
     click.echo(markdown(result))
     if not result.completed:
         raise click.ClickException(f"the task did not complete; see {folder / 'daemon.log'}")

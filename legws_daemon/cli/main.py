@@ -21,10 +21,12 @@ from legws_daemon.cli.demo import demo_cmd
 from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
+from legws_daemon.cli.plan import plan_cmd
 from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.cli.sim_user import sim_user_cmd
+from legws_daemon.cli.taskgraph import taskgraph_group
 from legws_daemon.errors import LegwsError
 
 EXIT_BAD_INPUT = 2
@@ -48,6 +50,8 @@ cli.add_command(joystick_group)
 cli.add_command(bridge_group)
 cli.add_command(replay_cmd)
 cli.add_command(demo_cmd)
+cli.add_command(plan_cmd)
+cli.add_command(taskgraph_group)
 
 
 def _fail(message: str) -> int:

@@ -48,6 +48,7 @@ from legws_daemon.daemon.assist import (
     return_plan,
 )
 from legws_daemon.daemon.inbox import Sample
+from legws_daemon.design.plan import Plan
 from legws_daemon.errors import HardwareError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
@@ -119,6 +120,9 @@ class Controller:
         params: observer and certificate parameters (``dt`` and ``v_max`` from the profile).
         emit: receives events ``(kind, detail)``.
         graph: the task graph to run (default: pick one of the scene's candidate goals).
+        plan: stage-specific layouts of the graph (``legws plan``): at each decision the
+            optimised objects go to their planned poses (the stand-in moves them; on a real
+            robot they are shown as placement targets and a person places them).
         clock: monotonic clock.
     """
 
@@ -131,6 +135,7 @@ class Controller:
         params: Params,
         emit: Emit,
         graph: TaskGraph | None = None,
+        plan: Plan | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.profile = profile
@@ -159,6 +164,7 @@ class Controller:
         self.layout: Layout = dict(layout)  # what inference uses: planned, then observed
         self._misplaced: tuple[int, str] | None = None
         self.graph = graph if graph is not None else scene_graph(scene)
+        self.plan = plan
         self.task = TaskRun(self.graph, scene)
         self.adapter.place_objects(self.layout)
         self.stage = self._begin_stage()
@@ -168,6 +174,7 @@ class Controller:
         """Targets of the stage(s) that come next; inference starts (or, with a single
         candidate, the commit is immediate)."""
         self.decisions += 1
+        self._apply_plan()
         targets = self.task.targets(self.layout) if not self.task.finished else []
         goals_home = cert = None
         if len(targets) >= 2:
@@ -189,6 +196,27 @@ class Controller:
             self.mode = "teleop"
             self._restart_inference()
         return self.stage
+
+    def _apply_plan(self) -> None:
+        """Move this decision's optimised objects to their planned poses."""
+        if self.plan is None or self.task.finished:
+            return
+        try:
+            decision = self.plan.decision(self.task.label)
+        except InputError:
+            return  # the plan does not know this decision: keep the layout
+        planned = self.plan.layout_for(decision.label)
+        moves = {n: planned[n] for n in decision.optimised if n in planned}
+        if not moves or all(self.planned.get(n) == p for n, p in moves.items()):
+            return
+        self.planned.update(moves)
+        self.layout = {**self.planned, **self.observed}
+        if not self.adapter.place_objects(moves):
+            self.emit(
+                "warning",
+                {"place": {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in moves.items()},
+                 "stage": self.task.label, "certificate": decision.certificate},
+            )  # fmt: skip
 
     def _restart_inference(self) -> None:
         """A fresh observer whose start pose is where the EE is now."""
@@ -528,6 +556,9 @@ class Controller:
             self.scene = scene
         self.layout = dict(layout if layout is not None else scene.default_layout())
         self.graph = graph if graph is not None else scene_graph(scene)
+        self.plan = None  # a plan belongs to the graph it was made for
+        self.planned = dict(self.layout)
+        self.observed = {}
         self.task = TaskRun(self.graph, scene)
         self.fault, self.assistant, self._gripper = None, None, None
         self.adapter.place_objects(self.layout)

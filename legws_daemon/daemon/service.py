@@ -33,6 +33,7 @@ from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
 from legws_daemon.daemon.telemetry_worker import TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
+from legws_daemon.design.plan import Plan
 from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
 from legws_daemon.formats.messages import (
     CommandRequest,
@@ -113,6 +114,7 @@ class DaemonConfig:
     duration: float | None = None
     trace: IO[str] | None = None
     graph: TaskGraph | None = None
+    plan: Plan | None = None
     scene_loader: Callable[[str], Scene] = field(default=lambda name: catalog_scene(name))
     graph_loader: Callable[[str], tuple[TaskGraph, Scene]] = field(
         default=lambda name: catalog_taskgraph(name)
@@ -364,6 +366,7 @@ class DaemonService:
                 cfg.params,
                 self._emit,
                 graph=cfg.graph,
+                plan=cfg.plan,
             )
             self.controller = controller
             self._logged_stage = controller.stage

@@ -4,10 +4,12 @@ Decision vector: ``(x, y, yaw)`` of each movable object, normalised to ``[0, 1]`
 ``y`` span the workspace bounds, ``yaw`` spans ``[-pi, pi)`` and wraps. Proposals outside
 ``[0, 1]`` are clipped (positions) or wrapped (yaw), never resampled.
 
-Objective: the certificate ``J`` of the candidate goals minus additive penalties, so an
-infeasible layout always loses to a feasible one. The goals are the placed objects' grasps
-by default (:class:`GraspGoals`); a :class:`GoalModel` generalises them (other goal poses,
-and goals that stay put: certified, not in the decision vector):
+Goals: the grasps of the placed objects by default (:class:`GraspGoals`); a
+:class:`GoalModel` generalises them to other goal poses (e.g. a task stage's place or dip
+targets) and to goals that stay put (certified, not in the decision vector).
+
+Objective: the certificate ``J`` of the goals minus additive penalties, so an infeasible
+layout always loses to a feasible one:
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);

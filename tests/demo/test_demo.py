@@ -127,3 +127,31 @@ def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(tmp_path: Path) 
     assert verify.returncode == 0
     commits = [t for _, _, t in read_text_log(rrd) if t.startswith("commit ")]
     assert len(commits) == 4
+
+
+def test_a_plan_moves_each_decisions_objects_to_their_planned_poses(fast: ProfileSpec) -> None:
+    from legws_daemon.design.stage_plan import plan_taskgraph
+
+    graph, scene = load_taskgraph(resolve_taskgraph("tea"))
+    plan = plan_taskgraph(graph, scene, iterations=60, render=False, progress=False)
+    events: list[Any] = []
+
+    def make(sc: Scene) -> SimAdapter:
+        a = SimAdapter(fast, sc)
+        a.connect()
+        return a
+
+    c = Controller(
+        fast, scene, scene.default_layout(), make, Params(),
+        lambda k, d: events.append((k, d)), graph=graph, plan=plan,
+    )  # fmt: skip
+    first = plan.decision("choose_tea")
+    assert c.stage.certificate == pytest.approx(first.certificate)
+    assert isinstance(c.adapter, SimAdapter)
+    poses = c.adapter.object_poses()
+    for name in first.optimised:
+        want = first.layout[name]
+        np.testing.assert_allclose(poses[name][0][:2], [want.x, want.y], atol=1e-9)
+    # the snacks stay where the scene put them until their decision comes
+    default = scene.default_layout()
+    np.testing.assert_allclose(poses["cookie"][0][:2], [default["cookie"].x, default["cookie"].y])

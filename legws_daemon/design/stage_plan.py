@@ -1,0 +1,371 @@
+"""Stage-specific layouts (method.md §5, §7): one layout per decision point of a task graph.
+
+For each decision point (:func:`~legws_daemon.task.decisions.decision_points`), in the
+order a run meets them, starting from the layout of the decision it is reached from (the
+first from the scene file's layout):
+
+* one candidate: nothing to infer; the layout is kept and its target checked;
+* the *optimised* objects are the candidates that are movable objects of the scene, not
+  fixed by the graph and not ``return`` goals; their ``(x, y, yaw)`` are searched
+  (:func:`~legws_daemon.design.search.search` on a :class:`LayoutProblem` whose goals are
+  the decision's targets, :class:`~legws_daemon.design.stage_goals.TargetGoals`) to
+  maximise the certificate ``J`` of every candidate's target from the EE home, with the
+  constraints, penalties and reachability screen of ``legws optimize``; every other
+  object stays put and counts as an obstacle;
+* no optimised object (only places or fixed objects): certified, not optimised.
+
+The chosen layout is the best elite, of those that beat the starting layout, that meets
+every constraint and whose targets all pass the full IK and collision check (the
+starting layout when none does and it passes itself), so ``J`` never drops below the
+start's when the start is feasible. When nothing passes, the plan says so
+(``feasible: false`` and a note) and keeps the best layout that meets the constraints.
+
+Plans are cached in ``$XDG_CACHE_HOME/legws/plan/<key>/`` (``plan.json`` and one top-view
+picture per decision), keyed by the task-graph file, the scene file, the robot model and
+the settings; a folder is written completely under a temporary name, then renamed.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from legws_daemon import __version__
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.params import Params
+from legws_daemon.design import METHODS
+from legws_daemon.design.optimize import check_capacity
+from legws_daemon.design.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
+from legws_daemon.design.plan_cache import (
+    PLAN_FILE,
+    copy_out,
+    load_cached,
+    plan_cache_dir,
+    plan_key,
+    publish,
+)
+from legws_daemon.design.problem import LayoutProblem
+from legws_daemon.design.search import SearchResult, search
+from legws_daemon.design.stage_goals import TargetGoals
+from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.plan_file import dump_plan
+from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.sim.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds, symmetric_rotations
+from legws_daemon.sim.kinematics import home_configuration, solve_ik
+from legws_daemon.sim.reachability import ReachabilityMap, load_or_build
+from legws_daemon.sim.world import World
+from legws_daemon.task.decisions import DecisionPoint, decision_points
+from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.targets import Target, goal_set, target
+
+#: Elites tried, best first, before the plan gives up on a decision's full check.
+MAX_VERIFIED = 30
+
+log = logging.getLogger("legws.plan")
+
+
+@dataclass
+class _Planner:
+    """What every decision of one planning run shares."""
+
+    graph: TaskGraph
+    scene: Scene
+    params: Params
+    method: str
+    iterations: int
+    seed: int
+    progress: bool
+    world: World
+    q_home: FloatArray
+    _screen: ReachabilityMap | None = None
+
+    @property
+    def screen(self) -> ReachabilityMap:
+        if self._screen is None:
+            self._screen = load_or_build(self.world, self.q_home)
+        return self._screen
+
+    def targets(self, point: DecisionPoint, layout: Layout) -> list[Target]:
+        stage = point.stage_of
+        return [
+            target(self.scene, layout, stage[c], action, c) for c, action in point.actions.items()
+        ]
+
+    def certificate(self, point: DecisionPoint, layout: Layout) -> float:
+        goals = goal_set(self.targets(point, layout), self.scene.home)
+        return certify(goals, self.params).objective
+
+    def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
+        """``None`` when every target passes the IK and collision check, else the first
+        target that does not and why."""
+        self.world.set_layout(self.scene.poses(layout))
+        try:
+            for t in self.targets(point, layout):
+                reason = _reach(self.world, t, self.q_home)
+                if reason is not None:
+                    return t, reason
+            return None
+        finally:
+            self.world.set_q(self.q_home)
+
+
+def _reach(world: World, t: Target, q_home: FloatArray) -> str | None:
+    """``None`` when IK reaches ``t`` (one of its symmetric equivalents) within the
+    feasibility tolerances with the arm touching nothing but ``t``'s own object."""
+    reason = "out of reach"
+    for seed in ik_seeds(world, q_home):
+        for R in symmetric_rotations(t.rotation, t.symmetry, world.scene.home.rotation):
+            ik = solve_ik(
+                world,
+                t.position,
+                R,
+                seed,
+                tol_position=TOL_POSITION / 5,
+                tol_rotation=TOL_ROTATION / 5,
+            )
+            if ik.position_error > TOL_POSITION or ik.rotation_error > TOL_ROTATION:
+                continue
+            hits = world.arm_contacts(ignore=frozenset({t.name}))
+            if not hits:
+                return None
+            reason = f"collides with {hits[0][1]} ({hits[0][0]})"
+    return reason
+
+
+def _optimised(graph: TaskGraph, scene: Scene, point: DecisionPoint) -> tuple[str, ...]:
+    return tuple(
+        c
+        for c, action in point.actions.items()
+        if c in scene.movable and c not in graph.fixed and action != "return"
+    )
+
+
+def _why(failure: tuple[Target, str] | None) -> str | None:
+    return None if failure is None else f"{failure[0].name} ({failure[0].action}): {failure[1]}"
+
+
+def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) -> PlannedDecision:
+    names = _optimised(p.graph, p.scene, point)
+    shell = PlannedDecision(
+        label=point.label,
+        stages=tuple(s.name for s in point.stages),
+        candidates=point.candidates,
+        actions=point.actions,
+        inference=point.inference,
+        optimised=(),
+        layout=dict(base),
+        certificate=None,
+        certificate_start=None,
+        feasible=False,
+        image=None,
+    )
+    start_problem = _why(p.check(point, base))
+    if not point.inference or not names:
+        note = (
+            "no inference needed (one candidate)"
+            if not point.inference
+            else "certified, not optimised: no candidate is a movable object to place"
+        )
+        j = p.certificate(point, base) if point.inference else None
+        return replace(
+            shell,
+            certificate=j,
+            certificate_start=j,
+            feasible=start_problem is None,
+            note=note if start_problem is None else f"{note}; {start_problem}",
+        )
+    j_start = p.certificate(point, base)
+    layout, problem = _search(p, index, point, base, names, j_start, start_problem is None)
+    j = p.certificate(point, layout)
+    if problem is None:
+        note = f"optimised {', '.join(names)}: J {j_start:.3f} -> {j:.3f}"
+    else:
+        note = f"no layout passed the full check: {problem}"
+    return replace(
+        shell,
+        optimised=names,
+        layout=layout,
+        certificate=j,
+        certificate_start=j_start,
+        feasible=problem is None,
+        note=note,
+    )
+
+
+def _search(
+    p: _Planner,
+    index: int,
+    point: DecisionPoint,
+    base: Layout,
+    names: tuple[str, ...],
+    j_start: float,
+    start_ok: bool,
+) -> tuple[Layout, str | None]:
+    """The chosen layout of every movable object and ``None``, or the fallback and why."""
+    goals = TargetGoals(p.scene, point, names, base)
+    problem = LayoutProblem(p.scene, names, p.params, p.screen, goals=goals, base=base)
+    check_capacity(problem)
+    result = _run_search(p, problem, point.label, p.seed + index)
+    fallback: Layout | None = None
+    first_problem: str | None = None
+    for elite, row in list(zip(result.elites, result.table, strict=True))[:MAX_VERIFIED]:
+        if start_ok and row["certificate"] <= j_start:
+            continue  # cannot beat the start, which passes
+        layout = {**base, **problem.layout(elite.solution)}
+        if problem.constraints.problems(p.scene.poses(layout)):
+            continue
+        fallback = fallback or layout
+        failure = p.check(point, layout)
+        if failure is None:
+            return layout, None
+        first_problem = first_problem or _why(failure)
+        if failure[0].name not in names and failure[1] == "out of reach":
+            break  # a target that does not move is out of reach in every layout
+    if start_ok:
+        return dict(base), None
+    return (fallback or dict(base)), (first_problem or "no elite met the layout constraints")
+
+
+def _run_search(p: _Planner, problem: LayoutProblem, label: str, seed: int) -> SearchResult:
+    if not p.progress:
+        return search(problem, p.method, p.iterations, seed)
+    from tqdm import tqdm
+
+    with tqdm(total=p.iterations, desc=label, unit="it", leave=False) as bar:
+
+        def tick(_it: int, _best: float, _coverage: float) -> None:
+            bar.update(1)
+
+        return search(problem, p.method, p.iterations, seed, tick)
+
+
+def _plan(p: _Planner) -> list[tuple[DecisionPoint, PlannedDecision]]:
+    planned: list[tuple[DecisionPoint, PlannedDecision]] = []
+    for i, point in enumerate(decision_points(p.graph)):
+        base = p.scene.default_layout() if point.parent is None else planned[point.parent][1].layout
+        planned.append((point, _plan_decision(p, i, point, base)))
+    return planned
+
+
+def _render(
+    p: _Planner, planned: list[tuple[DecisionPoint, PlannedDecision]], folder: Path
+) -> list[PlannedDecision]:
+    """Write one picture per decision into ``folder``; without GL, a warning and no images."""
+    from legws_daemon.design.plan_render import decision_picture
+
+    out: list[PlannedDecision] = []
+    for point, d in planned:
+        j = "" if d.certificate is None else f"  J = {d.certificate:.3f}"
+        title = f"{p.graph.name}: {d.label}{j}"
+        try:
+            png = decision_picture(p.scene, d.layout, p.targets(point, d.layout), title)
+        except LegwsError as err:  # no GL here: the plan still stands
+            log.warning("legws: warning: no pictures of the plan: %s", err)
+            return [d for _, d in planned]
+        write_atomic(folder / image_name(d.label), png)
+        out.append(replace(d, image=image_name(d.label)))
+    return out
+
+
+def plan_taskgraph(
+    graph: TaskGraph,
+    scene: Scene,
+    *,
+    method: str = "cma-me",
+    iterations: int = DEFAULT_ITERATIONS,
+    seed: int = 0,
+    params: Params | None = None,
+    progress: bool = False,
+    use_cache: bool = True,
+    out_dir: Path | None = None,
+    render: bool = True,
+) -> Plan:
+    """Plan a layout for every decision point of ``graph`` (see the module's docstring).
+
+    Args:
+        graph: the task graph (its ``source`` file is part of the cache key).
+        scene: its scene.
+        method, iterations, seed: the search's settings (per optimised decision).
+        params: model parameters of the certificate (default: the method's).
+        progress: a progress bar per search on stderr.
+        use_cache: load the plan from the cache when there, and store it there.
+        out_dir: also copy ``plan.json`` and the pictures into this folder.
+        render: draw a top view of each decision's layout (needs OpenGL; without a cache
+            or ``out_dir`` there is nowhere to keep pictures, so none are drawn).
+
+    Returns:
+        The plan; its ``directory`` holds ``plan.json`` and the pictures (``out_dir``,
+        else the cache folder, else ``None``).
+    """
+    if method not in METHODS:
+        raise InputError(
+            f"unknown method '{method}'; known: {', '.join(METHODS)}", field="--method"
+        )
+    if iterations < 1:
+        raise InputError(f"expected at least 1 iteration, got {iterations}", field="--iterations")
+    params = params or Params()
+    settings = {
+        "method": method,
+        "iterations": iterations,
+        "seed": seed,
+        "params": params.as_dict(),
+        "version": __version__,
+    }
+    key = plan_key(graph, scene, settings)
+    folder = plan_cache_dir() / key
+    cached = load_cached(folder) if use_cache else None
+    if cached is not None:
+        return copy_out(cached, out_dir) if out_dir is not None else cached
+    started = time.perf_counter()
+    world = World(scene)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    planner = _Planner(
+        graph,
+        scene,
+        params,
+        method,
+        iterations,
+        seed,
+        progress,
+        world,
+        np.asarray(q_home, dtype=np.float64),
+    )
+    planned = _plan(planner)
+    decisions = [d for _, d in planned]
+    keep = use_cache or out_dir is not None
+    root = plan_cache_dir() if use_cache else None
+    if root is not None:
+        root.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{key}.", dir=root))
+    try:
+        if render and keep:
+            decisions = _render(planner, planned, staging)
+        plan = Plan(
+            graph.name,
+            scene.name,
+            key,
+            settings,
+            tuple(decisions),
+            time.perf_counter() - started,
+            directory=staging,
+        )
+        write_atomic(staging / PLAN_FILE, dump_plan(plan))
+        if use_cache:
+            publish(staging, folder)
+            plan = replace(plan, directory=folder)
+        if out_dir is not None:
+            plan = copy_out(plan, out_dir)
+        elif not use_cache:
+            plan = replace(plan, directory=None)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return plan

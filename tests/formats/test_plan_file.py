@@ -1,0 +1,135 @@
+"""Plan files: round trip, look-ups, and one clear line per malformed field."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from legws_daemon.design.plan import Plan, PlannedDecision, image_name
+from legws_daemon.errors import InputError
+from legws_daemon.formats.plan_file import dump_plan, load_plan, plan_to_data
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import ObjectPose
+
+
+def feeding_plan() -> Plan:
+    layout = {
+        "strawberry": ObjectPose(0.7, 0.1, 0.0),
+        "grape": ObjectPose(0.62, -0.05, 0.5),
+        "brownie": ObjectPose(0.7, -0.2, -1.0),
+    }
+    moved = {**layout, "grape": ObjectPose(0.4, 0.2, 0.25)}
+    food = ("strawberry", "grape", "brownie")
+    return Plan(
+        taskgraph="feeding",
+        scene="feeding",
+        key="0123456789abcdef0123",
+        settings={"method": "cma-me", "iterations": 10, "seed": 0, "version": "0.1.0"},
+        decisions=(
+            PlannedDecision("choose_food", ("choose_food",), food, dict.fromkeys(food, "pick"),
+                            True, food, moved, 2.5, 0.3, True, "choose_food.png", "optimised"),
+            PlannedDecision("dip|feed", ("dip", "feed"),
+                            ("chocolate_bowl", "sprinkles_bowl", "mouth"),
+                            {"chocolate_bowl": "dip", "sprinkles_bowl": "dip", "mouth": "feed"},
+                            True, (), moved, 1.2, 1.2, True, None, "certified, not optimised"),
+            PlannedDecision("feed", ("feed",), ("mouth",), {"mouth": "feed"}, False, (), moved,
+                            None, None, False, "feed.png", "no inference needed; out of reach"),
+        ),
+        seconds=1.5,
+    )  # fmt: skip
+
+
+def write(tmp_path: Path, data: Any) -> Path:
+    path = tmp_path / "plan.json"
+    path.write_text(data if isinstance(data, str) else json.dumps(data))
+    return path
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    plan = feeding_plan()
+    path = tmp_path / "plan.json"
+    path.write_bytes(dump_plan(plan))
+    loaded = load_plan(path, load_scene("feeding"))
+    assert loaded == plan
+    assert loaded.directory == tmp_path
+    assert json.loads(path.read_text())["schema"] == 1
+
+
+def test_look_ups() -> None:
+    plan = feeding_plan()
+    assert plan.labels == ("choose_food", "dip|feed", "feed")
+    assert plan.decision("feed|dip") is plan.decision("dip|feed")
+    layout = plan.layout_for("choose_food")
+    assert layout["grape"] == ObjectPose(0.4, 0.2, 0.25)
+    layout["grape"] = ObjectPose(0.0, 0.0, 0.0)  # a copy: the plan is unchanged
+    assert plan.layout_for("choose_food")["grape"] == ObjectPose(0.4, 0.2, 0.25)
+    assert plan.image_path("feed") is None  # no folder yet
+    assert image_name("dip|feed") == "dip+feed.png"
+    with pytest.raises(InputError, match=r"decisions: choose_food, dip\|feed, feed"):
+        plan.layout_for("serve")
+
+
+def _set(data: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
+    for key in path[:-1]:
+        data = data[key]
+    if value is KeyError:
+        del data[path[-1]]
+    else:
+        data[path[-1]] = value
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "field", "message"),
+    [
+        (("schema",), 2, "schema", "1"),
+        (("decisions", 0, "layout", "grape", "x"), "far", "decisions[0].layout.grape.x",
+         "valid number"),
+        (("decisions", 0, "layout", "grape", "yaw"), KeyError, "decisions[0].layout.grape.yaw",
+         "Field required"),
+        (("decisions", 1, "certificate"), None, "decisions[1].certificate", "expected a number"),
+        (("decisions", 2, "certificate"), 1.0, "decisions[2].certificate", "null (no inference)"),
+        (("decisions", 1, "label"), "feed|dip", "decisions[1].label", "expected 'dip|feed'"),
+        (("decisions", 2, "label"), "dip|feed", "decisions[2].label", "expected 'feed'"),
+        (("decisions", 0, "image"), "food.png", "decisions[0].image", "'choose_food.png'"),
+        (("decisions", 0, "feasible"), "yes", "decisions[0].feasible", "valid boolean"),
+        (("decisions", 0, "optimised"), ["mouth"], "decisions[0].optimised[0]",
+         "not a candidate"),
+        (("decisions", 0, "actions", "grape"), "eat", "decisions[0].actions.grape", "'pick'"),
+        (("decisions", 0, "colour"), "red", "decisions[0].colour", "Extra inputs"),
+        (("decisions",), [], "decisions", "at least 1"),
+        (("key",), "not hex", "key", "pattern"),
+    ],
+)  # fmt: skip
+def test_malformed_plan_names_file_and_field(
+    tmp_path: Path, path: tuple[Any, ...], value: Any, field: str, message: str
+) -> None:
+    data = copy.deepcopy(plan_to_data(feeding_plan()))
+    _set(data, path, value)
+    p = write(tmp_path, data)
+    with pytest.raises(InputError) as info:
+        load_plan(p)
+    text = str(info.value)
+    assert "\n" not in text
+    assert text.startswith(f"{p}: {field}: "), text
+    assert message in text
+
+
+def test_duplicate_labels_and_scene_mismatch(tmp_path: Path) -> None:
+    data = plan_to_data(feeding_plan())
+    data["decisions"].append(copy.deepcopy(data["decisions"][2]))
+    with pytest.raises(InputError, match=r"decisions\[3\]\.label: 'feed' appears twice"):
+        load_plan(write(tmp_path, data))
+    data = plan_to_data(feeding_plan())
+    with pytest.raises(InputError, match="scene: expected scene 'tea', got 'feeding'"):
+        load_plan(write(tmp_path, data), load_scene("tea"))
+    data["decisions"][0]["layout"]["mouth"] = {"x": 0.4, "y": 0.6, "yaw": 0.0}
+    with pytest.raises(InputError, match=r"decisions\[0\]\.layout\.mouth: 'mouth' is not a mov"):
+        load_plan(write(tmp_path, data), load_scene("feeding"))
+    with pytest.raises(InputError, match="invalid JSON at line 1"):
+        load_plan(write(tmp_path, "{"))
+    with pytest.raises(InputError, match="no such file"):
+        load_plan(tmp_path / "missing.json")
