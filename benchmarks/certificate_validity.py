@@ -32,6 +32,7 @@ from legws_daemon.core.montecarlo import monte_carlo
 from legws_daemon.core.params import Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
+from legws_daemon.workers import worker_context
 
 SCENES = {2: "breakfast_easy", 3: "desk", 5: "meal_assembly", 8: "cluttered"}
 FORMS = ("dragan", "ratio")
@@ -67,7 +68,7 @@ def run(layouts: int, trials: int, seed: int, workers: int) -> dict[str, Any]:
         "per_m": {},
     }
     started = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
         for m, scene_name in SCENES.items():
             sc = load_scene(scene_name)
             cons = LayoutConstraints.of(sc, sc.goal_names)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.workers import worker_context
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,7 +51,7 @@ def run_job(job: Job) -> dict[str, Any]:
 def executor(dask: str | None, workers: int) -> Iterator[Executor]:
     """A process pool, or the executor of the Dask cluster at ``dask`` (``tcp://host:port``)."""
     if dask is None:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
             yield pool
         return
     try:

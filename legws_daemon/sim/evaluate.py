@@ -19,6 +19,7 @@ from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.sim.protocol import Evaluator, Pick, metrics
+from legws_daemon.workers import worker_context
 
 _worker: Evaluator | None = None
 
@@ -66,7 +67,10 @@ def run_eval(
                 progress(1)
     else:
         with ProcessPoolExecutor(
-            max_workers=workers, initializer=_init_worker, initargs=(scene.source, params)
+            max_workers=workers,
+            initializer=_init_worker,
+            initargs=(scene.source, params),
+            mp_context=worker_context(),
         ) as pool:
             for i, extra, picks in pool.map(_evaluate, jobs):
                 results[i] = (extra, picks)

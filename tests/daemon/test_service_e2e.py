@@ -18,7 +18,7 @@ import pytest
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.telemetry.recording import entity_paths, read_text_log
 from legws_daemon.transport.session import config_from_spec, keys, open_session
-from tests.daemon.procs import Monitor, monitor, rerun_exe, start, stop, write_profile
+from tests.daemon.procs import LEGWS, Monitor, monitor, rerun_exe, start, stop, write_profile
 
 ROBOT = "sawyer_sim"
 pytestmark = pytest.mark.slow
@@ -42,7 +42,7 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
         with monitor(port, ROBOT) as m:
             assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
             user = subprocess.run(
-                ["legws", "joystick", "sim-user", "--profile", str(profile), "--goal",
+                [*LEGWS, "joystick", "sim-user", "--profile", str(profile), "--goal",
                  "white_mug", "--seed", "3", "--duration", "60"],
                 capture_output=True, text=True, timeout=90, check=False,
             )  # fmt: skip
@@ -180,7 +180,7 @@ def test_cancel_button_gives_control_back_and_the_user_recommits(tmp_path: Path)
         with monitor(port, ROBOT) as m:
             assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
             user = subprocess.run(
-                ["legws", "joystick", "sim-user", "--profile", str(profile), "--goal",
+                [*LEGWS, "joystick", "sim-user", "--profile", str(profile), "--goal",
                  "maroon_pen_cup", "--seed", "1", "--cancel-after", "0.5", "--duration", "90"],
                 capture_output=True, text=True, timeout=120, check=False,
             )  # fmt: skip

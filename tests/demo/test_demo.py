@@ -15,9 +15,8 @@ import pytest
 
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller
-from legws_daemon.daemon.inbox import JoystickInbox
+from legws_daemon.demo.inprocess import run_inprocess
 from legws_daemon.demo.run import summarise
-from legws_daemon.formats.messages import StatusMessage
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.hardware.sim import SimAdapter
@@ -33,50 +32,14 @@ def fast() -> ProfileSpec:
     return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
 
 
-def status_of(c: Controller) -> StatusMessage:
-    """What the daemon would publish (the fields the simulated user reads)."""
-    s = c.adapter.read_state()
-    return StatusMessage.model_validate(
-        {"schema": 1, "robot": "r", "seq": c.ticks, "stamp": 0.0, "mode": c.mode,
-         "stage": c.stage.name, "adapter": "sim", "decision": c.decisions,
-         "ee": {"position": s.ee_position.tolist(), "quaternion": s.ee_quaternion.tolist()},
-         "targets": {t.name: t.position.tolist() for t in c.stage.targets}},
-    )  # fmt: skip
-
-
-def run_inprocess(
-    profile: ProfileSpec, name: str, seed: int, limit: int = 40_000
-) -> tuple[Controller, list[dict[str, Any]], SimUser]:
-    """The controller and the simulated user of method.md §2, tick by tick, no wall clock."""
+def run(profile: ProfileSpec, name: str, seed: int) -> tuple[Controller, list[Any], SimUser]:
     graph, scene = load_taskgraph(resolve_taskgraph(name))
-    events: list[dict[str, Any]] = []
-
-    def make(sc: Scene) -> SimAdapter:
-        a = SimAdapter(profile, sc)
-        a.connect()
-        return a
-
-    c = Controller(
-        profile, scene, scene.default_layout(), make, Params(),
-        lambda k, d: events.append({"kind": k, "detail": d}), graph=graph,
-    )  # fmt: skip
-    user = SimUser([], 0.03, 0.05, np.random.default_rng(seed))
-    inbox = JoystickInbox()
-    for tick in range(1, limit):
-        if c.mode == "idle":
-            break
-        out = user.sample(status_of(c), tick * c.dt)
-        assert out is not None
-        axes, buttons = out
-        msg = {"schema": 1, "seq": tick, "stamp": 0.0, "axes": list(axes),
-               "buttons": buttons.model_dump()}  # fmt: skip
-        c.tick(inbox.offer(json.dumps(msg).encode(), float(tick)))
-    return c, events, user
+    return run_inprocess(profile, graph, scene, seed)
 
 
 @pytest.mark.parametrize("name", ["tea", "lego", "feeding"])
 def test_every_demo_completes_every_stage(fast: ProfileSpec, name: str) -> None:
-    c, events, user = run_inprocess(fast, name, seed=0)
+    c, events, user = run(fast, name, seed=0)
     assert c.mode == "idle"
     assert events[-1]["kind"] == "task_done"
     decisions = summarise(events, user.chosen)
@@ -94,7 +57,7 @@ def test_every_demo_completes_every_stage(fast: ProfileSpec, name: str) -> None:
 def test_feeding_takes_both_branches_across_seeds(fast: ProfileSpec) -> None:
     branches = set()
     for seed in range(6):
-        _, events, _ = run_inprocess(fast, "feeding", seed)
+        _, events, _ = run(fast, "feeding", seed)
         stages = tuple(e["detail"]["stage"] for e in events if e["kind"] == "stage_done")
         branches.add(stages)
         if len(branches) == 2:
