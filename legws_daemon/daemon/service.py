@@ -311,7 +311,7 @@ class DaemonService:
             scene=c.scene,
             goals=c.stage.goals_home,
             goal_objects={g: g for g in c.stage.goal_names if g in c.scene.objects},
-            planned=c.stage.layout,
+            planned=dict(c.planned),
             p_thresh=c.params.p_thresh,
             params_json=json.dumps(c.params.as_dict()),
             stage=c.stage.name,
