@@ -100,30 +100,32 @@ def pick_plan(
     ]
 
 
-def place_plan(position: FloatArray, current_rotation: FloatArray) -> list[Primitive]:
-    """Carry the held object above ``position``, lower it, release it, retreat upward."""
+def _down_and_up(
+    position: FloatArray, rotation: FloatArray, down: str, at: Grip, up: str
+) -> list[Primitive]:
+    """Carry above ``position``, go down to it, do ``at`` there, come back up."""
     p = np.asarray(position, dtype=np.float64)
-    R = np.asarray(current_rotation, dtype=np.float64)
+    R = np.asarray(rotation, dtype=np.float64)
     above = p + np.array([0.0, 0.0, LIFT_HEIGHT])
     return [
         Move("carry", above, R, tolerance=2 * POSITION_TOLERANCE),
-        Move("lower", p, R),
-        Grip("release", closed=False),
-        Move("retreat", above, R),
+        Move(down, p, R),
+        at,
+        Move(up, above, R),
     ]
+
+
+def place_plan(position: FloatArray, current_rotation: FloatArray) -> list[Primitive]:
+    """Carry the held object above ``position``, lower it, release it, retreat upward."""
+    return _down_and_up(
+        position, current_rotation, "lower", Grip("release", closed=False), "retreat"
+    )
 
 
 def dip_plan(position: FloatArray, current_rotation: FloatArray) -> list[Primitive]:
     """Carry the held food above the bowl, dip it to ``position``, bring it back up."""
-    p = np.asarray(position, dtype=np.float64)
-    R = np.asarray(current_rotation, dtype=np.float64)
-    above = p + np.array([0.0, 0.0, LIFT_HEIGHT])
-    return [
-        Move("carry", above, R, tolerance=2 * POSITION_TOLERANCE),
-        Move("dip", p, R),
-        Grip("soak", closed=True, seconds=0.5, changes=False),
-        Move("raise", above, R),
-    ]
+    soak = Grip("soak", closed=True, seconds=0.5, changes=False)
+    return _down_and_up(position, current_rotation, "dip", soak, "raise")
 
 
 def feed_plan(

@@ -10,8 +10,6 @@ import json
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from functools import partial
 from typing import Any
 
@@ -26,12 +24,11 @@ from legws_daemon.formats.bridge_messages import (
     bridge_keys,
     parse_state,
 )
-from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.sim.world import World
-from legws_daemon.transport.session import config_from_spec, open_session
+from tests.hardware.helpers import peers, wait_for
 
 KEYS = bridge_keys("sawyer")
 
@@ -39,28 +36,6 @@ KEYS = bridge_keys("sawyer")
 @pytest.fixture(scope="module")
 def desk() -> Scene:
     return load_scene("desk")
-
-
-@contextmanager
-def peers(port: int) -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
-    """(daemon side listening on ``port``, robot side connecting to it), both closed after."""
-    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
-    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
-    with (
-        open_session(config_from_spec(listen)) as daemon,
-        open_session(config_from_spec(dial)) as robot,
-    ):
-        yield daemon, robot
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
-    """Poll ``condition`` every 10 ms for at most ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
 
 
 class StateLog:

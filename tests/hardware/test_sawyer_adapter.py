@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -18,14 +17,14 @@ import zenoh
 
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import BridgeCommand, bridge_keys, parse_command
-from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
+from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.base import Adapter, adapter_class
 from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.hardware.sawyer import STOP_REPEATS, SawyerAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.sim.world import World
-from legws_daemon.transport.session import config_from_spec, open_session
+from tests.hardware.helpers import peers, wait_for
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 KEYS = bridge_keys("sawyer")
@@ -40,28 +39,6 @@ def sawyer_profile(**sawyer: object) -> ProfileSpec:
     """The shipped profile with some ``[sawyer]`` settings changed."""
     profile = load_profile(PROFILE)
     return profile.model_copy(update={"sawyer": profile.sawyer.model_copy(update=sawyer)})
-
-
-@contextmanager
-def peers(port: int) -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
-    """(daemon side listening on ``port``, robot side connecting to it), both closed after."""
-    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
-    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
-    with (
-        open_session(config_from_spec(listen)) as daemon,
-        open_session(config_from_spec(dial)) as robot,
-    ):
-        yield daemon, robot
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
-    """Poll ``condition`` every 10 ms for at most ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
 
 
 class CommandLog:
