@@ -43,6 +43,22 @@ def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
     return plan
 
 
+def require_motion_allowed(spec: ProfileSpec, allow_motion: bool) -> None:
+    """Refuse a profile that drives real hardware unless ``--allow-motion`` was given.
+
+    Only the ``sim`` adapter is safe to start without asking: any other adapter commands a
+    physical arm. A profile with ``sawyer.fallback_to_sim`` needs the flag too, since the
+    stand-in only takes over when the bridge is silent; a bridge that answers drives the arm.
+    """
+    if spec.adapter == "sim" or allow_motion:
+        return
+    raise click.UsageError(
+        f"profile '{spec.name}' drives the real arm (adapter '{spec.adapter}'): the robot "
+        "will move under joystick and autonomous commands; make sure the workspace is clear "
+        "and the e-stop is in reach, then pass --allow-motion to start it"
+    )
+
+
 def install_stop_handlers(stop: threading.Event) -> None:
     """SIGINT and SIGTERM set ``stop`` (the loop ends within one period)."""
 
@@ -106,6 +122,12 @@ def install_stop_handlers(stop: threading.Event) -> None:
     type=click.Path(path_type=Path, dir_okay=False),
     help="Write one JSON line per tick: timing, the joystick sample used, when the command left.",
 )
+@click.option(
+    "--allow-motion",
+    is_flag=True,
+    help="Required for a profile that drives real hardware (adapter other than sim, e.g. "
+    "sawyer, even with fallback_to_sim): the arm will move.",
+)
 def daemon_cmd(
     profile: str,
     scene: str | None,
@@ -118,11 +140,13 @@ def daemon_cmd(
     cost: CostForm | None,
     duration: float | None,
     trace_file: Path | None,
+    allow_motion: bool,
 ) -> int:
     """Run the shared-autonomy daemon: joystick over zenoh in, the robot out.
 
     Publishes status on legws/<robot>/status, events on legws/<robot>/events, answers
-    commands on legws/<robot>/command. SIGINT/SIGTERM stop the robot and exit 0.
+    commands on legws/<robot>/command. SIGINT/SIGTERM stop the robot and exit 0. A profile
+    that drives real hardware (not the sim stand-in) starts only with --allow-motion.
     """
     from legws_daemon.daemon.service import DaemonConfig, DaemonService, Telemetry
 
@@ -133,6 +157,7 @@ def daemon_cmd(
     if plan_arg is not None and taskgraph is None:
         raise click.UsageError("--plan needs --taskgraph")
     spec = load_profile_named(profile)
+    require_motion_allowed(spec, allow_motion)
     if rate is not None:
         control = spec.control.model_copy(update={"rate_hz": rate})
         spec = validate(

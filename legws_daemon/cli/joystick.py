@@ -132,8 +132,8 @@ def _started(pub: Publisher, what: str) -> None:
     """Wait briefly for the daemon's subscriber; say what runs, and warn if nobody listens."""
     if not pub.wait_matched(MATCH_WAIT):
         click.echo(
-            f"legws: warning: nobody subscribes to {pub.key} yet (is the daemon running?); "
-            "publishing anyway",
+            f"legws: warning: nobody subscribes to {pub.key} yet (is the daemon running, and "
+            "does its access control let this identity steer?); publishing anyway",
             err=True,
         )
     click.echo(f"legws: {what} on {pub.key}; Ctrl-C or SIGTERM stops", err=True)

@@ -209,9 +209,10 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
     try:
         time.sleep(1.0)
         daemon = start(
-            ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90"],
+            ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90",
+             "--allow-motion"],
             tmp_path / "daemon.log",
-        )
+        )  # fmt: skip
         spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
         key = keys("sawyer")["joystick"]
         with monitor(port, "sawyer") as m, open_session(config_from_spec(spec)) as pub:
@@ -257,9 +258,10 @@ def test_silent_bridge_falls_back_to_the_stand_in_when_the_profile_asks(tmp_path
          "bridge_timeout = 1.0"},
     )  # fmt: skip
     daemon = start(
-        ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "60"],
+        ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "60",
+         "--allow-motion"],
         tmp_path / "daemon.log",
-    )
+    )  # fmt: skip
     try:
         with monitor(port, "sawyer") as m:
             assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
