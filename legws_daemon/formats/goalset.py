@@ -17,6 +17,7 @@ from legws_daemon.formats.validation import (
     Quat,
     Vec3,
     nonzero_quaternion,
+    printable,
     read_json,
     validate,
 )
@@ -70,7 +71,8 @@ def params_from_schema(schema: ParamsSchema, source: str, base: Params | None = 
 
 def _strip(err: InputError) -> str:
     text = str(err)
-    return text.split(": ", 1)[1] if err.field and text.startswith(err.field) else text
+    text = text.split(": ", 1)[1] if err.field and text.startswith(err.field) else text
+    return printable(text)  # goal names are free text: a line break stays escaped
 
 
 def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:

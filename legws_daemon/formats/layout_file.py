@@ -13,7 +13,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, RootModel
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Angle, Coordinate, read_json, validate
+from legws_daemon.formats.validation import Angle, Coordinate, printable, read_json, validate
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 
 
@@ -34,7 +34,7 @@ def layout_from_data(data: Any, scene: Scene, source: str) -> Layout:
     try:
         scene.check_names(list(doc.root))
     except InputError as err:
-        raise InputError(str(err), source=source) from None
+        raise InputError(printable(str(err)), source=source) from None
     return {n: ObjectPose(e.x, e.y, e.yaw) for n, e in doc.root.items()}
 
 

@@ -162,6 +162,8 @@ def parse(model: type[M], payload: bytes | str, source: str) -> M:
         raise InputError(f"not JSON: {err}", source=source) from None
     except RecursionError:
         raise InputError("not JSON: nested too deeply", source=source) from None
+    except ValueError as err:  # e.g. an integer of more than 4300 digits
+        raise InputError(f"not JSON: {err}", source=source) from None
     if isinstance(data, dict) and data.get("schema") not in (None, SCHEMA_VERSION):
         raise InputError(
             f"unsupported schema {data.get('schema')!r}; this daemon speaks {SCHEMA_VERSION}",

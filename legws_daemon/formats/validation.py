@@ -33,21 +33,41 @@ Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 M = TypeVar("M", bound=BaseModel)
 
 
+#: Largest quaternion norm accepted: normalising it later (sums of squares) cannot overflow.
+MAX_QUATERNION_NORM = 1e150
+
+
 def nonzero_quaternion(q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
     """Field validator: a quaternion must have a non-zero norm (it is normalised later)."""
-    if math.sqrt(sum(c * c for c in q)) < 1e-9:
+    norm = math.hypot(*q)  # no overflow in the squares
+    if norm < 1e-9:
         raise ValueError("quaternion must have a non-zero norm")
+    if norm > MAX_QUATERNION_NORM:
+        raise ValueError(f"quaternion norm must be at most {MAX_QUATERNION_NORM:g}, got {norm:.3g}")
     return q
 
 
+def printable(text: str) -> str:
+    """``text`` with every character that is not printable (a line break in a name from a
+    file) escaped as Python writes it: a message quoting user input stays one line."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def field_path(loc: tuple[int | str, ...]) -> str:
-    """``("goals", 1, "position")`` -> ``goals[1].position``."""
+    """``("goals", 1, "position")`` -> ``goals[1].position``.
+
+    A key that is empty or not printable (a user's typo may hold a line break) is quoted
+    as Python would write it, so the path stays on one line.
+    """
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
         else:
-            out += f".{part}" if out else str(part)
+            text = str(part) if str(part) and str(part).isprintable() else repr(str(part))
+            out += f".{text}" if out else text
     return out or "(top level)"
 
 
@@ -108,6 +128,8 @@ def read_json(path: Path) -> Any:
         ) from None
     except RecursionError:
         raise InputError("invalid JSON: nested too deeply", source=str(path)) from None
+    except ValueError as err:  # e.g. an integer of more than 4300 digits
+        raise InputError(f"invalid JSON: {err}", source=str(path)) from None
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -116,6 +138,10 @@ def read_toml(path: Path) -> dict[str, Any]:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
+        raise InputError(f"invalid TOML: {err}", source=str(path)) from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise InputError("invalid TOML: nested too deeply", source=str(path)) from None
+    except ValueError as err:  # e.g. an integer of more than 4300 digits
         raise InputError(f"invalid TOML: {err}", source=str(path)) from None
     _reject_non_finite(data, str(path), ())
     return data

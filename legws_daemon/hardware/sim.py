@@ -1,9 +1,12 @@
 """The ``sim`` adapter: the MuJoCo Sawyer stand-in.
 
 Commands move the arm through its differential kinematics (joint speed and position
-limits respected). The daemon's loop timer paces it to real time (or runs it as fast as
-possible when the profile says ``sim.realtime = false``). The gripper is kinematic: closing
-it attaches the object between the fingers, which then follows the hand until it opens.
+limits respected). The kinematics track a command only to first order, so a step that would
+end with the EE outside the workspace box (further out than it was) is cut short where it
+would leave: the box holds for the arm's real motion, not only for the command. The daemon's
+loop timer paces it to real time (or runs it as fast as possible when the profile says
+``sim.realtime = false``). The gripper is kinematic: closing it attaches the object between
+the fingers, which then follows the hand until it opens.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 import zenoh
 
 from legws_daemon.core.geometry import FloatArray, matrix_to_quat, quat_to_matrix
-from legws_daemon.errors import LegwsError
+from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
 from legws_daemon.scene.grasps import extents
@@ -27,6 +30,25 @@ from legws_daemon.sim.world import World
 ORIENTATION_GAIN = 2.0
 #: Closing the gripper grasps an object whose centre is this close to the grasp point, m.
 GRASP_REACH = 0.05
+#: Bisection steps cutting a step that would leave the workspace box (2^-20 of a step).
+BOX_BISECTIONS = 20
+
+
+def _rotation(hold: object) -> FloatArray:
+    """``hold`` as a (3, 3) rotation matrix, or an :class:`InputError`."""
+    try:
+        R = np.asarray(hold, dtype=np.float64)
+    except (TypeError, ValueError):
+        R = np.full((3, 3), np.nan)
+    if (
+        R.shape != (3, 3)
+        or not np.all(np.isfinite(R))
+        or float(np.max(np.abs(R))) > 1.0 + 1e-6  # a rotation's entries: no overflow below
+        or not np.allclose(R.T @ R, np.eye(3), atol=1e-6)
+        or np.linalg.det(R) <= 0.0
+    ):
+        raise InputError("must be a (3, 3) rotation matrix", field="hold")
+    return R
 
 
 @register("sim")
@@ -62,15 +84,46 @@ class SimAdapter(Adapter):
         )
 
     def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
+        """Move for one period; ``hold`` must be a rotation matrix (else an
+        :class:`InputError`, nothing moves: a bad orientation target is a bug upstream)."""
         w = self._world()
         if np.any(velocity) or hold is not None:
             R = w.ee_rotation()
-            target = R if hold is None else np.asarray(hold, dtype=np.float64)
+            target = R if hold is None else _rotation(hold)
             rot = ORIENTATION_GAIN * small_rotation_error(R, target)
             if np.any(velocity) or float(rot @ rot) > 1e-10:
+                q0, p0 = w.q, w.ee_position()
                 velocity_step(w, np.concatenate([velocity, rot]), self.dt)
+                self._keep_in_box(q0, p0)
         # a zero command without an orientation target moves nothing (no null-space drift)
         self._carry()
+
+    def _keep_in_box(self, q0: FloatArray, p0: FloatArray) -> None:
+        """Cut the step ``q0 -> q`` short where the EE would leave the workspace box.
+
+        No axis may end further outside the box than it was at ``p0`` (inside: not outside
+        at all). The step is shortened along the joint-space segment (which keeps joint
+        limits) by bisection; a step that stays inside costs one check.
+        """
+        w = self._world()
+        lower, upper = self.box.lower, self.box.upper
+        allowed = np.maximum(np.maximum(lower - p0, p0 - upper), 0.0)
+
+        def inside(p: FloatArray) -> bool:
+            return bool(np.all(np.maximum(lower - p, p - upper) <= allowed))
+
+        if inside(w.ee_position()):
+            return
+        q1 = w.q
+        good, bad = 0.0, 1.0
+        for _ in range(BOX_BISECTIONS):
+            mid = 0.5 * (good + bad)
+            w.set_q(q0 + mid * (q1 - q0))
+            if inside(w.ee_position()):
+                good = mid
+            else:
+                bad = mid
+        w.set_q(q0 + good * (q1 - q0))
 
     def grip(self, closed: bool) -> None:
         w = self._world()
