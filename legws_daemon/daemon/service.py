@@ -8,18 +8,34 @@ asynchronous, and a command that takes long (loading a scene) stops the robot fi
 
 On SIGINT/SIGTERM (or ``--duration``) the loop stops within one period; the robot is
 sent zero velocity and disconnected, the recording is flushed and closed, the zenoh
-session closed.
+session closed. The same shutdown runs when the loop fails (an unexpected exception is a
+``fault`` event, then re-raised): every exit path leaves a complete recording.
+
+Faults that do not end the run:
+
+- the adapter raises anything (a bug in an adapter, a library error): it is a
+  :class:`~legws_daemon.errors.HardwareError` (:class:`GuardedAdapter`), so the controller
+  makes its safe stop — zero velocity, one ``fault`` event, status keeps publishing;
+- the recording fails (disk full, a viewer gone, a logging call raising): control goes
+  on; the worker counts the problem and the loop reports it as a ``warning`` event
+  ``{"telemetry": ...}`` (the first at once, then at most every
+  :data:`TELEMETRY_WARNING_INTERVAL` seconds while problems continue).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
+import functools
 import json
 import logging
 import queue
 import re
 import threading
 import time
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, Protocol
 
@@ -31,10 +47,10 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
-from legws_daemon.daemon.telemetry_worker import TelemetryWorker
+from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.design.plan import Plan
-from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
+from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
@@ -45,7 +61,7 @@ from legws_daemon.formats.messages import (
 )
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
-from legws_daemon.hardware.base import Adapter, adapter_class
+from legws_daemon.hardware.base import Adapter, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
@@ -60,6 +76,13 @@ _SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN"}
 COMMAND_TIMEOUT = 5.0
 #: An overrun warning event at most this often, seconds.
 OVERRUN_WARNING_INTERVAL = 5.0
+#: A telemetry warning event at most this often while problems continue, seconds.
+TELEMETRY_WARNING_INTERVAL = 10.0
+#: Seconds between health checks of the recording (on the telemetry worker's thread; each
+#: flushes the recording, so not much more often than its chunks, ``SAVE_FLUSH_SECONDS``).
+TELEMETRY_CHECK_INTERVAL = 10.0
+#: Recent events kept in memory (for a look in a debugger; the record is the event stream).
+RECENT_EVENTS = 256
 
 
 class Telemetry(Protocol):
@@ -98,7 +121,78 @@ class Telemetry(Protocol):
 
     def log_text(self, tick: int, t: float, level: str, text: str) -> None: ...
 
+    def check(self) -> str | None:
+        """``None`` while the recording takes data, else the problem (worker thread)."""
+        ...
+
     def close(self) -> None: ...
+
+
+class GuardedAdapter(Adapter):
+    """An adapter whose unexpected exceptions are hardware faults.
+
+    Adapters raise :class:`~legws_daemon.errors.LegwsError` for what they expect (a lost
+    heartbeat, a refused command). Anything else (a bug, a library error) would end the
+    loop with the robot's last command still live on the robot side; here it becomes a
+    :class:`HardwareError` naming the call, so the controller stops the robot and reports
+    a ``fault`` like any other. The first traceback of each kind is logged.
+
+    Args:
+        inner: the adapter to guard (connected or not).
+    """
+
+    def __init__(self, inner: Adapter) -> None:
+        super().__init__(inner.profile, inner.scene, inner.session)
+        self.inner = inner
+        self._logged: set[tuple[str, str]] = set()
+
+    def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except LegwsError:
+            raise
+        except Exception as err:
+            key = (what, type(err).__name__)
+            if key not in self._logged:
+                self._logged.add(key)
+                log.error("adapter %s raised %s", what, type(err).__name__, exc_info=True)
+            raise HardwareError(f"{what}: {type(err).__name__}: {err}") from err
+
+    def connect(self) -> None:
+        self._call("connect", self.inner.connect)
+
+    def disconnect(self) -> None:
+        self._call("disconnect", self.inner.disconnect)
+
+    def read_state(self) -> RobotState:
+        state: RobotState = self._call("read_state", self.inner.read_state)
+        return state
+
+    def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
+        self._call("command", self.inner._command, velocity, hold)
+
+    def send_velocity(self, velocity: object, hold: FloatArray | None = None) -> FloatArray:
+        sent: FloatArray = self._call("send_velocity", self.inner.send_velocity, velocity, hold)
+        return sent
+
+    def halt(self) -> None:
+        self._call("halt", self.inner.halt)
+
+    def grip(self, closed: bool) -> None:
+        self._call("grip", self.inner.grip, closed)
+
+    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        poses: dict[str, tuple[FloatArray, FloatArray]] = self._call(
+            "object_poses", self.inner.object_poses
+        )
+        return poses
+
+    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
+        return bool(self._call("place_objects", self.inner.place_objects, layout))
+
+    def link_poses(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        poses: tuple[FloatArray, FloatArray] = self._call("link_poses", self.inner.link_poses, q)
+        return poses
 
 
 @dataclass
@@ -144,13 +238,21 @@ class DaemonService:
         self._status_seq = 0
         self._status_lock = threading.Lock()
         self._status_bytes = b""
-        self._events: list[tuple[str, dict[str, Any]]] = []
+        self._events: deque[tuple[str, dict[str, Any]]] = deque(maxlen=RECENT_EVENTS)
         self._session: zenoh.Session | None = None
         self._event_pub: Any = None
         self._t0 = time.monotonic()
         self._last_overrun_warning = -np.inf
         self.controller: Controller | None = None
-        self.worker = TelemetryWorker() if config.telemetry is not None else None
+        self.worker: TelemetryWorker | None = None
+        if config.telemetry is not None:
+            self.worker = TelemetryWorker(
+                check=config.telemetry.check, check_every=TELEMETRY_CHECK_INTERVAL
+            )
+        self._last_telemetry_warning = -np.inf
+        self._telemetry_unreported = 0
+        self._telemetry_last: TelemetryReport | None = None
+        self._trace_failed = False
         self._logged_stage: object = None
         self._objects_lock = threading.Lock()
         self._objects: dict[str, ObjectPose] = {}
@@ -162,12 +264,15 @@ class DaemonService:
 
     # --- adapters ---------------------------------------------------------------------
     def make_adapter(self, scene: Scene) -> Adapter:
-        """Build and connect the profile's adapter; fall back to the stand-in if asked."""
+        """Build and connect the profile's adapter (guarded: see :class:`GuardedAdapter`);
+        fall back to the stand-in if asked."""
         if self.fallback or self.adapter_kind == "sim":
-            adapter: Adapter = SimAdapter(self.profile, scene, self._session)
+            adapter = GuardedAdapter(SimAdapter(self.profile, scene, self._session))
             adapter.connect()
             return adapter
-        adapter = adapter_class(self.adapter_kind)(self.profile, scene, self._session)
+        adapter = GuardedAdapter(
+            adapter_class(self.adapter_kind)(self.profile, scene, self._session)
+        )
         try:
             adapter.connect()
         except BridgeTimeoutError as err:
@@ -176,7 +281,7 @@ class DaemonService:
             self.fallback = True
             self.ticker.paced = True
             self._emit("fallback", {"reason": str(err), "adapter": "sim", "note": "falling back"})
-            sim = SimAdapter(self.profile, scene, self._session)
+            sim = GuardedAdapter(SimAdapter(self.profile, scene, self._session))
             sim.connect()
             return sim
         return adapter
@@ -284,14 +389,17 @@ class DaemonService:
         if poses and self.controller is not None:
             self.controller.observe(poses)
 
-    def _run_commands(self) -> None:
+    def _run_commands(self) -> int:
+        """Carry out the queued operator commands; returns how many."""
         c = self.controller
         assert c is not None
+        done = 0
         while True:
             try:
                 pending = self.commands.get_nowait()
             except queue.Empty:
-                return
+                return done
+            done += 1
             try:
                 detail = c.command(
                     pending.request, self.config.scene_loader, self.config.graph_loader
@@ -300,6 +408,8 @@ class DaemonService:
             except LegwsError as err:
                 pending.reply = {"ok": False, "command": pending.request.command, "error": str(err)}
             pending.done.set()
+            if pending.request.command in ("load_scene", "load_taskgraph"):
+                release_memory()  # the old scene's world is freed: give the memory back
 
     # --- telemetry ----------------------------------------------------------------------
     def _log_setup(self) -> None:
@@ -327,11 +437,16 @@ class DaemonService:
         return out
 
     def _log_tick(self, rec: TickRecord, slack: float | None) -> None:
-        tel, c = self.config.telemetry, self.controller
-        if tel is None or c is None or rec.state is None or self.worker is None:
+        tel, c, worker = self.config.telemetry, self.controller, self.worker
+        if tel is None or c is None or rec.state is None or worker is None:
             return
-        links_p, links_R = c.adapter.link_poses(rec.state.q)
-        self.worker.submit(
+        try:
+            links_p, links_R = c.adapter.link_poses(rec.state.q)
+            objects = c.adapter.object_poses() or self._observed_objects(c)
+        except Exception as err:  # drawing must not stop control: reported as telemetry
+            worker.record_error(f"tick snapshot: {type(err).__name__}: {err}")
+            return
+        worker.submit(
             tel.log_tick,
             rec.tick,
             time.monotonic() - self._t0,
@@ -339,7 +454,7 @@ class DaemonService:
             link_rotations=links_R,
             ee_position=rec.state.ee_position,
             ee_quaternion=rec.state.ee_quaternion,
-            objects=c.adapter.object_poses() or self._observed_objects(c),
+            objects=objects,
             posterior=rec.posterior if rec.mode == "teleop" or rec.committed else None,
             joystick=rec.joystick,
             command=rec.command,
@@ -350,9 +465,46 @@ class DaemonService:
             droppable=True,
         )
 
+    def _report_telemetry(self) -> None:
+        """Turn telemetry problems the worker counted into a ``warning`` event (loop thread):
+        the first at once, then at most every :data:`TELEMETRY_WARNING_INTERVAL` seconds."""
+        worker = self.worker
+        if worker is None:
+            return
+        report = worker.take_report()
+        if report is not None:
+            self._telemetry_unreported += report.new
+            self._telemetry_last = report
+        if not self._telemetry_unreported:
+            return
+        now = time.monotonic()
+        if now - self._last_telemetry_warning < TELEMETRY_WARNING_INTERVAL:
+            return
+        last = self._telemetry_last
+        assert last is not None
+        self._last_telemetry_warning = now
+        self._emit(
+            "warning",
+            {"telemetry": last.last_error, "new_errors": self._telemetry_unreported,
+             "errors": last.errors, "dropped": last.dropped, "control": "continues"},
+        )  # fmt: skip
+        self._telemetry_unreported = 0
+
     # --- the loop -------------------------------------------------------------------------
     def run(self, stop: threading.Event) -> int:
-        """Open the session, run the loop until ``stop``, shut down cleanly; returns 0."""
+        """Open the session, run the loop until ``stop``, shut down cleanly; returns 0.
+
+        Whatever ends the run — ``stop``, the duration, an exception (re-raised after a
+        ``fault`` event) — the robot gets zero velocity, the recording is closed and the
+        session too.
+        """
+        tune_allocator()
+        try:
+            return self._run(stop)
+        finally:
+            self._close_telemetry()
+
+    def _run(self, stop: threading.Event) -> int:
         cfg = self.config
         with open_session(cfg.zenoh_config) as session:
             self._session = session
@@ -387,33 +539,44 @@ class DaemonService:
                 "robot %s on %s at %g Hz (deadman %g s); keys legws/%s/{joystick,status,events,"
                 "command}",
                 self.profile.robot,
-                "sim (fallback)" if self.fallback else controller.adapter.__class__.__name__,
+                "sim (fallback)" if self.fallback else _adapter_name(controller.adapter),
                 self.profile.control.rate_hz,
                 self.profile.control.deadman_timeout,
                 self.profile.robot,
             )
             try:
                 self._loop(stop, status_pub)
+            except Exception as err:  # recorded, then the shutdown below, then re-raised
+                error = f"daemon loop: {type(err).__name__}: {err}"
+                _quietly("fault event", self._emit, "fault", {"error": error})
+                raise
             finally:
-                controller.shutdown()
-                self._emit("shutdown", {"ticks": controller.ticks})
-                self._publish_status(status_pub, None, None)
-                subscriber.undeclare()  # type: ignore[no-untyped-call]
-                queryable.undeclare()  # type: ignore[no-untyped-call]
-                objects.undeclare()  # type: ignore[no-untyped-call]
+                # each step on its own: one failing must not skip the others
+                _quietly("robot shutdown", controller.shutdown)
+                _quietly("shutdown event", self._emit, "shutdown",
+                         {"ticks": controller.ticks, "overruns": self.ticker.overruns})  # fmt: skip
+                _quietly("last status", self._publish_status, status_pub, None, None)
+                for entity in (subscriber, queryable, objects):
+                    _quietly("undeclare", entity.undeclare)
                 self._fail_pending()
-                if self.worker is not None:
-                    self.worker.close()
-                    if self.worker.dropped or self.worker.errors:
-                        log.warning(
-                            "telemetry: %d tick snapshots dropped, %d errors (last: %s)",
-                            self.worker.dropped,
-                            self.worker.errors,
-                            self.worker.last_error,
-                        )
-                if cfg.telemetry is not None:
-                    cfg.telemetry.close()
+                self._close_telemetry()
         return 0
+
+    def _close_telemetry(self) -> None:
+        """Log what is queued and close the recording (idempotent; every exit path)."""
+        worker, tel = self.worker, self.config.telemetry
+        if worker is not None and worker.alive:
+            if not worker.close():
+                log.warning("telemetry: the worker did not finish within its timeout")
+            if worker.dropped or worker.errors:
+                log.warning(
+                    "telemetry: %d tick snapshots dropped, %d errors (last: %s)",
+                    worker.dropped,
+                    worker.errors,
+                    worker.last_error,
+                )
+        if tel is not None:
+            _quietly("closing the recording", tel.close)
 
     def _loop(self, stop: threading.Event, status_pub: Any) -> None:
         c = self.controller
@@ -425,7 +588,7 @@ class DaemonService:
         ticker.restart()
         while not stop.is_set() and (end is None or time.monotonic() < end):
             now = ticker.begin()
-            self._run_commands()
+            commands = self._run_commands()
             self._apply_objects()
             sample = self.inbox.latest(now, control.deadman_timeout)
             rec = c.tick(sample)
@@ -437,7 +600,8 @@ class DaemonService:
                 slack = c.live_slack()
                 self._publish_status(status_pub, rec, slack)
             self._log_tick(rec, slack)
-            self._trace(rec, now)
+            self._report_telemetry()
+            self._trace(rec, now, commands)
             if ticker.end():
                 self._overrun_warning()
 
@@ -458,25 +622,35 @@ class DaemonService:
                  "overruns": self.ticker.overruns},
             )  # fmt: skip
 
-    def _trace(self, rec: TickRecord, started: float) -> None:
+    def _trace(self, rec: TickRecord, started: float, commands: int) -> None:
+        """One JSON line: this tick's work so far (s), when it began, the sample used, the
+        command sent (m/s) and when, and how many operator commands the tick carried out."""
         out = self.config.trace
-        if out is None:
+        if out is None or self._trace_failed:
             return
         row: dict[str, Any] = {
             "tick": rec.tick,
-            "work": self.ticker.last_duration,
+            "work": time.monotonic() - started,
             "begin": started,
             "mode": rec.mode,
             "seq": rec.sample_seq,
             "stamp": rec.sample_stamp,
             "received": rec.sample_received,
             "sent": rec.command_sent,
+            "command": [round(float(v), 6) for v in rec.command],
+            "commands": commands,
         }
         wall_minus_mono = time.time() - time.monotonic()
         row["wall_sent"] = rec.command_sent + wall_minus_mono
         if rec.sample_received is not None:
             row["wall_received"] = rec.sample_received + wall_minus_mono
-        out.write(json.dumps(row) + "\n")
+        try:
+            out.write(json.dumps(row) + "\n")
+        except (OSError, ValueError) as err:  # a full disk ends the trace, not the control
+            self._trace_failed = True
+            with contextlib.suppress(OSError, ValueError):
+                out.close()  # closed even when its last flush fails: nothing raises at exit
+            self._emit("warning", {"trace": f"{type(err).__name__}: {err}", "control": "continues"})
 
     def _fail_pending(self) -> None:
         while True:
@@ -486,6 +660,63 @@ class DaemonService:
                 return
             pending.reply = {"ok": False, "error": "the daemon is shutting down"}
             pending.done.set()
+
+
+#: glibc's ``mallopt`` parameter number of ``M_MMAP_THRESHOLD``.
+_M_MMAP_THRESHOLD = -3
+#: Allocations from this size on are mapped (and unmapped when freed), bytes.
+MMAP_THRESHOLD = 1 << 20
+
+
+@functools.cache
+def _libc() -> ctypes.CDLL | None:
+    """The C library if it is glibc (it has ``malloc_trim``), else ``None``."""
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name) if name else None
+    except OSError:
+        return None
+    if libc is None or not hasattr(libc, "malloc_trim") or not hasattr(libc, "mallopt"):
+        return None
+    libc.malloc_trim.argtypes, libc.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+    libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return libc
+
+
+def tune_allocator() -> None:
+    """Map large allocations and give them back when freed (glibc; a no-op elsewhere).
+
+    Loading a scene builds a new MuJoCo world (~90 MB of buffers) and frees the old one.
+    glibc raises its mmap threshold after such frees (up to 32 MB), so the next world's
+    buffers come from a thread's heap arena, whose freed memory is kept: the resident set
+    grew by ~90 MB with every load (12 loads: 450 MB -> 1.5 GB). A fixed threshold of
+    :data:`MMAP_THRESHOLD` stops that (12 loads: +10 MB); :func:`release_memory` after a
+    load returns the rest.
+    """
+    libc = _libc()
+    if libc is not None:
+        libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+
+
+def release_memory() -> None:
+    """Return freed heap memory to the operating system (glibc ``malloc_trim``; ~7 ms, on a
+    tick that stopped the robot for a load anyway)."""
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
+
+
+def _quietly(what: str, fn: Callable[..., Any], *args: Any) -> None:
+    """Run one shutdown step; an exception is logged, not raised (the next steps run)."""
+    try:
+        fn(*args)
+    except Exception:
+        log.exception("shutdown: %s failed", what)
+
+
+def _adapter_name(adapter: Adapter) -> str:
+    inner = adapter.inner if isinstance(adapter, GuardedAdapter) else adapter
+    return type(inner).__name__
 
 
 def catalog_scene(name: str) -> Scene:

@@ -2,14 +2,23 @@
 
 A folder holds ``plan.json`` and the pictures it names. It is written complete under a
 temporary name in the cache folder, then renamed (:func:`publish`), so a reader sees a
-whole plan or none; a corrupt or incomplete folder counts as missing and is replaced.
+whole plan or none: a stale folder is first renamed aside, never deleted in place.
+
+A folder is used only when it validates (:func:`load_cached`): ``plan.json`` parses and
+passes the schema, its ``key`` is the folder's name, and every picture it names is a
+complete PNG. Anything else — a truncated or garbage file, another schema, missing
+pictures, a folder without ``plan.json`` — is logged as a warning, counts as missing, and
+is planned again and replaced; it is never used, and never a traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
 import os
+import secrets
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -25,6 +34,11 @@ from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET
 from legws_daemon.task.graph import TaskGraph
 
 PLAN_FILE = "plan.json"
+#: A PNG file starts with this signature and ends with an ``IEND`` chunk (and its CRC).
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"
+
+log = logging.getLogger("legws.plan")
 
 
 def plan_cache_dir() -> Path:
@@ -46,27 +60,89 @@ def plan_key(graph: TaskGraph, scene: Scene, settings: dict[str, Any]) -> str:
 
 
 def load_cached(folder: Path) -> Plan | None:
-    """The plan cached in ``folder``, or ``None`` when missing, corrupt or incomplete."""
-    path = folder / PLAN_FILE
-    if not path.is_file():
-        return None
+    """The plan cached in ``folder`` (named by its key), or ``None`` when there is none or
+    it does not validate (logged as a warning: it is planned again and replaced).
+
+    A folder replaced by another run while it is read is read again (a few times).
+    """
+    for _ in range(3):
+        try:
+            before = folder.stat()
+        except OSError:
+            return None  # no entry (or it is being replaced right now)
+        plan, problem = _read(folder)
+        if plan is not None:
+            return plan
+        try:
+            replaced = folder.stat().st_ino != before.st_ino
+        except OSError:
+            replaced = True
+        if not replaced:
+            break
+    log.warning("legws: warning: the cached plan in %s is not usable (%s); planning "
+                "again", folder, problem)  # fmt: skip
+    return None
+
+
+def _read(folder: Path) -> tuple[Plan | None, str | None]:
+    """The validated plan of a cache folder, or what is wrong with it."""
+    problem = None
     try:
-        plan = load_plan(path)
-    except InputError:
-        return None  # corrupt: planned again and replaced
-    if any(d.image and not (folder / d.image).is_file() for d in plan.decisions):
-        return None
-    return replace(plan, cached=True)
+        plan = load_plan(folder / PLAN_FILE)
+        if plan.key != folder.name:
+            problem = f"its key is {plan.key}, expected {folder.name}"
+        for d in plan.decisions:
+            if problem is None and d.image:
+                problem = _png_problem(folder / d.image)
+    except InputError as err:
+        problem = str(err)
+    except Exception as err:  # anything unreadable is a corrupt cache, never a traceback
+        problem = f"{type(err).__name__}: {err}"
+    if problem is not None:
+        return None, problem
+    return replace(plan, cached=True), None
+
+
+def _png_problem(path: Path) -> str | None:
+    """``None`` when ``path`` is a complete PNG file, else what is wrong."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(len(_PNG_SIGNATURE))
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - len(_PNG_END)))
+            tail = f.read()
+    except OSError as err:
+        return f"{path.name}: {err.strerror or err}"
+    if head != _PNG_SIGNATURE or tail != _PNG_END:
+        return f"{path.name} is not a complete PNG file"
+    return None
 
 
 def publish(staging: Path, folder: Path) -> None:
-    """Rename the finished ``staging`` folder to ``folder`` (replacing a stale one)."""
+    """Rename the finished ``staging`` folder to ``folder``, replacing a stale one.
+
+    Each step is a rename, so a reader sees the old folder, no folder, or the new one —
+    never a half-deleted or half-written one. When another run published the same key in
+    between (same content), its folder stays and ``staging`` is removed.
+    """
+    aside = None
     if folder.exists():
-        shutil.rmtree(folder, ignore_errors=True)
+        aside = folder.with_name(f".{folder.name}.stale.{secrets.token_hex(4)}")
+        try:
+            os.rename(folder, aside)
+        except FileNotFoundError:  # another run moved it first
+            aside = None
     try:
         os.rename(staging, folder)
-    except OSError:  # another run published the same key first: same content
+    except OSError:  # another run published the same key first (same content), or failed
         shutil.rmtree(staging, ignore_errors=True)
+        if aside is not None and not folder.exists():
+            with contextlib.suppress(OSError):
+                os.rename(aside, folder)  # nothing new: the old entry stays
+                aside = None
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def copy_out(plan: Plan, out_dir: Path) -> Plan:

@@ -39,7 +39,10 @@ Lookups snap to the nearest cell in ``x``, ``y``, height and yaw; outside the gr
 than half a step beyond its edges, below its lowest height) a grasp is unreachable.
 
 The map is cached on disk per robot model (:func:`load_or_build`), keyed by a hash of the
-robot description, the gripper, the table, the IK seeds, the tolerances and the grid.
+robot description, the gripper, the table, the IK seeds, the tolerances and the grid. The
+file is written atomically (a temporary file, then a rename) and used only when it
+validates (:meth:`ReachabilityMap.load`: format, key, grid, array names, shapes and
+types); a truncated, garbage or stale file is logged as a warning and rebuilt.
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ import hashlib
 import io
 import itertools
 import json
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
@@ -69,6 +73,7 @@ from legws_daemon.sim.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
 from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET, World
 
 BoolArray = NDArray[np.bool_]
+log = logging.getLogger("legws.reachability")
 
 #: Bumped whenever the meaning of a cached map changes (algorithm, layout of the arrays).
 FORMAT_VERSION = 1
@@ -355,6 +360,8 @@ class ReachabilityMap:
                 raise LegwsError(f"key {meta.get('key')}, expected {key}")
             if meta.get("grid") != grid.to_json():
                 raise LegwsError("built for another grid")
+            if not np.isfinite(float(meta["table_height"])):
+                raise LegwsError(f"table height {meta['table_height']}")
             return ReachabilityMap(
                 grid=grid,
                 table_height=float(meta["table_height"]),
@@ -636,11 +643,14 @@ def load_or_build(
     """
     key = cache_key(world, q_home, grid)
     path = (directory or assets_dir() / "reachability") / f"{key}.npz"
-    if path.is_file():
+    if path.exists():
         try:
             return ReachabilityMap.load(path, grid, key)
-        except LegwsError:
-            pass  # rebuilt below and overwritten
+        except LegwsError as err:  # rebuilt below and replaced
+            log.warning("legws: warning: rebuilding the reachability map: %s", err)
     result = replace(build(world, q_home, grid, progress), key=key)
-    result.save(path)
+    try:
+        result.save(path)
+    except (LegwsError, OSError) as err:  # the map is good; only the cache is lost
+        log.warning("legws: warning: the reachability map is not cached: %s", err)
     return result
