@@ -78,9 +78,8 @@ COMMAND_TIMEOUT = 5.0
 OVERRUN_WARNING_INTERVAL = 5.0
 #: A telemetry warning event at most this often while problems continue, seconds.
 TELEMETRY_WARNING_INTERVAL = 10.0
-#: Seconds between health checks of the recording (on the telemetry worker's thread; each
-#: flushes the recording, so not much more often than its chunks, ``SAVE_FLUSH_SECONDS``).
-TELEMETRY_CHECK_INTERVAL = 10.0
+#: Seconds between health checks of the recording (on the telemetry worker's thread).
+TELEMETRY_CHECK_INTERVAL = 2.0
 #: Recent events kept in memory (for a look in a debugger; the record is the event stream).
 RECENT_EVENTS = 256
 

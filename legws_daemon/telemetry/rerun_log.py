@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import os
+import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
@@ -75,10 +76,6 @@ _COLOUR_LEVELS = 50
 _UNKNOWN_HALF_SIZE = (0.025, 0.025, 0.025)
 #: The threshold line is a constant: one point every this many ticks draws it.
 _THRESHOLD_EVERY = 10
-#: Seconds a ``save:`` file may take to accept its first bytes at start.
-PROBE_TIMEOUT = 5.0
-#: Seconds :meth:`RerunLog.check` waits for the sink to take what was logged.
-CHECK_TIMEOUT = 2.0
 #: Seconds :meth:`RerunLog.close` waits for a sink that already failed a check.
 FAILED_CLOSE_TIMEOUT = 0.5
 #: A ``save:`` file gets what was logged in chunks of this many seconds (rerun's default is
@@ -86,6 +83,11 @@ FAILED_CLOSE_TIMEOUT = 0.5
 #: until the file's footer is written at the end: at 0.2 s the daemon's resident set grew
 #: by ~0.5 MB/s (10 min at 50 Hz: +53 %); at 5 s it stays flat. A crash loses at most this.
 SAVE_FLUSH_SECONDS = 5.0
+#: Below this many free bytes on a ``save:`` file's file system, :meth:`RerunLog.check`
+#: reports the disk as (nearly) full.
+LOW_SPACE = 256 * 1024
+#: A ``save:`` file that has not grown for this long while data was logged has stalled, s.
+STALL_SECONDS = 3 * SAVE_FLUSH_SECONDS
 
 
 def parse_target(text: str) -> tuple[str, str | None]:
@@ -355,11 +357,12 @@ class RerunLog:
     then every 1000th time) on the ``logging`` logger of this module. Not thread-safe: call
     :meth:`log_tick` from one thread. :meth:`close` may be called from a signal handler.
 
-    Failures of the file: a ``save:`` path is probed at start (its first bytes must reach
-    the file), so a path that cannot be written — no such folder, a folder, ``/proc``, a
-    full disk — is an :class:`InputError`. Later (rerun's file writer stops at the first
-    failed write, e.g. when the disk fills up) the logging calls still do not raise:
-    :meth:`check` says that the recording no longer takes data.
+    Failures of the file: a ``save:`` path is probed at start (a byte is written and
+    synced, then rerun's writer replaces the file), so a path that cannot be written — no
+    such folder, a folder, ``/proc``, ``/dev/full`` — is an :class:`InputError`. Later
+    (rerun's file writer stops at the first failed write, e.g. when the disk fills up) the
+    logging calls still do not raise: :meth:`check` says that the recording no longer
+    takes data. A ``save:`` file is written in chunks of :data:`SAVE_FLUSH_SECONDS`.
     """
 
     def __init__(
@@ -382,6 +385,8 @@ class RerunLog:
         self.last_error: str | None = None
         self._checked_drops = 0
         self._sink_failed = False
+        self._logged = 0  # calls that logged data, for the stall check
+        self._file_state: tuple[int, int, int, float] | None = None  # inode, size, logged, when
         self._save_path = save_path
         self._closed = False
         batching = rr.ChunkBatcherConfig(flush_tick=SAVE_FLUSH_SECONDS) if kind == "save" else None
@@ -419,7 +424,6 @@ class RerunLog:
             assert path is not None
             try:
                 self._stream.save(path, default_blueprint=blueprint)
-                self._stream.flush(timeout_sec=PROBE_TIMEOUT)  # the header reaches the file
             except (OSError, RuntimeError, ValueError) as exc:
                 detail = " ".join(str(exc).split()) + _disk_note(path)
                 raise InputError(f"cannot write {path}: {detail}", field="--rerun") from None
@@ -476,6 +480,7 @@ class RerunLog:
         self._stream.log(GOALS_DOC, rr.TextDocument(text), static=True)
         self._stream.log(PARAMS_DOC, rr.TextDocument(params_json), static=True)
         self._reset_stage(scene, goals, goal_objects, p_thresh)
+        self._logged += 1
 
     @staticmethod
     def _check_setup(
@@ -641,6 +646,7 @@ class RerunLog:
             if mode != self._mode:
                 self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
                 self._mode = mode
+            self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("tick", exc)
 
@@ -804,6 +810,7 @@ class RerunLog:
             self._set_time(tick, t)
             stage = [self._fast.plain(f"{STAGE_ARCHETYPE}:stage", [self._stage])]
             self._stream.log(TEXT_LOG, rr.TextLog(text, level=lvl), stage)
+            self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("text", exc)
 
@@ -811,15 +818,17 @@ class RerunLog:
         """Log a commit in the format :func:`commit_text` (read back by ``legws replay``)."""
         self.log_text(tick, t, "INFO", commit_text(goal, p))
 
-    def check(self, timeout: float = CHECK_TIMEOUT) -> str | None:
-        """Whether the recording still takes data; call it from the logging thread.
+    def check(self) -> str | None:
+        """Whether the recording still takes data (cheap; any thread).
 
-        Flushes (waiting at most ``timeout`` seconds for the sink) and looks at the calls
-        that failed since the previous check.
+        Looks at the log calls that failed since the previous check and, for a ``save:``
+        file, at the file itself: still there, its disk not full (:data:`LOW_SPACE`), and
+        growing while data is logged (rerun's writer stops at its first failed write, and
+        says so only on its own stderr). It does not flush: a flush into a writer that
+        has just failed can leave rerun unable to close the file or to exit (rerun 0.41).
 
         Returns:
-            ``None`` when all is well, else the problem in one line (a sink that does not
-            take data — for a file, with a note when its disk is full — or failed calls).
+            ``None`` when all is well, else the problem in one line.
         """
         if self._closed:
             return None
@@ -828,16 +837,38 @@ class RerunLog:
             failed = self.dropped - self._checked_drops
             problems.append(f"{failed} log call(s) failed, last: {self.last_error}")
             self._checked_drops = self.dropped
-        try:
-            self._stream.flush(timeout_sec=timeout)
-            self._sink_failed = False
-        except Exception as exc:
-            self._sink_failed = True
-            where = str(self._save_path) if self._save_path is not None else "the viewer"
-            note = _disk_note(self._save_path) if self._save_path is not None else ""
-            problems.append(f"recording to {where} does not take data: {exc}{note}")
-            self.last_error = problems[-1]
+        if self._save_path is not None:
+            problem = self._file_problem(self._save_path)
+            self._sink_failed = problem is not None
+            if problem is not None:
+                problems.append(f"recording to {self._save_path}: {problem}")
+                self.last_error = problems[-1]
         return "; ".join(problems) or None
+
+    def _file_problem(self, path: Path) -> str | None:
+        now = time.monotonic()
+        try:
+            st = os.stat(path)
+        except OSError as err:
+            return f"the file is gone ({err.strerror})"
+        previous = self._file_state
+        if previous is not None and st.st_ino != previous[0]:
+            return "the file was replaced"
+        try:
+            vfs = os.statvfs(path.parent)
+        except OSError:
+            vfs = None
+        if vfs is not None and vfs.f_blocks > 0 and vfs.f_bavail * vfs.f_frsize < LOW_SPACE:
+            free = vfs.f_bavail * vfs.f_frsize
+            if free < 4096:
+                return "no space left on the device"
+            return f"the disk is nearly full ({free // 1024} KiB left)"
+        if previous is None or st.st_size != previous[1] or self._logged == previous[2]:
+            self._file_state = (st.st_ino, st.st_size, self._logged, now)
+            return None
+        if now - previous[3] > STALL_SECONDS:
+            return f"the file has not grown for {now - previous[3]:.0f} s while data was logged"
+        return None
 
     @property
     def sink_failed(self) -> bool:

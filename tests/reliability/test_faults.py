@@ -136,6 +136,21 @@ class Stick:
             time.sleep(0.02)
 
 
+def rises(m: Monitor, pub: Stick, metres: float = 0.02, within: float = 4.0) -> bool:
+    """Hold the stick up until the EE has risen ``metres`` (``within`` seconds at most).
+
+    The daemon, the bridge and the status each add a tick of latency, so on a loaded
+    machine a fixed one-second push can end just short of a fixed distance.
+    """
+    z0 = ee(m)[2]
+    end = time.monotonic() + within
+    while time.monotonic() < end:
+        pub.push([0.0, 0.0, 0.8], 0.25)
+        if ee(m)[2] - z0 > metres:
+            return True
+    return False
+
+
 @contextlib.contextmanager
 def stick(port: int, robot: str) -> Iterator[Stick]:
     """A :class:`Stick` connected to the daemon on ``port``."""
@@ -281,9 +296,7 @@ def test_bridge_killed_and_restarted_fault_then_reset_recovers(tmp_path: Path) -
         with monitor(port, "sawyer") as m, stick(port, "sawyer") as pub:
             assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
 
-            p0 = ee(m)
-            pub.push([0.0, 0.0, 0.8], 1.0)
-            assert ee(m)[2] - p0[2] > 0.02  # moving through the bridge
+            assert rises(m, pub)  # moving through the bridge
             assert bridge is not None
             killed = kill(bridge)  # the robot side vanishes: no goodbye, the heartbeat stops
             bridge = None
@@ -313,9 +326,7 @@ def test_bridge_killed_and_restarted_fault_then_reset_recovers(tmp_path: Path) -
             recovered_after = time.monotonic() - back
             assert m.kinds().count("fault") == 1
             assert m.wait_for(lambda m: m.latest()["mode"] == "teleop", 5)  # type: ignore[index]
-            p1 = ee(m)
-            pub.push([0.0, 0.0, 0.8], 1.0)
-            assert ee(m)[2] - p1[2] > 0.02  # it moves again
+            assert rises(m, pub)  # it moves again
             times = [t for t, _ in m.status]
             assert max(np.diff(times)) < 0.5  # status never paused, fault or not
             print(
@@ -529,7 +540,8 @@ def test_a_disk_that_fills_up_is_reported_and_control_continues(
             assert telemetry_warning(m), (tmp_path / "daemon.log").read_text()[-3000:]
             warning = next(e for e in m.events if "telemetry" in e["detail"])
             assert warning["kind"] == "warning"
-            assert "no space left" in warning["detail"]["telemetry"], warning
+            problem = warning["detail"]["telemetry"]
+            assert "no space left" in problem or "nearly full" in problem, warning
             assert warning["detail"]["control"] == "continues"
             assert m.wait_for(lambda m: any("trace" in e["detail"] for e in m.events), 30)
             # the robot still answers the stick, status still flows
@@ -546,7 +558,7 @@ def test_a_disk_that_fills_up_is_reported_and_control_continues(
         code, seconds = stop(daemon)
     assert code == 0 and seconds < 5.0
     log = (tmp_path / "daemon.log").read_text()
-    assert "telemetry" in log and "no space left" in log
+    assert "telemetry" in log and ("no space left" in log or "nearly full" in log)
     assert "Traceback" not in log
 
 
