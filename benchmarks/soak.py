@@ -9,14 +9,17 @@ a stage change — ``load_taskgraph`` tea, feeding, lego and ``load_scene`` desk
 Measured:
 
 - memory: the daemon's resident set (``VmRSS`` of ``/proc/<pid>/status``) every 5 s; growth
-  is the end against the value after the warm-up (1 min, or a quarter of a shorter run),
-  plus the slope of a line fitted to the samples after the warm-up;
+  is the end against the value after the warm-up, which ends 10 s after the first stage
+  change (a load swaps the MuJoCo world: the resident set settles only then; at most a
+  quarter of the run), plus the growth over the second half of the run and the slope of a
+  line fitted to the samples after the warm-up;
 - deadline misses: the daemon's own overrun count (a tick whose work ends after its
   deadline, ``ticker.py``) over its ticks, from its ``shutdown`` event; and from the trace,
   ticks whose work exceeded the period, split into ticks that carried out an operator
   command (a load rebuilds the MuJoCo world: the robot is stopped first, by design) and
   the others, and tick starts more than 1.5 periods apart;
-- the recording: ``rerun rrd verify`` on the ``.rrd`` at the end; its size;
+- the recording: ``rerun rrd verify`` on the ``.rrd`` at the end; its size, and how long the
+  daemon took to finish it at exit (its log line ``recording … finished in``);
 - that nothing crashed: both processes exit 0, every command answered.
 
 Usage:
@@ -29,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -52,6 +56,8 @@ LOADS = (
 )
 #: Seconds between memory samples.
 RSS_EVERY = 5.0
+#: The daemon's log line when its recording was finished at exit (``rerun_log.py``).
+FINISHED = re.compile(r"finished in (?P<s>[0-9.]+) s \((?P<raw>[0-9.]+) MiB raw")
 
 
 def profile_file(tmp: Path, port: int) -> Path:
@@ -180,6 +186,7 @@ def memory_stats(samples: list[tuple[float, int]], warmup: float) -> dict[str, A
         raise SystemExit("too few memory samples after the warm-up")
     start, end = kib[after][0], kib[-1]
     slope = np.polyfit(t[after] / 60.0, kib[after] / 1024.0, 1)[0]
+    middle = kib[t >= t[-1] / 2][0]
     return {
         "warmup_s": warmup,
         "rss_mib_start": float(kib[0] / 1024),
@@ -188,6 +195,7 @@ def memory_stats(samples: list[tuple[float, int]], warmup: float) -> dict[str, A
         "rss_mib_max": float(kib.max() / 1024),
         "growth_after_warmup": float((end - start) / start),
         "slope_mib_per_min": float(slope),
+        "growth_second_half": float((end - middle) / middle),
         "samples": [[round(float(a), 1), int(b)] for a, b in zip(t, kib, strict=True)],
     }
 
@@ -283,7 +291,8 @@ def soak(
     rows = [json.loads(line) for line in trace.read_text().splitlines()]
     kinds = [e["kind"] for e in events]
     shutdown: dict[str, Any] = next((e["detail"] for e in events if e["kind"] == "shutdown"), {})
-    warmup = min(60.0, seconds / 4)
+    warmup = min(load_every + 10.0, seconds / 4) if load_every < seconds else min(60.0, seconds / 4)
+    finished = FINISHED.search((tmp / "daemon.log").read_text()) if record else None
     telemetry = [
         e["detail"] for e in events if e["kind"] == "warning" and "telemetry" in e["detail"]
     ]
@@ -299,6 +308,8 @@ def soak(
             "verified": verify.returncode == 0,
             "verify_output": (verify.stdout + verify.stderr).strip()[-500:],
             "mib": rrd.stat().st_size / 2**20,
+            "raw_mib": float(finished["raw"]) if finished else None,
+            "finish_s": float(finished["s"]) if finished else None,
         },
         "commands": {
             "sent": len(commands),

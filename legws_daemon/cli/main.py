@@ -22,6 +22,7 @@ from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
 from legws_daemon.cli.plan import plan_cmd
+from legws_daemon.cli.recording import recording_group
 from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.cli.scenes import scenes_cmd
@@ -49,6 +50,7 @@ joystick_group.add_command(sim_user_cmd)
 cli.add_command(joystick_group)
 cli.add_command(bridge_group)
 cli.add_command(replay_cmd)
+cli.add_command(recording_group)
 cli.add_command(demo_cmd)
 cli.add_command(plan_cmd)
 cli.add_command(taskgraph_group)

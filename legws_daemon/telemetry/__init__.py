@@ -3,6 +3,13 @@
 
 from __future__ import annotations
 
+import os
+
+# Before rerun is imported (it reads RUST_LOG once): its file sink warns at every start
+# that a file without a footer is being written — the daemon's choice, the footer is added
+# at close (:mod:`.rrd_file`). Other warnings stay; a RUST_LOG set by the user wins.
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+
 from legws_daemon.telemetry.rerun_log import RerunLog, commit_text, parse_target
 
 __all__ = ["RerunLog", "commit_text", "parse_target"]

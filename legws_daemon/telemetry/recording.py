@@ -4,7 +4,8 @@ Uses :class:`rerun.chunk.RrdReader`: no viewer, no server. Every error (missing 
 an ``.rrd``, no legws telemetry in it) is an :class:`InputError` naming the file.
 
 Stages: each :meth:`RerunLog.log_setup` call writes one ``meta/goals`` document with its
-``stage_index`` (0, 1, ...); the viewer shows only the latest, the file keeps them all.
+``stage_index`` (0, 1, ...), static (the viewer shows the latest) and on the timelines as
+``meta/stages`` (every stage; a finished file keeps only the newest static one).
 Every EE sample and text-log row carries the index of the stage it was logged in (``-1``
 before the first set-up). The readers take an optional ``stage``: ``None`` means the last
 stage for :func:`read_goals` and :func:`read_params` (what the viewer shows) and every
@@ -35,6 +36,7 @@ from legws_daemon.telemetry.rerun_log import (
     EE_PATH,
     GOALS_DOC,
     STAGE_ARCHETYPE,
+    STAGES_DOC,
     TELEMETRY_FORMAT,
     TEXT_LOG,
 )
@@ -136,7 +138,7 @@ def read_stages(path: Path | str) -> list[Stage]:
     """
     p = Path(path)
     docs: dict[int, dict[str, Any]] = {}
-    for batch in _batches(p, GOALS_DOC):
+    for batch in _batches(p, GOALS_DOC, STAGES_DOC):
         for text in batch.column("TextDocument:text"):
             if text:
                 doc = _parse_doc(text[0], p)

@@ -11,9 +11,13 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
 * ``log`` (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
 * ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
   document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
-  stage's name and index, scene, robot, threshold and goal -> object map). Static data
-  keeps only its latest value in the viewer, but the file keeps every write, so
-  :mod:`legws_daemon.telemetry.recording` can read every stage back.
+  stage's name and index, scene, robot, threshold and goal -> object map), static: the
+  viewer shows the latest. ``meta/stages``: the same documents on the timelines, so
+  :mod:`legws_daemon.telemetry.recording` reads every stage back (a finished file keeps only
+  the newest static value).
+
+A ``save:`` file is written without rerun's footer (its manifest would grow in memory for
+the whole session) and finished at :meth:`RerunLog.close` (:mod:`.rrd_file`).
 
 The EE trail is ``world/ee_trail``, not ``world/ee/trail``: a child of ``world/ee`` would be
 moved by the EE's own transform.
@@ -51,6 +55,7 @@ from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_f
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
+from legws_daemon.telemetry import rrd_file
 
 _LOG = logging.getLogger(__name__)
 
@@ -58,6 +63,10 @@ _LOG = logging.getLogger(__name__)
 TELEMETRY_FORMAT = 1
 EE_PATH = "world/ee"
 GOALS_DOC = "meta/goals"
+#: The same documents on the timelines, one per set-up: the history of the stages. (The
+#: static ``meta/goals`` is what the viewer shows; rerun keeps only the newest static value
+#: of an entity when it compacts a file, as :mod:`.rrd_file` does at close.)
+STAGES_DOC = "meta/stages"
 PARAMS_DOC = "meta/params"
 TEXT_LOG = "log"
 #: Dynamic archetype of the exact EE pose logged at ``world/ee`` (float64, for replay).
@@ -79,15 +88,16 @@ _THRESHOLD_EVERY = 10
 #: Seconds :meth:`RerunLog.close` waits for a sink that already failed a check.
 FAILED_CLOSE_TIMEOUT = 0.5
 #: A ``save:`` file gets what was logged in chunks of this many seconds (rerun's default is
-#: 0.2 s, for live viewers). The writer keeps an index entry per chunk of every entity
-#: until the file's footer is written at the end: at 0.2 s the daemon's resident set grew
-#: by ~0.5 MB/s (10 min at 50 Hz: +53 %); at 5 s it stays flat. A crash loses at most this.
-SAVE_FLUSH_SECONDS = 5.0
+#: 0.2 s, for live viewers). The file is written without rerun's footer, whose manifest of
+#: every chunk would stay in memory until the end (:mod:`.rrd_file`; the footer is added at
+#: close), so this only trades the file's size against what a crash loses: at 0.2 s a
+#: 10-minute recording was 3x larger than at 5 s. A crash loses at most this.
+SAVE_FLUSH_SECONDS = 1.0
 #: Below this many free bytes on a ``save:`` file's file system, :meth:`RerunLog.check`
 #: reports the disk as (nearly) full.
 LOW_SPACE = 256 * 1024
 #: A ``save:`` file that has not grown for this long while data was logged has stalled, s.
-STALL_SECONDS = 3 * SAVE_FLUSH_SECONDS
+STALL_SECONDS = 15.0
 
 
 def parse_target(text: str) -> tuple[str, str | None]:
@@ -355,14 +365,16 @@ class RerunLog:
 
     Per-tick calls never raise: a failure is counted in :attr:`dropped` and logged (once,
     then every 1000th time) on the ``logging`` logger of this module. Not thread-safe: call
-    :meth:`log_tick` from one thread. :meth:`close` may be called from a signal handler.
+    :meth:`log_tick` from one thread; :meth:`close` from the thread that owns the run (it
+    may take seconds: it finishes a ``save:`` file).
 
     Failures of the file: a ``save:`` path is probed at start (a byte is written and
     synced, then rerun's writer replaces the file), so a path that cannot be written — no
     such folder, a folder, ``/proc``, ``/dev/full`` — is an :class:`InputError`. Later
     (rerun's file writer stops at the first failed write, e.g. when the disk fills up) the
     logging calls still do not raise: :meth:`check` says that the recording no longer
-    takes data. A ``save:`` file is written in chunks of :data:`SAVE_FLUSH_SECONDS`.
+    takes data. A ``save:`` file is written in chunks of :data:`SAVE_FLUSH_SECONDS`,
+    without a footer until :meth:`close`.
     """
 
     def __init__(
@@ -389,6 +401,9 @@ class RerunLog:
         self._file_state: tuple[int, int, int, float] | None = None  # inode, size, logged, when
         self._save_path = save_path
         self._closed = False
+        #: ``save:`` only: whether :meth:`close` added the footer (``None`` before it ran).
+        self.finished: bool | None = None
+        self._now: tuple[int, float] = (0, 0.0)  # the latest (tick, time) logged
         batching = rr.ChunkBatcherConfig(flush_tick=SAVE_FLUSH_SECONDS) if kind == "save" else None
         self._stream = rr.RecordingStream(
             application_id, recording_id=recording_id, batcher_config=batching
@@ -423,7 +438,8 @@ class RerunLog:
             path = self._save_path
             assert path is not None
             try:
-                self._stream.save(path, default_blueprint=blueprint)
+                # no footer while logging: its manifest would grow in memory all session
+                self._stream.save(path, default_blueprint=blueprint, write_footer=False)
             except (OSError, RuntimeError, ValueError) as exc:
                 detail = " ".join(str(exc).split()) + _disk_note(path)
                 raise InputError(f"cannot write {path}: {detail}", field="--rerun") from None
@@ -478,6 +494,8 @@ class RerunLog:
         self._clear_static(static)
         text = json.dumps(doc, indent=1, allow_nan=False)
         self._stream.log(GOALS_DOC, rr.TextDocument(text), static=True)
+        self._set_time(*self._now)  # the set-up belongs to the latest tick (0 at start)
+        self._stream.log(STAGES_DOC, rr.TextDocument(text))
         self._stream.log(PARAMS_DOC, rr.TextDocument(params_json), static=True)
         self._reset_stage(scene, goals, goal_objects, p_thresh)
         self._logged += 1
@@ -657,6 +675,7 @@ class RerunLog:
             _LOG.warning("rerun telemetry: %s not logged (%d so far): %s", what, self.dropped, exc)
 
     def _set_time(self, tick: int, t: float) -> None:
+        self._now = (tick, t)
         self._stream.set_time("tick", sequence=tick)
         self._stream.set_time("time", duration=t)
 
@@ -884,11 +903,14 @@ class RerunLog:
         except Exception as exc:  # a slow viewer must not crash the daemon
             self._drop("flush", exc)
 
-    def close(self, timeout: float = 5.0) -> None:
-        """Flush (at most ``timeout`` s) and disconnect, completing a ``save:`` file.
+    def close(self, timeout: float = 5.0, *, finish_file: bool = True) -> None:
+        """Flush (at most ``timeout`` s) and disconnect; a ``save:`` file is then finished
+        (its footer added, :func:`.rrd_file.finish`) unless ``finish_file`` is false.
 
         Idempotent. With a ``connect:`` target whose server cannot be reached, rerun also
-        waits up to 5 s for a last connection attempt before dropping the data.
+        waits up to 5 s for a last connection attempt before dropping the data. When the
+        file cannot be finished, the raw file stays (a valid stream without the manifest),
+        :attr:`finished` is false and :attr:`last_error` says why.
         """
         if self._closed:
             return
@@ -903,3 +925,24 @@ class RerunLog:
             self._stream.disconnect()
         except Exception as exc:
             self._drop("close", exc)
+            return
+        if self._save_path is not None and finish_file:
+            started = time.monotonic()
+            try:
+                raw = self._save_path.stat().st_size
+            except OSError:
+                raw = 0
+            problem = rrd_file.finish(self._save_path)
+            if problem is not None:
+                self.finished = False
+                self.last_error = f"{problem}; finish it with: legws recording finish FILE"
+                _LOG.warning("telemetry: %s", self.last_error)
+            else:
+                self.finished = True
+                _LOG.info(
+                    "recording %s finished in %.2f s (%.1f MiB raw -> %.1f MiB)",
+                    self._save_path,
+                    time.monotonic() - started,
+                    raw / 2**20,
+                    self._save_path.stat().st_size / 2**20,
+                )

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
-import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -37,6 +35,7 @@ from legws_daemon.formats.taskgraph_file import load_taskgraph, taskgraphs_dir
 from legws_daemon.scene.catalog import load_scene, scenes_dir
 from legws_daemon.scene.scene import Scene
 from tests.cli.helpers import EXAMPLE_GOALSET, Result, assert_bad_input
+from tests.formats.helpers import toml_dumps
 from tests.formats.test_plan_file import feeding_plan
 from tests.reliability.helpers import TALLIES, Tally, expect
 from tests.reliability.strategies import EDGE_TEXT, junk, leaves, mutated, nested
@@ -47,75 +46,6 @@ FILES = settings(
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
-
-
-# --- writing TOML (any JSON-like value; what TOML cannot say becomes a wrong type) ------
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def _toml_string(text: str) -> str:
-    out = []
-    for ch in text:
-        if ch in '"\\':
-            out.append("\\" + ch)
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04x}")
-        else:
-            out.append(ch)
-    return '"' + "".join(out) + '"'
-
-
-def _toml_key(key: str) -> str:
-    return key if _BARE_KEY.match(key) else _toml_string(key)
-
-
-def _toml_value(value: Any) -> str:
-    if value is None:
-        return "{}"  # TOML has no null: an empty table, a wrong type anyway
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return _toml_string(value)
-    if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return (
-            "{"
-            + ", ".join(f"{_toml_key(str(k))} = {_toml_value(v)}" for k, v in value.items())
-            + "}"
-        )
-    raise TypeError(type(value).__name__)
-
-
-def _table_array(value: Any) -> bool:
-    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
-
-
-def toml_text(doc: Any, prefix: str = "") -> str:
-    """A TOML document: tables and arrays of tables as sections, the rest inline."""
-    if not isinstance(doc, dict):
-        return f"value = {_toml_value(doc)}\n"
-    lines = [
-        f"{_toml_key(str(k))} = {_toml_value(v)}"
-        for k, v in doc.items()
-        if not (isinstance(v, dict) and v) and not _table_array(v)
-    ]
-    for k, v in doc.items():
-        full = f"{prefix}.{_toml_key(str(k))}" if prefix else _toml_key(str(k))
-        if isinstance(v, dict) and v:
-            lines += ["", f"[{full}]", toml_text(v, full)]
-        elif _table_array(v):
-            for item in v:
-                lines += ["", f"[[{full}]]", toml_text(item, full)]
-    return "\n".join(lines) + "\n"
 
 
 def json_text(doc: Any) -> str:
@@ -204,7 +134,7 @@ ODD_TEXT: dict[str, Callable[[str], bytes]] = {
 
 def file_contents(base: Any, ext: str) -> st.SearchStrategy[bytes]:
     """Contents of a file of kind ``ext`` derived from the valid document ``base``."""
-    write = toml_text if ext == "toml" else json_text
+    write = toml_dumps if ext == "toml" else json_text
 
     def encode(doc: Any) -> bytes:
         return write(doc).encode("utf-8", "surrogatepass")
@@ -318,11 +248,11 @@ LINE_BREAKS: dict[str, tuple[str, bytes, Callable[[Path], object]]] = {
                       load_goalset),
     "goal at x0": ("goals.json", json.dumps(_goal_set("a\u2028b", "c", at_x0=True)).encode(),
                    load_goalset),
-    "profile key": ("sim.toml", toml_text({**SIM_PROFILE, "\r": 1}).encode(), load_profile),
-    "scene object": ("desk.toml", toml_text(
+    "profile key": ("sim.toml", toml_dumps({**SIM_PROFILE, "\r": 1}).encode(), load_profile),
+    "scene object": ("desk.toml", toml_dumps(
         {**DESK_SCENE, "objects": [{**DESK_SCENE["objects"][0], "name": "mug\n"},
                                    *DESK_SCENE["objects"][1:]]}).encode(), _scene),
-    "stage name": ("tea.toml", toml_text(
+    "stage name": ("tea.toml", toml_dumps(
         {**TEA_GRAPH, "stages": [{**TEA_GRAPH["stages"][0], "next": ["steep\x85"]},
                                  *TEA_GRAPH["stages"][1:]]}).encode(), load_taskgraph),
 }  # fmt: skip

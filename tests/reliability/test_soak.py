@@ -40,6 +40,7 @@ def test_a_short_soak_ends_cleanly_with_a_valid_recording(tmp_path: Path) -> Non
     assert result["exit"] == {"daemon": 0, "user": 0}
     assert result["recording"]["verified"], result["recording"]
     assert result["recording"]["mib"] > 1.0
+    assert result["recording"]["finish_s"] is not None  # the daemon added the footer at exit
     commands = result["commands"]
     assert commands["failed"] == [] and commands["resets"] >= 2 and commands["loads"] >= 2
     events = result["events"]
