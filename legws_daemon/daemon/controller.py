@@ -16,6 +16,20 @@ Modes:
 - ``stopped``: the operator said stop; zero velocity until ``reset``.
 - ``fault``: the adapter failed; zero velocity (when it can still be sent) until ``reset``.
 
+``reset`` with an object in the gripper first puts it back where it was taken from (see
+:meth:`Controller._reset`): the pick, reversed, to the EE pose the gripper closed at
+(:func:`~legws_daemon.daemon.assist.put_back_plan`). When that pose cannot be reached
+(outside the workspace box, or a move makes no progress for
+:data:`~legws_daemon.daemon.assist.STALL_SECONDS`), the object is *set down* instead, with
+a ``warning`` event ``{"reset": "set_down", ...}``: turned back to the orientation it was
+carried in when the reset began, carried level over the spot it came from and released
+with its bottom :data:`~legws_daemon.task.targets.SET_DOWN_CLEARANCE` above the table.
+If that fails too: straight down where it is, at the orientation it has; then let go
+right there. Never from higher than :data:`~legws_daemon.task.targets.MAX_SET_DOWN_DROP`:
+rather than that, the reset gives control back (a warning) or, when no release pose is low
+enough at all, is refused once (a person takes the object; the next reset opens the
+gripper where it is). Then the gripper is open and the robot goes home.
+
 In every mode, no valid joystick input for the deadman timeout means zero velocity: the
 joystick is a dead-man switch for assistance too.
 """
@@ -31,38 +45,52 @@ from typing import Any
 import numpy as np
 
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.geometry import FloatArray, Pose, quat_to_matrix
+from legws_daemon.core.geometry import FloatArray, Pose, quat_to_matrix, rotation_angle
 from legws_daemon.core.goals import MIN_GOAL_DISTANCE, GoalSet
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.assist import (
+    LIFT_HEIGHT,
+    POSITION_TOLERANCE,
+    PREGRASP_DISTANCE,
+    ROTATION_TOLERANCE,
+    STALL_SECONDS,
     Assistant,
     CancelDetector,
-    Grip,
+    Move,
     Primitive,
     dip_plan,
     feed_plan,
+    grasp_rotation,
     home_move,
     pick_plan,
     place_plan,
+    put_back_plan,
     return_plan,
+    set_down_plan,
 )
 from legws_daemon.daemon.inbox import Sample
 from legws_daemon.design.plan import Plan
-from legws_daemon.errors import HardwareError, InputError, LegwsError
+from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.runner import TaskRun, scene_graph
-from legws_daemon.task.targets import Target, goal_set, target
+from legws_daemon.task.targets import MAX_SET_DOWN_DROP, Held, Target, goal_set, held_object
 
 Emit = Callable[[str, dict[str, Any]], None]
 #: The assistance target of a reset (going home), which no cancel interrupts.
 RESET_TARGET = "(reset)"
 #: Builds a connected adapter for a scene (the service decides which kind).
 AdapterFactory = Callable[[Scene], Adapter]
+#: The moves of a reset's put-back and set-down before the release: their failure sets the
+#: object down (one step further each time, see ``Controller._reset_fallback``).
+PUT_BACK_PHASES = ("rise", "carry", "roll", "tilt", "approach", "reach")
+SET_DOWN_PHASES = ("turn_back", "over", "lower")
+#: Targets of a reset's moves stay this far inside the workspace box, m.
+BOX_MARGIN = 0.005
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,6 +183,10 @@ class Controller:
         self.last_state: RobotState | None = None
         self.observer: IntentObserver | None = None
         self._gripper: bool | None = None
+        self._held: Held | None = None  # what the gripper closed on, and how
+        self._drop_asked = False  # a reset was refused: the next one lets go where it is
+        self._carried: FloatArray = scene.home.rotation  # the EE orientation a reset began at
+        self._fallbacks = 0  # how many times the running reset fell back
         self._auto_commit = True
         self.decisions = 0
         self._last_assist_v = np.zeros(3)
@@ -376,10 +408,18 @@ class Controller:
         t = self.stage.target(goal)
         R_now = quat_to_matrix(state.ee_quaternion)
         plan: list[Primitive]
-        if t.action == "pick" or t.action == "return":
+        if t.action == "pick":
             plan = pick_plan(t.position, t.rotation, t.symmetry, R_now)
-            if t.action == "return":  # put it back: lower onto the spot and let go
-                plan = [plan[0], plan[1], Grip("release", closed=False), plan[3]]
+        elif t.action == "return":  # put it back: the pick reversed, at the grasp it took
+            held = self._held if self._held is not None and self._held.name == goal else None
+            g, R = (
+                (held.position, held.rotation)
+                if held is not None
+                else (t.position, grasp_rotation(t.rotation, t.symmetry, R_now))
+            )
+            carry = self._carry_height(g, R)
+            home_R = self.scene.home.rotation
+            plan = put_back_plan(g, R, state.ee_position, R_now, carry, home_R)
         elif t.action == "place":
             plan = place_plan(t.position, R_now)
         elif t.action == "dip":
@@ -421,8 +461,11 @@ class Controller:
             except LegwsError as err:
                 self._to_fault(f"grip: {err}")
                 return np.zeros(3), None, step.phase
+            self._record_grip(a, state, step.grip)
         self._last_assist_v = step.velocity
         if step.failed is not None:
+            if a.target == RESET_TARGET and self._reset_fallback(state, step.phase, step.failed):
+                return np.zeros(3), None, step.phase
             self.emit("warning", {"assist": a.target, "phase": step.phase, "error": step.failed})
             self._auto_commit = False
             self.assistant = None
@@ -435,6 +478,15 @@ class Controller:
         if sample is None:
             return np.zeros(3), None, step.phase  # deadman pauses the plan
         return step.velocity, step.hold, step.phase
+
+    def _record_grip(self, a: Assistant, state: RobotState, closed: bool) -> None:
+        """Remember what the gripper closed on, and the EE pose it took it at (a reset
+        puts it back there); forget it when the gripper opens."""
+        if not closed:
+            self._held = None
+        elif a.target in self.scene.movable:
+            R = quat_to_matrix(state.ee_quaternion)
+            self._held = held_object(self.scene, self.layout, a.target, state.ee_position, R)
 
     def _cancel(self, a: Assistant, reason: str) -> None:
         """Give control back. Before the plan's gripper acted, the same stage's inference
@@ -525,25 +577,136 @@ class Controller:
         return {"mode": self.mode}
 
     def _reset(self) -> dict[str, Any]:
-        """Clear a stop or fault and start the task again: put back what the robot holds,
-        go home, objects back at the layout (on the stand-in), infer from the first stage."""
+        """Clear a stop or fault and start the task again: put back what the robot holds
+        (or set it down, see the module docstring), go home, objects back at the layout
+        (on the stand-in), infer from the first stage.
+
+        Raises:
+            HardwareError: the robot still fails.
+            InfeasibleError: the robot holds an object it can set down nowhere without
+                dropping it from higher than ``MAX_SET_DOWN_DROP`` (the workspace box
+                keeps the EE too high): a person takes it from the gripper, and the next
+                ``reset`` opens the gripper where it is.
+        """
         state = self._read_state_safely()
         if state is None:
             raise HardwareError(f"the robot is still failing: {self.fault or 'no state'}")
-        plan: list[Primitive] = []
-        held = self.task.held if self._gripper else None
-        if self._gripper and held is not None:
-            t = target(
-                self.scene, self.layout, "reset", "return", held, held, self.task.picked_from
-            )
-            back = pick_plan(
-                t.position, t.rotation, t.symmetry, quat_to_matrix(state.ee_quaternion)
-            )
-            plan += [back[0], back[1]]
-        plan += return_plan(self.scene.home.position, self.scene.home.rotation)
+        held = self._held if self._gripper is not False else None
+        plan: list[Primitive] | None = None
+        self._carried = quat_to_matrix(state.ee_quaternion)
+        self._fallbacks = 0
+        if held is not None:
+            plan = self._put_back(held, state)
+            if plan is None:
+                self._fallbacks = 1
+                plan = self._set_down(held, state, over=True)
+                if plan is not None:
+                    outside = "the grasp pose is outside the workspace box"
+                    self._warn_set_down(held, "reset", outside)
+            if plan is None and not self._drop_asked:
+                self._drop_asked = True
+                raise InfeasibleError(
+                    f"the robot holds '{held.name}' and cannot set it down within the "
+                    f"workspace box: take it from the gripper, then reset again (the gripper "
+                    f"opens where it is)"
+                )
+        if plan is None:  # nothing held (or a person has taken it): open, go home
+            plan = return_plan(self.scene.home.position, self.scene.home.rotation)
+        self._drop_asked = False
         self.observer = None
         self._start_assist(plan, RESET_TARGET)
         return {"mode": self.mode, "plan": [p.label for p in plan]}
+
+    def _in_box(self, p: FloatArray) -> FloatArray:
+        """``p`` moved inside the adapter's workspace box, ``BOX_MARGIN`` from its faces."""
+        box = self.adapter.box
+        return np.asarray(np.clip(p, box.lower + BOX_MARGIN, box.upper - BOX_MARGIN), np.float64)
+
+    def _carry_height(self, grasp: FloatArray, rotation: FloatArray) -> float:
+        """Height to carry a held object at toward a grasp pose: ``LIFT_HEIGHT`` above
+        the higher of the grasp and pre-grasp poses (inside the box)."""
+        pre = grasp - PREGRASP_DISTANCE * rotation[:, 2]
+        top = self.adapter.box.upper[2] - BOX_MARGIN
+        return float(min(max(grasp[2], pre[2]) + LIFT_HEIGHT, top))
+
+    def _home(self) -> Move:
+        return home_move(self.scene.home.position, self.scene.home.rotation)
+
+    def _put_back(self, held: Held, state: RobotState) -> list[Primitive] | None:
+        """The reset's plan to put ``held`` back at the grasp pose it was taken at, or
+        ``None`` when that pose or its pre-grasp pose lies outside the workspace box."""
+        g, R = held.position, held.rotation
+        pre = g - PREGRASP_DISTANCE * R[:, 2]
+        box = self.adapter.box
+        if not (box.contains(g, POSITION_TOLERANCE) and box.contains(pre, 2 * POSITION_TOLERANCE)):
+            return None
+        R_now = quat_to_matrix(state.ee_quaternion)
+        carry = self._carry_height(g, R)
+        home_R = self.scene.home.rotation
+        plan = put_back_plan(g, R, state.ee_position, R_now, carry, home_R, STALL_SECONDS)
+        return [*plan, self._home()]
+
+    def _set_down(
+        self, held: Held, state: RobotState, *, over: bool, here: bool = False
+    ) -> list[Primitive] | None:
+        """A plan that sets ``held`` down and goes home.
+
+        ``over``: first turn back (in place) to the orientation the object was carried
+        in when the reset began, then set it down at that orientation with its centre
+        over the spot it came from. Otherwise at the orientation it has now: straight
+        below the EE, or (``here``) released right where the EE is. ``None`` when the
+        object's bottom would be more than ``MAX_SET_DOWN_DROP`` above the table at the
+        release.
+        """
+        p = np.asarray(state.ee_position, dtype=np.float64)
+        R_now = quat_to_matrix(state.ee_quaternion)
+        R = self._carried if over else R_now
+        table = self.scene.workspace.table_height
+        # over the spot it came from, or straight below where the object is now
+        spot = held.set_down_position(R, table, None if over else p + R_now @ held.center)
+        release = p if here else self._in_box(spot)
+        if held.bottom(release, R) - table > MAX_SET_DOWN_DROP:
+            return None
+        top = float(self.adapter.box.upper[2]) - BOX_MARGIN
+        retreat = min(float(release[2]) + LIFT_HEIGHT, top)
+        patience = None if here else STALL_SECONDS
+        plan: list[Primitive] = []
+        if float(rotation_angle(R_now, R)) >= ROTATION_TOLERANCE:
+            plan.append(Move("turn_back", p, R, 2 * POSITION_TOLERANCE, patience))
+        plan += set_down_plan(p, R, release, retreat, self.scene.home.rotation, patience)
+        return [*plan, self._home()]
+
+    def _reset_fallback(self, state: RobotState, phase: str, error: str) -> bool:
+        """A move of the reset failed before the release: set the held object down
+        instead. Each failure goes one step further: the put-back failed — set it down
+        over its spot; that failed — straight down where it is; that failed — let go
+        right here (if low enough). ``False``: nothing (more) to fall back to."""
+        held = self._held
+        if (
+            held is None
+            or self._gripper is False
+            or phase not in (*PUT_BACK_PHASES, *SET_DOWN_PHASES)
+        ):
+            return False
+        self._fallbacks += 1
+        plan: list[Primitive] | None = None
+        if self._fallbacks == 1:
+            plan = self._set_down(held, state, over=True)
+        elif self._fallbacks == 2:
+            plan = self._set_down(held, state, over=False)
+        elif self._fallbacks == 3:
+            plan = self._set_down(held, state, over=False, here=True)
+        if plan is None:
+            return False
+        self._warn_set_down(held, phase, error)
+        self._start_assist(plan, RESET_TARGET)
+        return True
+
+    def _warn_set_down(self, held: Held, phase: str, reason: str) -> None:
+        self.emit(
+            "warning",
+            {"reset": "set_down", "object": held.name, "phase": phase, "reason": reason},
+        )
 
     def load(self, scene: Scene, layout: Layout | None, graph: TaskGraph | None) -> dict[str, Any]:
         """Swap to another scene or task graph (the robot stops first); the task restarts."""
@@ -561,7 +724,9 @@ class Controller:
         self.observed = {}
         self.task = TaskRun(self.graph, scene)
         self.fault, self.assistant, self._gripper = None, None, None
-        self.adapter.place_objects(self.layout)
+        if self.adapter.place_objects(self.layout):
+            self._held = None  # the stand-in let go of it and put it back
+        self._drop_asked = False
         self._begin_stage()
         detail = {"scene": scene.name, "task": self.graph.name, "stage": self.stage.name,
                   "certificate": self.stage.certificate}  # fmt: skip

@@ -36,5 +36,5 @@ def load_scene(name_or_path: str | Path, directory: Path | None = None) -> Scene
         path = d / f"{text}.toml"
         if not path.is_file():
             known = ", ".join(scene_names(d)) or "(none)"
-            raise InputError(f"unknown scene '{text}'; known: {known}", field="scene")
+            raise InputError(f"unknown scene {text!r}; known: {known}", field="scene")
     return Scene(load_scene_spec(path), str(path))

@@ -82,3 +82,11 @@ def test_unknown_and_fixed_names_are_rejected_with_the_known_ones() -> None:
         LayoutConstraints.of(sc, ["tape_dispenser", "white_mug"])
     with pytest.raises(InputError, match=r"known: .*desk"):
         load_scene("no_such_scene")
+
+
+@pytest.mark.parametrize("name", ["a\nb", "desk\u2028x", "x\rdesk", "de\x85sk", "\x0c", "a\x1eb"])
+def test_an_unknown_name_with_a_line_break_stays_on_one_line(name: str) -> None:
+    # a remote load_scene command carries any string (found by the command fuzzing)
+    with pytest.raises(InputError) as info:
+        load_scene(name)
+    assert len(str(info.value).splitlines()) == 1, str(info.value)
