@@ -39,7 +39,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -116,7 +116,8 @@ class StageState:
     """The stage being run: its candidate goals' poses and the layout they stand in.
 
     ``goals_home`` (the goal set seen from home) and ``certificate`` are ``None`` for a
-    stage with a single candidate, which needs no inference.
+    stage with a single candidate, which needs no inference. ``observed_certificate`` is
+    the certificate recomputed from object poses a tracker reported (``None`` until then).
     """
 
     name: str
@@ -124,7 +125,12 @@ class StageState:
     layout: Layout
     certificate: float | None
     goals_home: GoalSet | None
-    extras: dict[str, Any] = field(default_factory=dict)
+    observed_certificate: float | None = None
+
+    @property
+    def current_certificate(self) -> float | None:
+        """What status reports: the observed certificate once there is one, else the plan's."""
+        return self.certificate if self.observed_certificate is None else self.observed_certificate
 
     @property
     def goal_names(self) -> tuple[str, ...]:
@@ -282,7 +288,7 @@ class Controller:
             return
         names = [t.name for t in targets]
         current = self._decision_certificate(self.layout)
-        self.stage.extras["observed_certificate"] = current
+        self.stage.observed_certificate = current
         planned = self.stage.certificate
         if current > 0 or planned is None or planned <= 0:
             self._misplaced = None
@@ -574,7 +580,8 @@ class Controller:
             if scene.name == self.scene.name:
                 scene = self.scene
             return self.load(scene, None, graph)
-        return {"mode": self.mode}
+        # the message schema admits no other command: one reaching here is a bug, not a no-op
+        raise InputError(f"unknown command {request.command!r}", field="command")
 
     def _reset(self) -> dict[str, Any]:
         """Clear a stop or fault and start the task again: put back what the robot holds

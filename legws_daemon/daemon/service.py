@@ -324,7 +324,7 @@ class DaemonService:
             "stage": c.stage.name,
             "posterior": c.posterior(),
             "committed": c.committed,
-            "certificate": c.stage.extras.get("observed_certificate", c.stage.certificate),
+            "certificate": c.stage.current_certificate,
             "adapter": "sim" if self.fallback else self.adapter_kind,
             "fallback": self.fallback,
             "fault": c.fault,

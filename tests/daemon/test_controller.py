@@ -271,6 +271,6 @@ def test_a_misplaced_object_is_named_when_the_certificate_is_lost(rig: Rig) -> N
     assert len(rig.events) == n  # said once per decision and object
     # moved back: the certificate is positive again, no warning
     rig.c.observe({"white_mug": mug})
-    assert rig.c.stage.extras["observed_certificate"] == pytest.approx(planned)
+    assert rig.c.stage.observed_certificate == pytest.approx(planned)
     rig.c.observe({"unknown_thing": mug, "table": mug})  # not movable objects: ignored
     assert len(rig.events) == n

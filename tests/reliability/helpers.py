@@ -233,7 +233,7 @@ class Rig:
             "schema": 1, "robot": self.profile.robot, "seq": rec.tick, "stamp": 0.0,
             "mode": c.mode, "stage": c.stage.name, "posterior": c.posterior(),
             "committed": c.committed,
-            "certificate": c.stage.extras.get("observed_certificate", c.stage.certificate),
+            "certificate": c.stage.current_certificate,
             "adapter": "sim", "fault": c.fault, "phase": rec.phase,
             "deadman": rec.joystick is None, "tick": c.ticks, "rejected": self.inbox.rejected,
             "slack": c.live_slack(), "decision": c.decisions,
