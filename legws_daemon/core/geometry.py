@@ -114,6 +114,16 @@ def rot_z(yaw: ArrayLike) -> FloatArray:
     return out
 
 
+def axis_rotation(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
+    """Rotations by ``angle`` (a number, or an array of them) about one unit ``axis``
+    (Rodrigues): ``(3, 3)``, or ``(*angle.shape, 3, 3)``."""
+    x, y, z = np.asarray(axis, dtype=np.float64)
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    t = np.asarray(angle, dtype=np.float64)
+    s, c = np.sin(t)[..., None, None], np.cos(t)[..., None, None]
+    return np.asarray(np.eye(3) + s * K + (1 - c) * (K @ K), dtype=np.float64)
+
+
 def rotation_angle(R1: ArrayLike, R2: ArrayLike) -> FloatArray:
     """Geodesic angle in ``[0, pi]`` between rotations (no symmetry)."""
     tr = np.einsum(

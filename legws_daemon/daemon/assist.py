@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from legws_daemon.core.geometry import FloatArray, rotation_angle
+from legws_daemon.core.geometry import FloatArray, axis_rotation, rotation_angle
 from legws_daemon.sim.feasibility import symmetric_rotations
 
 #: The pre-grasp pose stands this far back along the approach axis, metres.
@@ -163,13 +163,6 @@ def return_plan(home_position: FloatArray, home_rotation: FloatArray) -> list[Pr
     ]
 
 
-def _axis_angle(axis: FloatArray, angle: float) -> FloatArray:
-    """Rotation by ``angle`` about the unit ``axis`` (Rodrigues)."""
-    x, y, z = axis
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.asarray(np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K)
-
-
 def roll_first(current: FloatArray, target: FloatArray) -> FloatArray:
     """The orientation to roll to about the current approach axis (the EE's z) so that
     what is left to ``target`` is a pure tilt of the approach axis (about an axis
@@ -189,7 +182,7 @@ def roll_first(current: FloatArray, target: FloatArray) -> FloatArray:
         return R1  # the approach axes agree: the roll is all of it
     else:
         axis, angle = R0[:, 0], math.pi  # opposite: tilt about the EE's x
-    tilt_back = _axis_angle(axis, angle)  # takes z1 onto z0
+    tilt_back = axis_rotation(axis, angle)  # takes z1 onto z0
     return np.asarray(tilt_back @ R1, dtype=np.float64)
 
 

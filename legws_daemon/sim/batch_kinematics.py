@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, axis_rotation
 from legws_daemon.errors import LegwsError
 from legws_daemon.sim.kinematics import LIMIT_MARGIN
 from legws_daemon.sim.world import World
@@ -80,13 +80,6 @@ def _chain(world: World) -> tuple[list[_Link], FloatArray, FloatArray]:
     return links, site_pos, rot @ _quat_matrix(m.site_quat[site])
 
 
-def _axis_rotation(axis: FloatArray, angle: FloatArray) -> FloatArray:
-    """Rotations ``(N, 3, 3)`` by ``angle`` about a fixed unit ``axis`` (Rodrigues)."""
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.asarray(np.eye(3) + s * K + (1 - c) * (K @ K), dtype=np.float64)
-
-
 def _times(R: FloatArray, M: FloatArray) -> FloatArray:
     """``R @ M`` for a stack ``R`` (N, 3, 3) and one ``M`` (3, 3) or (3,): one BLAS call."""
     n = len(R)
@@ -124,7 +117,7 @@ class BatchKinematics:
                 a = _times(R, lk.anchor) + p
                 axes[:, lk.joint] = _times(R, lk.axis)
                 anchors[:, lk.joint] = a
-                R = R @ _axis_rotation(lk.axis, angle)
+                R = R @ axis_rotation(lk.axis, angle)
                 p = a - _times(R, lk.anchor)
         ee = p + _times(R, self.site_pos)
         J = np.empty((n, 6, 7))

@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from legws_daemon.core.geometry import (
     Pose,
+    axis_rotation,
     matrix_to_quat,
     normalize_quaternion,
     quat_to_matrix,
@@ -119,3 +120,21 @@ def test_pose_validates() -> None:
         Pose(np.array([1.0, np.nan, 3.0]), np.array([1.0, 0, 0, 0]))
     with pytest.raises(InputError):
         Pose(np.array([1.0, 3.0]), np.array([1.0, 0, 0, 0]))
+
+
+@given(st.lists(st.floats(-1, 1), min_size=3, max_size=3), st.floats(-7.0, 7.0))
+def test_axis_rotation_turns_by_the_angle_about_the_axis(axis: list[float], angle: float) -> None:
+    a = np.array(axis)
+    assume(np.linalg.norm(a) > 0.1)
+    a /= np.linalg.norm(a)
+    R = axis_rotation(a, angle)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(R @ a, a, atol=1e-12)  # the axis stays put
+    wrapped = abs((angle + np.pi) % (2 * np.pi) - np.pi)
+    assert float(rotation_angle(R, np.eye(3))) == pytest.approx(wrapped, abs=1e-6)
+    # about z it is rot_z; a batch of angles gives a batch of matrices
+    np.testing.assert_allclose(axis_rotation([0, 0, 1], angle), rot_z(angle), atol=1e-12)
+    batch = axis_rotation(a, np.array([angle, 0.0]))
+    assert batch.shape == (2, 3, 3)
+    np.testing.assert_allclose(batch[0], R, atol=1e-15)
+    np.testing.assert_allclose(batch[1], np.eye(3), atol=1e-15)
