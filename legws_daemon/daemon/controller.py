@@ -423,16 +423,14 @@ class Controller:
                 if held is not None
                 else (t.position, grasp_rotation(t.rotation, t.symmetry, R_now))
             )
-            carry = self._carry_height(g, R)
-            home_R = self.scene.home.rotation
-            plan = put_back_plan(g, R, state.ee_position, R_now, carry, home_R)
+            plan = self._put_back_moves(g, R, state)
         elif t.action == "place":
             plan = place_plan(t.position, R_now)
         elif t.action == "dip":
             plan = dip_plan(t.position, R_now)
         else:
             plan = feed_plan(t.position, t.rotation, t.symmetry, R_now)
-        plan.append(home_move(self.scene.home.position, self.scene.home.rotation))
+        plan.append(self._home())
         self._start_assist(plan, goal)
         seconds = self.observer.ticks * self.dt if self.observer is not None else 0.0
         self.emit(
@@ -647,11 +645,22 @@ class Controller:
         box = self.adapter.box
         if not (box.contains(g, POSITION_TOLERANCE) and box.contains(pre, 2 * POSITION_TOLERANCE)):
             return None
+        return [*self._put_back_moves(g, R, state, STALL_SECONDS), self._home()]
+
+    def _put_back_moves(
+        self,
+        grasp: FloatArray,
+        rotation: FloatArray,
+        state: RobotState,
+        patience: float | None = None,
+    ) -> list[Primitive]:
+        """:func:`put_back_plan` to the grasp pose from the EE pose now, carried at
+        :meth:`_carry_height`, ending turned to the home orientation."""
         R_now = quat_to_matrix(state.ee_quaternion)
-        carry = self._carry_height(g, R)
-        home_R = self.scene.home.rotation
-        plan = put_back_plan(g, R, state.ee_position, R_now, carry, home_R, STALL_SECONDS)
-        return [*plan, self._home()]
+        carry = self._carry_height(grasp, rotation)
+        return put_back_plan(
+            grasp, rotation, state.ee_position, R_now, carry, self.scene.home.rotation, patience
+        )
 
     def _set_down(
         self, held: Held, state: RobotState, *, over: bool, here: bool = False
