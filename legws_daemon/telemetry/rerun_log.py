@@ -270,14 +270,24 @@ def _probe(path: Path) -> Path:
     return path
 
 
-def _disk_note(path: Path) -> str:
-    """``"; no space left on the device"`` when the file system of ``path`` is full."""
+#: Fewer free bytes than this on a file system: it is full.
+_FULL = 4096
+
+
+def _free_bytes(path: Path) -> int | None:
+    """Bytes free to this process on the file system of ``path``'s folder (``None``:
+    unknown, or a file system without blocks such as ``/proc``)."""
     try:
         st = os.statvfs(path.parent)
     except OSError:
-        return ""
-    full = st.f_blocks > 0 and st.f_bavail * st.f_frsize < 4096
-    return "; no space left on the device" if full else ""
+        return None
+    return st.f_bavail * st.f_frsize if st.f_blocks > 0 else None
+
+
+def _disk_note(path: Path) -> str:
+    """``"; no space left on the device"`` when the file system of ``path`` is full."""
+    free = _free_bytes(path)
+    return "; no space left on the device" if free is not None and free < _FULL else ""
 
 
 def parse_params_json(params_json: str) -> Params:
@@ -873,13 +883,9 @@ class RerunLog:
         previous = self._file_state
         if previous is not None and st.st_ino != previous[0]:
             return "the file was replaced"
-        try:
-            vfs = os.statvfs(path.parent)
-        except OSError:
-            vfs = None
-        if vfs is not None and vfs.f_blocks > 0 and vfs.f_bavail * vfs.f_frsize < LOW_SPACE:
-            free = vfs.f_bavail * vfs.f_frsize
-            if free < 4096:
+        free = _free_bytes(path)
+        if free is not None and free < LOW_SPACE:
+            if free < _FULL:
                 return "no space left on the device"
             return f"the disk is nearly full ({free // 1024} KiB left)"
         if previous is None or st.st_size != previous[1] or self._logged == previous[2]:
