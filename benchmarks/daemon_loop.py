@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from legws_daemon.telemetry.rrd_file import rerun_cli
+
 REPO = Path(__file__).resolve().parents[1]
 PORT = 17790
 #: The user publishes at a rate unrelated to the loop's, so that the wait for the next tick
@@ -134,7 +136,7 @@ def shutdown_seconds(tmp: Path, runs: int) -> list[float]:
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(timeout=30)
         out.append(time.monotonic() - t0)
-        verify = subprocess.run([str(Path(sys.executable).parent / "rerun"), "rrd", "verify",
+        verify = subprocess.run([rerun_cli(), "rrd", "verify",
                                  str(rrd)], capture_output=True, check=False)  # fmt: skip
         if code != 0 or verify.returncode != 0:
             raise SystemExit(f"shutdown run {k}: exit {code}, verify {verify.returncode}")

@@ -44,6 +44,8 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from legws_daemon.telemetry.rrd_file import rerun_cli
+
 REPO = Path(__file__).resolve().parents[1]
 LEGWS = [sys.executable, "-m", "legws_daemon"]
 ROBOT = "sawyer_sim"
@@ -285,7 +287,7 @@ def soak(
     verify = None
     if record:
         verify = subprocess.run(
-            [str(Path(sys.executable).parent / "rerun"), "rrd", "verify", str(rrd)],
+            [rerun_cli(), "rrd", "verify", str(rrd)],
             capture_output=True, text=True, timeout=600, check=False,
         )  # fmt: skip
     rows = [json.loads(line) for line in trace.read_text().splitlines()]

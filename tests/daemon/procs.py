@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -19,9 +18,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.telemetry.rrd_file import rerun_cli
 from legws_daemon.transport.session import config_from_spec, keys, open_session
 
 REPO = Path(__file__).parents[2]
@@ -133,5 +134,18 @@ def monitor(port: int, robot: str) -> Iterator[Monitor]:
 
 
 def rerun_exe() -> str:
-    exe = Path(sys.executable).parent / "rerun"
-    return str(exe) if exe.exists() else (shutil.which("rerun") or "rerun")
+    """The ``rerun`` executable the daemon itself uses (``rerun rrd verify`` runs headless)."""
+    return rerun_cli()
+
+
+def ready(m: Monitor) -> bool:
+    """The daemon's loop has ticked (a status with ``tick > 0`` arrived)."""
+    s = m.latest()
+    return s is not None and s["tick"] > 0
+
+
+def ee(m: Monitor) -> np.ndarray:
+    """The EE position in the latest status."""
+    s = m.latest()
+    assert s is not None
+    return np.array(s["ee"]["position"])

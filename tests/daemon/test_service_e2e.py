@@ -18,15 +18,18 @@ import pytest
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.telemetry.recording import entity_paths, read_text_log
 from legws_daemon.transport.session import config_from_spec, keys, open_session
-from tests.daemon.procs import LEGWS, Monitor, monitor, rerun_exe, start, stop, write_profile
+from tests.daemon.procs import (
+    LEGWS,
+    monitor,
+    ready,
+    rerun_exe,
+    start,
+    stop,
+    write_profile,
+)
 
 ROBOT = "sawyer_sim"
 pytestmark = pytest.mark.slow
-
-
-def ready(m: Monitor) -> bool:
-    s = m.latest()
-    return s is not None and s["tick"] > 0
 
 
 def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Path) -> None:

@@ -47,8 +47,10 @@ from tests.daemon.procs import (
     LEGWS,
     REPO,
     Monitor,
+    ee,
     env,
     monitor,
+    ready,
     rerun_exe,
     start,
     stop,
@@ -66,25 +68,6 @@ PERIOD = 0.05  # both profiles' control period, s
 
 
 @functools.cache
-def motion_flags() -> tuple[str, ...]:
-    """``--allow-motion`` when this daemon has it (needed for non-sim profiles then)."""
-    out = subprocess.run(
-        [*LEGWS, "daemon", "--help"], capture_output=True, text=True, timeout=60, env=env()
-    )
-    return ("--allow-motion",) if "--allow-motion" in out.stdout else ()
-
-
-def ready(m: Monitor) -> bool:
-    s = m.latest()
-    return s is not None and s["tick"] > 0
-
-
-def ee(m: Monitor) -> np.ndarray:
-    s = m.latest()
-    assert s is not None
-    return np.array(s["ee"]["position"])
-
-
 def verify(rrd: Path) -> None:
     """``rerun rrd verify`` passes on the recording."""
     out = subprocess.run(
@@ -290,7 +273,7 @@ def test_bridge_killed_and_restarted_fault_then_reset_recovers(tmp_path: Path) -
         time.sleep(1.0)
         daemon = start(
             ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "120",
-             *motion_flags()],
+             "--allow-motion"],
             tmp_path / "daemon.log",
         )  # fmt: skip
         with monitor(port, "sawyer") as m, stick(port, "sawyer") as pub:

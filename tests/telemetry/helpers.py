@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,9 +18,10 @@ from legws_daemon.core.params import Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.telemetry.rerun_log import RerunLog
+from legws_daemon.telemetry.rrd_file import rerun_cli
 
-#: The ``rerun`` executable of the venv (``rerun rrd verify`` works headless).
-RERUN = Path(sys.executable).parent / "rerun"
+#: The ``rerun`` executable the daemon uses (``rerun rrd verify`` works headless).
+RERUN = rerun_cli()
 LINKS = 8
 
 

@@ -40,7 +40,7 @@ import zenoh
 from legws_daemon.cli.main import run
 from legws_daemon.errors import InputError
 from legws_daemon.transport.session import keys, open_session
-from tests.daemon.procs import LEGWS, REPO, Monitor, env, start, stop, write_profile
+from tests.daemon.procs import LEGWS, REPO, Monitor, ee, env, ready, start, stop, write_profile
 
 ZENOH_DIR = REPO / "hw_profiles" / "zenoh"
 MAKE_CERTS = ZENOH_DIR / "make-certs.sh"
@@ -149,17 +149,6 @@ def patient(config: dict[str, Any], seconds: float = 30.0) -> dict[str, Any]:
     """A client configuration that keeps dialling for ``seconds`` (the daemon is starting)."""
     config["connect"]["timeout_ms"] = int(seconds * 1000)
     return config
-
-
-def ready(m: Monitor) -> bool:
-    s = m.latest()
-    return s is not None and s["tick"] > 0
-
-
-def ee(m: Monitor) -> np.ndarray:
-    s = m.latest()
-    assert s is not None
-    return np.array(s["ee"]["position"])
 
 
 def hold_stick(put: Callable[[bytes], None], seconds: float, source: str) -> None:
