@@ -38,7 +38,7 @@ def main() -> None:
     from legws_daemon.demo.run import summarise
     from legws_daemon.design.stage_plan import plan_taskgraph
     from legws_daemon.formats.profile import load_profile_named
-    from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+    from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
     profile = load_profile_named("sim")
     results: dict[str, Any] = {"seeds": a.seeds, "graphs": {}}

@@ -22,9 +22,9 @@ import numpy as np
 from legws_daemon.core.certificate import certify_batch
 from legws_daemon.core.params import Params
 from legws_daemon.design.optimize import optimize
-from legws_daemon.formats.layout_file import load_layout
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
+from legws_daemon.scene.layout_file import load_layout
 from legws_daemon.sim.evaluate import run_eval
 
 TIERS = {

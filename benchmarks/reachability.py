@@ -7,7 +7,7 @@
   to 10^5; the cost of a lookup does not depend on which layout it is), medians over
   repeats, with and without computing the grasp poses.
 * Agreement, per grasp, on random feasible layouts of ``meal_assembly`` and ``desk``:
-  the screen against the full :func:`~legws_daemon.sim.feasibility.check_grasps` (IK from
+  the screen against the full :func:`~legws_daemon.robot.feasibility.check_grasps` (IK from
   home and restarts, no contact with the table or any other object), and against the
   same check with every object moved away ("reach": IK and the table only, what the map
   stands for). Counts: both feasible, neither, screen-only (the screen passes a grasp
@@ -37,16 +37,16 @@ import numpy as np
 from timing import median_seconds
 from tqdm import tqdm
 
+from legws_daemon.robot import reachability
+from legws_daemon.robot.assets import assets_dir
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.reachability import DEFAULT_GRID, ReachabilityMap
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.grasps import GRASP_KINDS
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim import reachability
-from legws_daemon.sim.assets import assets_dir
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.reachability import DEFAULT_GRID, ReachabilityMap
-from legws_daemon.sim.world import World
 
 LOOKUP_SCENES = ("cluttered", "meal_assembly")
 AGREEMENT_SCENES = ("meal_assembly", "desk")

@@ -42,9 +42,9 @@ def main() -> None:
     # Episodes on the MuJoCo stand-in: one process, meal_assembly's default layout. Measured
     # first: after the large BLAS calls below, OpenBLAS threads keep spinning for a while and
     # slow the many small solves of a tick by half.
+    from legws_daemon.robot.kinematics import home_configuration
+    from legws_daemon.robot.world import World
     from legws_daemon.sim.episode import run_episode
-    from legws_daemon.sim.kinematics import home_configuration
-    from legws_daemon.sim.world import World
 
     meal = load_scene("meal_assembly")
     world = World(meal)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from legws_daemon.errors import InputError
-from legws_daemon.sim import assets
+from legws_daemon.robot import assets
 
 
 @click.group("assets")
@@ -40,10 +40,10 @@ def fetch_cmd(force: bool) -> None:
 )
 def reachability_cmd(scene_name: str) -> None:
     """Build (once) and cache the reachability map the optimiser screens grasps with."""
+    from legws_daemon.robot.kinematics import home_configuration
+    from legws_daemon.robot.reachability import cache_key, load_or_build
+    from legws_daemon.robot.world import World
     from legws_daemon.scene.catalog import load_scene
-    from legws_daemon.sim.kinematics import home_configuration
-    from legws_daemon.sim.reachability import cache_key, load_or_build
-    from legws_daemon.sim.world import World
 
     scene = load_scene(scene_name)
     world = World(scene)

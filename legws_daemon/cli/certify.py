@@ -15,9 +15,9 @@ from legws_daemon.core.montecarlo import CONFIDENCE, GoalAccuracy, monte_carlo
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
-from legws_daemon.formats.layout_file import dump_json, load_layout
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
+from legws_daemon.scene.layout_file import dump_json, load_layout
 
 
 def certificate_report(

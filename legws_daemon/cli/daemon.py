@@ -12,16 +12,16 @@ from types import FrameType
 import click
 
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
-from legws_daemon.design.plan import Plan
 from legws_daemon.errors import InputError
-from legws_daemon.formats.layout_file import load_layout
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
+from legws_daemon.scene.layout_file import load_layout
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.transport.session import config_from_file, config_from_spec
 
 
@@ -32,7 +32,7 @@ def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
         from legws_daemon.design.stage_plan import plan_taskgraph
 
         return plan_taskgraph(graph, scene)
-    from legws_daemon.formats.plan_file import load_plan
+    from legws_daemon.task.plan_file import load_plan
 
     path = Path(arg)
     plan = load_plan(path / "plan.json" if path.is_dir() else path, scene)

@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from legws_daemon.formats.profile import load_profile_named
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 
 @click.command("demo")

@@ -63,9 +63,9 @@ def eval_cmd(
     from tqdm import tqdm
 
     from legws_daemon.formats.files import write_atomic
-    from legws_daemon.formats.layout_file import load_layout
     from legws_daemon.scene.catalog import load_scene
     from legws_daemon.scene.constraints import require_feasible
+    from legws_daemon.scene.layout_file import load_layout
     from legws_daemon.sim.evaluate import markdown, random_layouts, run_eval
 
     scene = load_scene(scene_name)

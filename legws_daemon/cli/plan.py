@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from legws_daemon.design import METHODS
-from legws_daemon.design.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
+from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
 
 def _j(value: float | None) -> str:
@@ -102,8 +102,8 @@ def plan_cmd(
     PNG per decision; results are cached by the graph file, the scene file and the settings.
     """
     from legws_daemon.design.stage_plan import plan_taskgraph
-    from legws_daemon.formats.plan_file import plan_to_data
-    from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+    from legws_daemon.task.plan_file import plan_to_data
+    from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
     graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))
     if out_dir is None and no_cache:

@@ -8,10 +8,10 @@ from pathlib import Path
 import click
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.layout_file import load_layout
 from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.layout_file import load_layout
 
-#: Largest picture side, pixels (kept in step with ``legws_daemon.sim.render.MAX_SIZE``).
+#: Largest picture side, pixels (kept in step with ``legws_daemon.robot.render.MAX_SIZE``).
 MAX_SIZE = 4096
 
 
@@ -56,7 +56,7 @@ def render_cmd(
     layout = load_layout(layout_file, sc) if layout_file else None
 
     # mujoco and the GL stack load only here: the other commands never pay for them
-    from legws_daemon.sim.render import render_layout, save_png
+    from legws_daemon.robot.render import render_layout, save_png
 
     start = time.perf_counter()
     image = render_layout(sc, layout, width, height, "top" if view == "top" else "perspective")

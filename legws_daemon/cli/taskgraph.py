@@ -8,9 +8,9 @@ import click
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import Stage, TaskGraph
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 
 def _plural(n: int, word: str) -> str:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from legws_daemon.core.geometry import FloatArray, axis_rotation, rotation_angle
-from legws_daemon.sim.feasibility import symmetric_rotations
+from legws_daemon.robot.feasibility import symmetric_rotations
 
 #: The pre-grasp pose stands this far back along the approach axis, metres.
 PREGRASP_DISTANCE = 0.08

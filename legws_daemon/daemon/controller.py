@@ -70,13 +70,13 @@ from legws_daemon.daemon.assist import (
     set_down_plan,
 )
 from legws_daemon.daemon.inbox import Sample
-from legws_daemon.design.plan import Plan
 from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
 from legws_daemon.task.runner import TaskRun, scene_graph
 from legws_daemon.task.targets import MAX_SET_DOWN_DROP, Held, Target, goal_set, held_object
 

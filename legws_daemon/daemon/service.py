@@ -49,7 +49,6 @@ from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
-from legws_daemon.design.plan import Plan
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.messages import (
     CommandRequest,
@@ -60,12 +59,13 @@ from legws_daemon.formats.messages import (
     parse,
 )
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.hardware.base import Adapter, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.transport.session import keys, open_session
 
 log = logging.getLogger("legws.daemon")

@@ -12,13 +12,13 @@ import numpy as np
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller
 from legws_daemon.daemon.inbox import JoystickInbox
-from legws_daemon.design.plan import Plan
 from legws_daemon.formats.messages import StatusMessage
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
 
 #: A run that has not finished after this many ticks (15 simulated minutes) is stopped.
 TICK_LIMIT = 18_000

@@ -30,13 +30,13 @@ from legws_daemon.design.search import GRID, SearchResult, search
 from legws_daemon.errors import InfeasibleError, LegwsError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
-from legws_daemon.formats.layout_file import dump_json, layout_to_data
+from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.reachability import load_or_build
+from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET, World
+from legws_daemon.scene.layout_file import dump_json, layout_to_data
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.assets import sawyer_dir
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.reachability import load_or_build
-from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET, World
 
 #: Elites tried, best first, before giving up on finding one that passes the full check.
 MAX_VERIFIED = 60
@@ -190,7 +190,7 @@ def optimize(
     write_atomic(out_dir / "archive.png", heatmap_png(result))
     if render:
         try:
-            from legws_daemon.sim.render import render_layout, save_png
+            from legws_daemon.robot.render import render_layout, save_png
 
             save_png(render_layout(scene, layout, 800, 600, "top"), out_dir / "best_layout.png")
         except LegwsError as err:  # no GL here: the numbers still stand

@@ -24,14 +24,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from legws_daemon.design.plan import Plan
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
-from legws_daemon.formats.plan_file import load_plan
+from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.assets import sawyer_dir
-from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
+from legws_daemon.task.plan_file import load_plan
 
 PLAN_FILE = "plan.json"
 #: A PNG file starts with this signature and ends with an ``IEND`` chunk (and its CRC).

@@ -1,6 +1,6 @@
 """The picture of one planned decision: the top view of its layout with its targets marked.
 
-:func:`~legws_daemon.sim.render.render_layout` draws a grasp marker on each of the
+:func:`~legws_daemon.robot.render.render_layout` draws a grasp marker on each of the
 scene's candidate goals; here they are the decision's candidates that are objects (a
 place or dip target sits right above its object's marker). Every target, places such as
 the feeding scene's mouth included, then gets a labelled ring drawn over the picture at
@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from PIL import Image, ImageDraw
 
+from legws_daemon.robot.render import render_layout, top_pixel
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim.render import render_layout, top_pixel
 from legws_daemon.task.targets import Target
 
 WIDTH, HEIGHT = 800, 600

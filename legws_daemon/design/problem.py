@@ -33,9 +33,9 @@ from legws_daemon.core.certificate import certify_batch
 from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.robot.reachability import ReachabilityMap
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
-from legws_daemon.sim.reachability import ReachabilityMap
 
 #: Penalty per metre of constraint violation (1 cm costs 1 unit of slack).
 CONSTRAINT_WEIGHT = 100.0

@@ -22,8 +22,8 @@ import numpy as np
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.design.problem import GoalModel, GoalPoses
 from legws_daemon.errors import LegwsError
+from legws_daemon.robot.reachability import ReachabilityMap
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.reachability import ReachabilityMap
 from legws_daemon.task.decisions import DecisionPoint
 from legws_daemon.task.targets import target
 

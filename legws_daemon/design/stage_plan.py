@@ -42,7 +42,6 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.design import METHODS
 from legws_daemon.design.optimize import check_capacity
-from legws_daemon.design.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
 from legws_daemon.design.plan_cache import (
     PLAN_FILE,
     copy_out,
@@ -56,14 +55,15 @@ from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_goals import TargetGoals
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.files import write_atomic
-from legws_daemon.formats.plan_file import dump_plan
+from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds, symmetric_rotations
+from legws_daemon.robot.kinematics import home_configuration, solve_ik
+from legws_daemon.robot.reachability import ReachabilityMap, load_or_build
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds, symmetric_rotations
-from legws_daemon.sim.kinematics import home_configuration, solve_ik
-from legws_daemon.sim.reachability import ReachabilityMap, load_or_build
-from legws_daemon.sim.world import World
 from legws_daemon.task.decisions import DecisionPoint, decision_points
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
+from legws_daemon.task.plan_file import dump_plan
 from legws_daemon.task.targets import Target, goal_set, target
 
 #: Elites tried, best first, before the plan gives up on a decision's full check.

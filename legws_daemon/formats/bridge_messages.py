@@ -8,7 +8,7 @@ are JSON with ``"schema": 1``, validated on receipt; a payload that does not val
 
 The constants below are the contract's limits. The standalone robot-side program
 (``bridge/intera_bridge.py``) repeats them, and the tests check both copies against the
-kinematic model (:mod:`legws_daemon.sim.world`).
+kinematic model (:mod:`legws_daemon.robot.world`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from legws_daemon.formats.validation import Finite, field_error
 
 #: Intera's joint names, in the order of every joint vector on the wire.
 JOINT_NAMES: tuple[str, ...] = tuple(f"right_j{i}" for i in range(7))
-#: Joint speed limits, rad/s (Intera specification; same as ``sim.world.JOINT_SPEED_LIMITS``).
+#: Joint speed limits, rad/s (Intera specification; same as ``robot.world.JOINT_SPEED_LIMITS``).
 JOINT_SPEED_LIMITS: tuple[float, ...] = (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545)
 #: Joint position limits, rad (the Sawyer description's ranges).
 JOINT_LOWER: tuple[float, ...] = (-3.0503, -3.8095, -3.0426, -3.0439, -2.9761, -2.9761, -4.7124)

@@ -9,7 +9,7 @@ pose) and which movable objects form the default set of candidate goals.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -35,7 +35,11 @@ from legws_daemon.formats.validation import (
     read_toml,
     validate,
 )
-from legws_daemon.scene.grasps import GraspKind, Shape
+
+GraspKind = Literal["top", "side"]
+GRASP_KINDS: tuple[str, ...] = get_args(GraspKind)
+Shape = Literal["box", "cylinder", "sphere"]
+SHAPES: tuple[str, ...] = get_args(Shape)
 
 SCHEMA_VERSION = 1
 _SIZE_LEN = {"box": 3, "cylinder": 2, "sphere": 1}

@@ -23,7 +23,7 @@ from legws_daemon.safety.envelope import Box, clamp_ee_velocity
 from legws_daemon.scene.scene import ObjectPose, Scene
 
 if TYPE_CHECKING:
-    from legws_daemon.sim.world import World
+    from legws_daemon.robot.world import World
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +99,7 @@ class Adapter(ABC):
         """Origins ``(K, 3)`` and rotations ``(K, 3, 3)`` of the arm's links at ``q``
         (from a kinematic model of the robot; for drawing)."""
         if self._kinematics is None:
-            from legws_daemon.sim.world import World  # compiled once, ~20 ms
+            from legws_daemon.robot.world import World  # compiled once, ~20 ms
 
             self._kinematics = World(self.scene, visual=False)
         return self._kinematics.link_poses(q)

@@ -31,9 +31,9 @@ from legws_daemon.formats.bridge_messages import (
     parse_command,
 )
 from legws_daemon.formats.messages import dump
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
 
 #: Time the fake gripper takes to open or close, s.
 GRIPPER_TIME = 0.2

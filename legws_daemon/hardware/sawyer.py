@@ -5,7 +5,7 @@ fake_bridge` without a robot) publishes joint states on ``legws/<robot>/bridge/s
 applies joint velocity commands from ``legws/<robot>/bridge/command`` (contract:
 ``docs/bridge.md``). The adapter keeps a kinematic model of the Sawyer to turn the measured
 joint angles into the EE pose, and an EE velocity into joint velocities with mink's
-differential IK (:class:`~legws_daemon.sim.mink_ik.MinkVelocityIK`: a QP whose joint speed
+differential IK (:class:`~legws_daemon.robot.mink_ik.MinkVelocityIK`: a QP whose joint speed
 and position limits are hard constraints, so the twist is tracked as well as they allow).
 A solver failure is not covered up by another method: the command raises, and the daemon
 halts the arm and reports the fault.
@@ -38,12 +38,12 @@ from legws_daemon.formats.messages import dump
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
 from legws_daemon.hardware.sim import ORIENTATION_GAIN
+from legws_daemon.robot.kinematics import small_rotation_error
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.kinematics import small_rotation_error
-from legws_daemon.sim.world import World
 
 if TYPE_CHECKING:
-    from legws_daemon.sim.mink_ik import MinkVelocityIK
+    from legws_daemon.robot.mink_ik import MinkVelocityIK
 
 #: Zero-velocity commands sent by :meth:`SawyerAdapter.disconnect`, and their spacing (s).
 STOP_REPEATS = 3
@@ -116,7 +116,7 @@ class SawyerAdapter(Adapter):
             self._fk = World(self.scene, visual=False)
         if self._ik is None:
             # imported here: mink and qpsolvers add ~0.25 s to the import, for this adapter only
-            from legws_daemon.sim.mink_ik import MinkVelocityIK
+            from legws_daemon.robot.mink_ik import MinkVelocityIK
 
             self._ik = MinkVelocityIK(self._fk)
         with self._lock:

@@ -21,10 +21,10 @@ from legws_daemon.core.geometry import FloatArray, matrix_to_quat, quat_to_matri
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, register
+from legws_daemon.robot.kinematics import home_configuration, small_rotation_error, velocity_step
+from legws_daemon.robot.world import World
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim.kinematics import home_configuration, small_rotation_error, velocity_step
-from legws_daemon.sim.world import World
 
 #: Gain holding the EE orientation, 1/s.
 ORIENTATION_GAIN = 2.0

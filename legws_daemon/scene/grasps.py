@@ -23,17 +23,14 @@ half turn (2): the fingers swap.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, rot_z
-
-GraspKind = Literal["top", "side"]
-GRASP_KINDS: tuple[str, ...] = get_args(GraspKind)
-Shape = Literal["box", "cylinder", "sphere"]
-SHAPES: tuple[str, ...] = get_args(Shape)
+from legws_daemon.formats.scene_file import GRASP_KINDS as GRASP_KINDS
+from legws_daemon.formats.scene_file import SHAPES as SHAPES
+from legws_daemon.formats.scene_file import GraspKind, Shape
 
 #: How far the fingertips reach over the object's surface, metres.
 FINGER_DEPTH = 0.02

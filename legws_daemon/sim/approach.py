@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
-from legws_daemon.sim.feasibility import symmetric_rotations
-from legws_daemon.sim.kinematics import rotation_error, solve_ik, velocity_step
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.feasibility import symmetric_rotations
+from legws_daemon.robot.kinematics import rotation_error, solve_ik, velocity_step
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
 
 #: Speed of the autonomous approach, m/s, and its angular speed, rad/s.
 APPROACH_SPEED = 0.10

@@ -19,8 +19,8 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import Params
-from legws_daemon.sim.kinematics import small_rotation_error, velocity_step
-from legws_daemon.sim.world import World
+from legws_daemon.robot.kinematics import small_rotation_error, velocity_step
+from legws_daemon.robot.world import World
 
 #: Episode limit of the paper's protocol, seconds.
 TIMEOUT_S = 30.0

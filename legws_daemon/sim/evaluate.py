@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from legws_daemon.core.params import Params
-from legws_daemon.formats.layout_file import layout_to_data
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
+from legws_daemon.scene.layout_file import layout_to_data
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.sim.protocol import Evaluator, Pick, metrics
 from legws_daemon.workers import worker_context

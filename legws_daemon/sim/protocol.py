@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from legws_daemon.core.params import Params
+from legws_daemon.robot.feasibility import GraspCheck, check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.sim.episode import EpisodeResult, run_episode
-from legws_daemon.sim.feasibility import GraspCheck, check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
 
 #: Most pick orders per layout (the paper samples 120 for M >= 5).
 MAX_ORDERS = 120

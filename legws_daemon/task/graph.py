@@ -52,7 +52,7 @@ class Stage:
 
 @dataclass(frozen=True, slots=True)
 class TaskGraph:
-    """A validated task graph (see :func:`legws_daemon.formats.taskgraph_file.load_taskgraph`).
+    """A validated task graph (see :func:`legws_daemon.task.taskgraph_file.load_taskgraph`).
 
     Attributes:
         name: the graph's name (its file's stem).

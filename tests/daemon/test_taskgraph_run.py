@@ -13,10 +13,10 @@ from legws_daemon.core.params import Params
 from legws_daemon.daemon.controller import Controller
 from legws_daemon.daemon.inbox import JoystickInbox, Sample
 from legws_daemon.formats.profile import ProfileSpec, load_profile
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Scene
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
 

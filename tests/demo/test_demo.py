@@ -18,10 +18,10 @@ from legws_daemon.daemon.controller import Controller
 from legws_daemon.demo.inprocess import run_inprocess
 from legws_daemon.demo.run import summarise
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser
 from legws_daemon.scene.scene import Scene
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.telemetry.recording import read_text_log
 from tests.daemon.procs import rerun_exe
 

@@ -11,12 +11,12 @@ import pytest
 from legws_daemon.cli.main import run
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import METHODS, search
-from legws_daemon.formats.layout_file import load_layout
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
+from legws_daemon.scene.layout_file import load_layout
 
 
 def optimize(tmp_path: Path, *args: str) -> dict[str, object]:

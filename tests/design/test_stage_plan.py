@@ -14,24 +14,24 @@ from PIL import Image
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.params import Params
 from legws_daemon.design import stage_plan
-from legws_daemon.design.plan import Plan
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_goals import TargetGoals
 from legws_daemon.design.stage_plan import plan_taskgraph
 from legws_daemon.errors import InputError
-from legws_daemon.formats.plan_file import load_plan
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.render import RenderUnavailableError
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.render import RenderUnavailableError
-from legws_daemon.sim.world import World
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
+from legws_daemon.task.plan_file import load_plan
 from legws_daemon.task.targets import goal_set, target
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 GRAPHS = ("tea", "lego", "feeding")
 ITERATIONS = 20

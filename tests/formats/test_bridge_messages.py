@@ -24,9 +24,9 @@ from legws_daemon.formats.bridge_messages import (
     parse_state,
 )
 from legws_daemon.formats.messages import dump
+from legws_daemon.robot.world import ARM_JOINTS, World
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS as MODEL_SPEED_LIMITS
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.world import ARM_JOINTS, World
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS as MODEL_SPEED_LIMITS
 
 STATE = {
     "schema": 1,

@@ -16,7 +16,7 @@ from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import goalset_from_data, goalset_to_data, load_goalset
-from legws_daemon.formats.layout_file import dump_json
+from legws_daemon.scene.layout_file import dump_json
 from tests.cli.helpers import EXAMPLE_GOALSET
 
 X0 = {"position": [0.55, 0.0, 0.30], "quaternion": [0, 1, 0, 0]}

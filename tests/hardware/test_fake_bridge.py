@@ -25,9 +25,9 @@ from legws_daemon.formats.bridge_messages import (
     parse_state,
 )
 from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.world import World
 from tests.hardware.helpers import peers, wait_for
 
 KEYS = bridge_keys("sawyer")

@@ -21,9 +21,9 @@ from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.base import Adapter, adapter_class
 from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.hardware.sawyer import STOP_REPEATS, SawyerAdapter
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.world import World
 from tests.hardware.helpers import peers, wait_for
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"

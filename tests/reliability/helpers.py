@@ -28,10 +28,10 @@ from legws_daemon.errors import LegwsError
 from legws_daemon.formats.messages import StatusMessage
 from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
 
 T = TypeVar("T")
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"

@@ -30,20 +30,20 @@ import numpy as np
 import pytest
 
 from legws_daemon.design import stage_plan
-from legws_daemon.design.plan import Plan, image_name
 from legws_daemon.design.plan_cache import PLAN_FILE, load_cached, publish
 from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_plan import plan_taskgraph
 from legws_daemon.errors import InputError
-from legws_daemon.formats.plan_file import dump_plan, load_plan
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.robot import reachability
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.reachability import ReachabilityGrid, ReachabilityMap, build, load_or_build
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from legws_daemon.sim import reachability
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.reachability import ReachabilityGrid, ReachabilityMap, build, load_or_build
-from legws_daemon.sim.world import World
 from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan, image_name
+from legws_daemon.task.plan_file import dump_plan, load_plan
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 REPO = Path(__file__).parents[2]
 #: A 3 x 3 cell patch in front of the robot, 4 yaws, one height: builds in ~0.2 s.

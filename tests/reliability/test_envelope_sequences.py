@@ -30,12 +30,12 @@ from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
 from legws_daemon.errors import InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
+from legws_daemon.robot.kinematics import LIMIT_MARGIN, home_configuration
+from legws_daemon.robot.mink_ik import MinkVelocityIK
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
 from legws_daemon.safety.envelope import clamp_ee_velocity
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.sim.kinematics import LIMIT_MARGIN, home_configuration
-from legws_daemon.sim.mink_ik import MinkVelocityIK
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
 from tests.reliability.helpers import (
     TALLIES,
     Rig,

@@ -28,12 +28,12 @@ from hypothesis import strategies as st
 from legws_daemon.cli.main import run
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.goalset import load_goalset
-from legws_daemon.formats.layout_file import layout_to_data, load_layout
-from legws_daemon.formats.plan_file import load_plan, plan_to_data
 from legws_daemon.formats.profile import load_profile, profiles_dir
-from legws_daemon.formats.taskgraph_file import load_taskgraph, taskgraphs_dir
 from legws_daemon.scene.catalog import load_scene, scenes_dir
+from legws_daemon.scene.layout_file import layout_to_data, load_layout
 from legws_daemon.scene.scene import Scene
+from legws_daemon.task.plan_file import load_plan, plan_to_data
+from legws_daemon.task.taskgraph_file import load_taskgraph, taskgraphs_dir
 from tests.cli.helpers import EXAMPLE_GOALSET, Result, assert_bad_input
 from tests.formats.helpers import toml_dumps
 from tests.formats.test_plan_file import feeding_plan

@@ -10,13 +10,13 @@ import pytest
 
 from legws_daemon.cli.main import run
 from legws_daemon.core.params import Params
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
 from legws_daemon.sim.episode import ARRIVAL_TOLERANCE, run_episode
 from legws_daemon.sim.evaluate import random_layouts, run_eval
-from legws_daemon.sim.kinematics import home_configuration
 from legws_daemon.sim.protocol import Evaluator, pick_orders
-from legws_daemon.sim.world import World
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Offscreen pictures of a scene layout: a top-down and a perspective view.
 
-The world is composed with the robot's meshes (:class:`~legws_daemon.sim.world.World`),
+The world is composed with the robot's meshes (:class:`~legws_daemon.robot.world.World`),
 the arm is put at the EE home pose, and the grasp pose of every candidate goal is drawn
 as a small marker: a dot at the grasp point, a stem back along the approach axis and a
 bar across the closing direction at the stem's end (a stylised open gripper). Collision
@@ -226,8 +226,8 @@ def render_layout(
     if not (1 <= width <= MAX_SIZE and 1 <= height <= MAX_SIZE):
         raise ValueError(f"image size must be within 1..{MAX_SIZE} pixels")
     mujoco = _import_mujoco()
-    from legws_daemon.sim.kinematics import home_configuration
-    from legws_daemon.sim.world import World
+    from legws_daemon.robot.kinematics import home_configuration
+    from legws_daemon.robot.world import World
 
     poses = scene.poses(layout)
     world = World(scene, visual=True)

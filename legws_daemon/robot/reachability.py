@@ -1,7 +1,7 @@
 """Reachability map: a cheap screen of grasp feasibility, computed once per robot model.
 
 A layout optimiser evaluates ~10^5 layouts per scene, far too many for the full IK and
-collision check of :mod:`legws_daemon.sim.feasibility` (about a millisecond per grasp). The
+collision check of :mod:`legws_daemon.robot.feasibility` (about a millisecond per grasp). The
 map answers "can the arm reach this grasp without touching the table?" by a table lookup:
 for each grasp kind, a boolean grid over the grasp point's height above the table, the yaw
 of the grasp frame about world z, and the grasp point's ``x``, ``y`` (robot base frame).
@@ -16,7 +16,7 @@ both kinds: a bijection. Grid cell
 frame's y axis up.
 
 Symmetric equivalents (turns about the approach axis, as in
-:func:`~legws_daemon.sim.feasibility.symmetric_rotations`):
+:func:`~legws_daemon.robot.feasibility.symmetric_rotations`):
 
 * top grasps: a turn about the vertical approach axis is a change of yaw, so a grasp of
   symmetry ``n`` is reachable when any yaw ``psi + 2 pi k / n`` is (``n = 0``: any yaw bin);
@@ -28,9 +28,9 @@ Symmetric equivalents (turns about the approach axis, as in
   vertically) are not mapped and count as unreachable.
 
 A cell is reachable when damped least-squares IK (the iteration of
-:func:`~legws_daemon.sim.kinematics.solve_ik`, run for many cells at once in numpy) ends
-within :data:`~legws_daemon.sim.feasibility.TOL_POSITION` and
-:data:`~legws_daemon.sim.feasibility.TOL_ROTATION` with the arm touching no table, from
+:func:`~legws_daemon.robot.kinematics.solve_ik`, run for many cells at once in numpy) ends
+within :data:`~legws_daemon.robot.feasibility.TOL_POSITION` and
+:data:`~legws_daemon.robot.feasibility.TOL_ROTATION` with the arm touching no table, from
 one of the full check's seeds (home, then its fixed restarts) or warm started from a
 neighbouring cell's solution (:func:`build`). Objects are moved out of the way while
 building: clearance to objects is the optimiser's business.
@@ -65,12 +65,12 @@ from numpy.typing import ArrayLike, NDArray
 from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.files import write_atomic
+from legws_daemon.robot.assets import assets_dir, sawyer_dir
+from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
+from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
+from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET, World
 from legws_daemon.scene.grasps import GRASP_KINDS, SIDE_MIN_HEIGHT, derive_grasp
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim.assets import assets_dir, sawyer_dir
-from legws_daemon.sim.batch_kinematics import BatchKinematics, batch_ik
-from legws_daemon.sim.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
-from legws_daemon.sim.world import FINGER_GAP, TCP_OFFSET, World
 
 BoolArray = NDArray[np.bool_]
 log = logging.getLogger("legws.reachability")
@@ -115,7 +115,7 @@ class ReachabilityGrid:
             would still have converged.
         warm_iterations: IK iterations of a warm start from a neighbouring cell's solution.
         restart_iterations: IK iterations from each further seed of the full check
-            (:func:`~legws_daemon.sim.feasibility.ik_seeds`); ~95 % of those that succeed
+            (:func:`~legws_daemon.robot.feasibility.ik_seeds`); ~95 % of those that succeed
             within 200 do within 30.
         inner_tolerance: IK stops iterating once within this fraction of the feasibility
             tolerances (the full check uses 1/5); it then needs to be within them.
@@ -540,7 +540,7 @@ def build(
     1. every cell from the home configuration, as the full check's first attempt;
     2. warm starts: an unsolved cell next to a solved one starts from that cell's
        solution (few iterations), repeated while cells are added;
-    3. the full check's restarts (:func:`~legws_daemon.sim.feasibility.ik_seeds`) on the
+    3. the full check's restarts (:func:`~legws_daemon.robot.feasibility.ik_seeds`) on the
        unsolved cells next to solved ones, then back to 2 while cells are added.
 
     Cells far inside an unreachable region are thus never retried (most of the cost of

@@ -5,14 +5,14 @@ Each call solves one small quadratic program (mink, solver daqp) for the joint d
 
 - a ``FrameTask`` on the ``ee`` site, whose target is the pose the twist reaches in ``dt``
   (position ``p + v dt``, orientation ``exp([w] dt) R``, both in the world frame);
-- a low-weight ``PostureTask`` toward a posture (default :data:`~legws_daemon.sim.kinematics.
+- a low-weight ``PostureTask`` toward a posture (default :data:`~legws_daemon.robot.kinematics.
   READY_POSTURE`, the wrist roll held where it is), moved a fraction ``POSTURE_GAIN * dt``
   of the way per call: it resolves the arm's redundancy and is the only regularisation;
 - a ``ConfigurationLimit`` ``LIMIT_MARGIN`` inside the joint range (a joint covers at most
   95 % of its remaining distance to that band per period) and a ``VelocityLimit`` at
-  :data:`~legws_daemon.sim.world.JOINT_SPEED_LIMITS`: hard constraints, so the answer tracks
+  :data:`~legws_daemon.robot.world.JOINT_SPEED_LIMITS`: hard constraints, so the answer tracks
   the twist as well as the limits allow, up to the small posture weight (unlike
-  :func:`~legws_daemon.sim.kinematics.velocity_step`, which stops a joint that would pass
+  :func:`~legws_daemon.robot.kinematics.velocity_step`, which stops a joint that would pass
   its limit and scales the whole motion down uniformly for the speed limits).
 
 A joint already outside the margin band (e.g. at its hardware stop) is not driven further
@@ -35,15 +35,15 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InfeasibleError, InputError, LegwsError
-from legws_daemon.sim.kinematics import LIMIT_MARGIN, POSTURE_GAIN, READY_POSTURE
-from legws_daemon.sim.world import ARM_JOINTS, JOINT_SPEED_LIMITS, PREFIX, World
+from legws_daemon.robot.kinematics import LIMIT_MARGIN, POSTURE_GAIN, READY_POSTURE
+from legws_daemon.robot.world import ARM_JOINTS, JOINT_SPEED_LIMITS, PREFIX, World
 
 #: Weights of the EE position (1/m) and orientation (1/rad) errors in the QP objective.
 POSITION_COST = 1.0
 ORIENTATION_COST = 1.0
 #: Weight of the posture task (1/rad). It is the QP's only regularisation: it acts like a
 #: damped least-squares damping of this size in the task's range (0.02 would match
-#: :data:`~legws_daemon.sim.kinematics.DAMPING` and track no better than ``velocity_step``),
+#: :data:`~legws_daemon.robot.kinematics.DAMPING` and track no better than ``velocity_step``),
 #: while its pull in the null space does not depend on it. 0.005 tracks the twist to ~0.2 %
 #: (median) away from limits and lets the speed limits bound the motion near singularities.
 POSTURE_COST = 0.005

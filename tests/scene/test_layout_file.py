@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.layout_file import (
+from legws_daemon.scene.layout_file import (
     dump_json,
     layout_from_data,
     layout_to_data,

@@ -10,14 +10,11 @@ import pytest
 
 from legws_daemon.core.geometry import Pose, matrix_to_quat, rot_z
 from legws_daemon.core.goals import GoalSet
-from legws_daemon.scene.catalog import load_scene
-from legws_daemon.scene.grasps import derive_grasp
-from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.sim import reachability
-from legws_daemon.sim.batch_kinematics import batch_ik
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration, solve_ik
-from legws_daemon.sim.reachability import (
+from legws_daemon.robot import reachability
+from legws_daemon.robot.batch_kinematics import batch_ik
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration, solve_ik
+from legws_daemon.robot.reachability import (
     ReachabilityGrid,
     ReachabilityMap,
     base_rotation,
@@ -25,7 +22,10 @@ from legws_daemon.sim.reachability import (
     grasp_yaw,
     load_or_build,
 )
-from legws_daemon.sim.world import World
+from legws_daemon.robot.world import World
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.grasps import derive_grasp
+from legws_daemon.scene.scene import ObjectPose
 
 SMALL = ReachabilityGrid(
     x_range=(0.5, 0.8),

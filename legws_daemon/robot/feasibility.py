@@ -16,9 +16,9 @@ import numpy as np
 
 from legws_daemon.core.geometry import FloatArray, rot_z, rotation_angle
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.robot.kinematics import solve_ik
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.sim.kinematics import solve_ik
-from legws_daemon.sim.world import World
 
 #: Samples of a continuous symmetry (symmetry 0) tried by IK.
 CONTINUOUS_SAMPLES = 8

@@ -1,7 +1,7 @@
 """A stage-specific layout plan of a task graph: one layout per decision point.
 
 Produced by :func:`legws_daemon.design.stage_plan.plan_taskgraph`, written as
-``plan.json`` and read back by :func:`legws_daemon.formats.plan_file.load_plan`.
+``plan.json`` and read back by :func:`legws_daemon.task.plan_file.load_plan`.
 """
 
 from __future__ import annotations

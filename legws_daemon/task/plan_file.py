@@ -28,9 +28,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, model_validator
 
-from legws_daemon.design.plan import SCHEMA, Plan, PlannedDecision, image_name
 from legws_daemon.errors import InputError
-from legws_daemon.formats.layout_file import dump_json, layout_to_data
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
@@ -40,7 +38,9 @@ from legws_daemon.formats.validation import (
     read_json,
     validate,
 )
+from legws_daemon.scene.layout_file import dump_json, layout_to_data
 from legws_daemon.scene.scene import ObjectPose, Scene
+from legws_daemon.task.plan import SCHEMA, Plan, PlannedDecision, image_name
 
 Label = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*(\|[a-z][a-z0-9_]*)*$", max_length=400)]
 

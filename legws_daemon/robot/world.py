@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat
+from legws_daemon.robot.assets import sawyer_dir
 from legws_daemon.scene.scene import ObjectPose, Scene
-from legws_daemon.sim.assets import sawyer_dir
 
 PREFIX = "sawyer/"
 ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from legws_daemon.errors import InputError
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene, scene_names
 from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
 
 
 @pytest.mark.parametrize("name", scene_names())

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InfeasibleError
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
 
 #: Damping of the least-squares solve (m, rad): keeps steps bounded near singularities.
 DAMPING = 0.02

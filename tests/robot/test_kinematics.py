@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 
 from legws_daemon.core.geometry import symmetric_angle
-from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.approach import approach
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import (
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import (
     home_configuration,
     rotation_error,
     small_rotation_error,
     solve_ik,
     velocity_step,
 )
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.sim.approach import approach
 
 
 @pytest.fixture(scope="module")

@@ -9,11 +9,11 @@ from typing import Any
 
 import pytest
 
-from legws_daemon.design.plan import Plan, PlannedDecision, image_name
 from legws_daemon.errors import InputError
-from legws_daemon.formats.plan_file import dump_plan, load_plan, plan_to_data
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
+from legws_daemon.task.plan import Plan, PlannedDecision, image_name
+from legws_daemon.task.plan_file import dump_plan, load_plan, plan_to_data
 
 
 def feeding_plan() -> Plan:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene, scene_names
 from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.sim.feasibility import check_grasps
-from legws_daemon.sim.kinematics import home_configuration
-from legws_daemon.sim.world import World
 
 
 def world_of(name: str) -> tuple[World, np.ndarray]:

@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 
 from legws_daemon.cli.main import run
+from legws_daemon.robot.render import top_pixel
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.render import top_pixel
 from tests.cli.helpers import LEGWS, Result, assert_bad_input
 
 #: The red block of ``cluttered`` (scene file): colour, default position, a free spot.

@@ -1,4 +1,4 @@
-"""mink's differential IK (``sim/mink_ik.py``) on the real MuJoCo Sawyer model.
+"""mink's differential IK (``robot/mink_ik.py``) on the real MuJoCo Sawyer model.
 
 Tracking (``J dq = twist`` and finite differences), exact joint limits (a hypothesis
 property over twists up to 1000 m/s), zero and invalid commands, and a comparison with the
@@ -15,16 +15,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from legws_daemon.errors import InputError, LegwsError
-from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.kinematics import (
+from legws_daemon.robot.kinematics import (
     LIMIT_MARGIN,
     READY_POSTURE,
     home_configuration,
     rotation_error,
     velocity_step,
 )
-from legws_daemon.sim.mink_ik import MinkVelocityIK
-from legws_daemon.sim.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.mink_ik import MinkVelocityIK
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.scene.catalog import load_scene
 
 DT = 0.05  # the daemon's control period at 20 Hz
 #: Random configurations stay this far inside the joint range (no position limit near).

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.taskgraph_file import load_taskgraph, resolve_taskgraph, taskgraphs_dir
+from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph, taskgraphs_dir
 
 GOOD = """schema_version = 1
 name = "{name}"

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
+from legws_daemon.robot.kinematics import home_configuration, solve_ik
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.batch_kinematics import BatchKinematics, batch_ik
-from legws_daemon.sim.kinematics import home_configuration, solve_ik
-from legws_daemon.sim.world import World
 
 
 def test_forward_kinematics_and_jacobian_match_mujoco() -> None:

@@ -16,10 +16,10 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, axis_rotation
 from legws_daemon.errors import LegwsError
-from legws_daemon.sim.kinematics import LIMIT_MARGIN
-from legws_daemon.sim.world import World
+from legws_daemon.robot.kinematics import LIMIT_MARGIN
+from legws_daemon.robot.world import World
 
-#: Damping of the IK's least-squares step, as in :func:`~legws_daemon.sim.kinematics.solve_ik`.
+#: Damping of the IK's least-squares step, as in :func:`~legws_daemon.robot.kinematics.solve_ik`.
 IK_DAMPING = 0.05
 #: Largest Cartesian step per IK iteration (m, rad), as in ``solve_ik``.
 IK_MAX_STEP = (0.05, 0.3)
@@ -131,7 +131,7 @@ class BatchKinematics:
 
 
 def batch_rotation_error(R: FloatArray, target: FloatArray) -> FloatArray:
-    """Batched :func:`~legws_daemon.sim.kinematics.rotation_error`, ``(N, 3)``."""
+    """Batched :func:`~legws_daemon.robot.kinematics.rotation_error`, ``(N, 3)``."""
     E = target @ R.transpose(0, 2, 1)
     cos = np.clip((np.trace(E, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     angle = np.arccos(cos)
@@ -162,7 +162,7 @@ def batch_ik(
     patience: int = 0,
     kinematics: BatchKinematics | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """:func:`~legws_daemon.sim.kinematics.solve_ik` for ``N`` targets at once.
+    """:func:`~legws_daemon.robot.kinematics.solve_ik` for ``N`` targets at once.
 
     Args:
         positions: ``(N, 3)`` EE targets; rotations ``(N, 3, 3)``.
