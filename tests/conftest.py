@@ -1,10 +1,16 @@
-"""Test-wide set-up: library caches and analytics go to a temporary folder, never $HOME."""
+"""Test-wide set-up: library caches and analytics go to a temporary folder, never $HOME
+(one per process: each pytest-xdist worker has its own), and Hypothesis checks no deadline."""
 
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, settings
 
 _TMP = Path(tempfile.mkdtemp(prefix="legws-tests-"))
 for var in ("XDG_CACHE_HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME"):
@@ -13,3 +19,68 @@ os.environ["MESA_SHADER_CACHE_DIR"] = str(_TMP / "mesa")
 os.environ.setdefault("MPLCONFIGDIR", str(_TMP / "mpl"))
 # Rerun sends no analytics when CI is set; tests never talk to the internet.
 os.environ.setdefault("CI", "true")
+
+# Benchmarks measure speed, not property tests: Hypothesis's per-example deadline and its
+# too-slow health check would fail a test on a busy machine, e.g. with parallel workers.
+# Example counts are unchanged.
+settings.register_profile("legws", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("legws")
+
+
+# --- the reliability summary: what the fuzzers fed, how it was answered, seconds per test ------
+# (the figures of docs/reliability.md). Here rather than in tests/reliability/: with
+# pytest-xdist the controlling process loads only this conftest and prints the summary; each
+# worker sends it the tallies of the fuzz tests it ran.
+_DURATIONS: dict[str, float] = {}
+_TALLIES_KEY = "legws_reliability_tallies"
+
+
+def _tallies() -> dict[str, Any]:
+    """This process's tallies (empty unless the reliability tests were imported here)."""
+    helpers = sys.modules.get("tests.reliability.helpers")
+    tallies: dict[str, Any] = getattr(helpers, "TALLIES", {})
+    return tallies
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if report.when == "call" and "tests/reliability/" in report.nodeid:
+        _DURATIONS[report.nodeid.split("::", 1)[1]] = report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    output = getattr(session.config, "workeroutput", None)  # set on an xdist worker only
+    if output is not None:
+        output[_TALLIES_KEY] = {
+            name: {k: dict(v) if isinstance(v, dict) else v for k, v in vars(t).items()}
+            for name, t in _tallies().items()
+        }
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: object) -> None:
+    """On the xdist controller: add a finished worker's tallies to this process's."""
+    sent = getattr(node, "workeroutput", {}).get(_TALLIES_KEY)
+    if not sent:
+        return
+    from collections import Counter
+
+    from tests.reliability.helpers import TALLIES, Tally
+
+    for name, fields in sent.items():
+        tally = TALLIES.setdefault(name, Tally())
+        for k, v in fields.items():
+            if isinstance(v, dict):
+                getattr(tally, k).update(Counter(v))
+            else:
+                setattr(tally, k, getattr(tally, k) + v)
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    tallies = _tallies()
+    if not tallies and not _DURATIONS:
+        return
+    terminalreporter.section("reliability: cases fed, and seconds per test")
+    for name, tally in tallies.items():
+        terminalreporter.write_line(tally.line(name))
+    for test, seconds in sorted(_DURATIONS.items(), key=lambda kv: -kv[1]):
+        terminalreporter.write_line(f"{seconds:7.1f} s  {test}")

@@ -31,6 +31,7 @@ from legws_daemon.formats.bridge_messages import BridgeCommand, BridgeState, par
 from legws_daemon.formats.messages import dump
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_spec, open_session
+from tests.net import free_port
 
 BRIDGE = Path(__file__).parents[2] / "bridge" / "intera_bridge.py"
 HOME_Q = [-0.16, -1.30, -0.19, 1.73, 0.06, 1.14, -0.19]
@@ -495,7 +496,7 @@ def test_bad_arguments_exit_2(bridge_module: types.ModuleType) -> None:
 
 
 def test_main_publishes_applies_and_exits_cleanly(monkeypatch: pytest.MonkeyPatch) -> None:
-    port = 17670
+    port = free_port()
     ros = FakeRos(ticks=60)  # ~0.6 s at 100 Hz, then "SIGINT"
     intera, made = fake_intera(None)  # no gripper attached
     b = load_bridge(monkeypatch, ros, intera)

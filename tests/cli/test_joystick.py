@@ -20,11 +20,11 @@ from legws_daemon.cli.main import cli as legws_cli
 from legws_daemon.formats.messages import Buttons, JoystickMessage, parse
 from tests.cli.helpers import Result, assert_bad_input
 from tests.joystick.helpers import KEY, ROBOT, daemon_side
+from tests.net import free_port
 
 Cli = Callable[..., Result]
 REPO = Path(__file__).resolve().parents[2]
 SIM = REPO / "hw_profiles" / "sim.toml"
-PORTS = iter(range(17630, 17650))
 
 #: ``legws`` with the joystick group registered (a no-op once main.py registers it).
 SCRIPT = (
@@ -186,7 +186,7 @@ def _finish(proc: subprocess.Popen[str], timeout: float = 30.0) -> Result:
 
 
 def test_replay_process_reaches_a_listening_daemon(tmp_path: Path) -> None:
-    port = next(PORTS)
+    port = free_port()
     prof = profile(tmp_path, [f"tcp/127.0.0.1:{port}"])
     rec = recording(tmp_path, 6)
     out = tmp_path / "out.jsonl"
@@ -207,7 +207,7 @@ def test_replay_process_reaches_a_listening_daemon(tmp_path: Path) -> None:
 
 
 def test_sigterm_ends_a_looping_replay_with_a_zero_message_and_exit_0(tmp_path: Path) -> None:
-    port = next(PORTS)
+    port = free_port()
     prof = profile(tmp_path, [f"tcp/127.0.0.1:{port}"])
     rec = recording(tmp_path, 4)
     with daemon_side(port, KEY) as inbox:
@@ -226,7 +226,7 @@ def test_sigterm_ends_a_looping_replay_with_a_zero_message_and_exit_0(tmp_path: 
 
 def test_keyboard_process_on_a_pseudo_terminal(tmp_path: Path) -> None:
     """Keys typed on a real (pseudo-)terminal steer; q quits; the terminal is restored."""
-    port = next(PORTS)
+    port = free_port()
     prof = profile(tmp_path, [f"tcp/127.0.0.1:{port}"])
     master, slave = pty.openpty()
     before = termios.tcgetattr(slave)

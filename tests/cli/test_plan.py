@@ -26,6 +26,7 @@ def own_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
 
+@pytest.mark.slow  # plans the feeding graph and renders its decisions: ~12 s
 def test_table_files_and_cache(cli: Cli, tmp_path: Path) -> None:
     out = tmp_path / "out"
     args = ["plan", "feeding", "--iterations", "5", "--quiet"]

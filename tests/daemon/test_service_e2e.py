@@ -1,8 +1,9 @@
 """End to end: the daemon and its publishers as real processes on loopback zenoh.
 
 Each test starts ``legws daemon`` (the MuJoCo stand-in, paced to real time) on its own
-loopback port, watches its status and events from a monitor session, and stops it with
-SIGTERM. Recordings are real ``.rrd`` files read back and verified with ``rerun rrd verify``.
+loopback port (chosen free at run time), watches its status and events from a monitor
+session, and stops it with SIGTERM. Recordings are real ``.rrd`` files read back and
+verified with ``rerun rrd verify``.
 """
 
 from __future__ import annotations
@@ -27,13 +28,14 @@ from tests.daemon.procs import (
     stop,
     write_profile,
 )
+from tests.net import free_port
 
 ROBOT = "sawyer_sim"
 pytestmark = pytest.mark.slow
 
 
 def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Path) -> None:
-    port = 17701
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     rrd = tmp_path / "session.rrd"
     daemon = start(
@@ -91,7 +93,7 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
 
 
 def test_deadman_malformed_input_and_commands(tmp_path: Path) -> None:
-    port = 17702
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     daemon = start(
         ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90"],
@@ -173,7 +175,7 @@ def test_deadman_malformed_input_and_commands(tmp_path: Path) -> None:
 
 
 def test_cancel_button_gives_control_back_and_the_user_recommits(tmp_path: Path) -> None:
-    port = 17703
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     daemon = start(
         ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "120"],
@@ -199,7 +201,7 @@ def test_cancel_button_gives_control_back_and_the_user_recommits(tmp_path: Path)
 
 
 def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: Path) -> None:
-    port, bridge_port = 17704, 17705
+    port, bridge_port = free_port(), free_port()
     profile = write_profile(
         tmp_path, "sawyer", port, {"connect = []": f'connect = ["tcp/127.0.0.1:{bridge_port}"]'}
     )
@@ -252,7 +254,7 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
 
 
 def test_silent_bridge_falls_back_to_the_stand_in_when_the_profile_asks(tmp_path: Path) -> None:
-    port = 17706
+    port = free_port()
     profile = write_profile(
         tmp_path,
         "sawyer",

@@ -8,12 +8,14 @@ from pathlib import Path
 import pytest
 
 from legws_daemon.cli.main import run
+from tests.net import free_port
 
 
 def read_index(root: Path) -> list[dict[str, object]]:
     return list(json.loads((root / "index.json").read_text()))
 
 
+@pytest.mark.slow  # eight optimisation runs on a process pool: ~20 s
 def test_all_on_a_process_pool(tmp_path: Path) -> None:
     root = tmp_path / "runs"
     args = ["optimize", "--all", "--scene", "breakfast_easy,desk", "--seeds", "0,1",
@@ -50,10 +52,11 @@ def test_all_on_a_dask_cluster_over_loopback(tmp_path: Path) -> None:
     assert json.loads((local / "summary.json").read_text())["objective"] == summary["objective"]
 
 
+@pytest.mark.slow  # Dask gives up connecting after its 10 s timeout
 def test_unreachable_scheduler_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("distributed")
     code = run(["optimize", "--all", "--scene", "desk", "--iterations", "2", "--quiet",
-                "--dask", "tcp://127.0.0.1:9"])  # fmt: skip
+                "--dask", f"tcp://127.0.0.1:{free_port()}"])  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1

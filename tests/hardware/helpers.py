@@ -10,11 +10,14 @@ import zenoh
 
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_spec, open_session
+from tests.net import free_port
 
 
 @contextmanager
-def peers(port: int) -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
-    """(daemon side listening on ``port``, robot side connecting to it), both closed after."""
+def peers() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    """(daemon side listening on a free loopback port, robot side connecting to it), both
+    closed after."""
+    port = free_port()
     listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
     dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
     with (

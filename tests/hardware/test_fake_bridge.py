@@ -105,7 +105,7 @@ def connected(daemon: zenoh.Session, fake: FakeBridge) -> StateLog:
 
 
 def test_starts_at_the_scene_home_and_validates_its_options(desk: Scene) -> None:
-    with peers(17660) as (_, robot):
+    with peers() as (_, robot):
         fake = FakeBridge(robot, "sawyer", desk)
         world = World(desk, visual=False)
         world.set_q(fake.q)
@@ -120,7 +120,7 @@ def test_starts_at_the_scene_home_and_validates_its_options(desk: Scene) -> None
 
 
 def test_integrates_a_command_until_its_ttl(desk: Scene) -> None:
-    with peers(17661) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         log = connected(daemon, fake)
         q0 = fake.q
         daemon.put(KEYS["command"], command(joint0(0.5), ttl=0.2, seq=1))
@@ -137,7 +137,7 @@ def test_integrates_a_command_until_its_ttl(desk: Scene) -> None:
 
 
 def test_invalid_commands_are_rejected_and_stop_the_arm(desk: Scene) -> None:
-    with peers(17662) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         connected(daemon, fake)
         bad_commands = [joint0(math.nan), joint0(2.0), [0.0] * 6 + [math.inf]]
         # NaN, over right_j0's limit (1.74 rad/s), infinite
@@ -159,7 +159,7 @@ def test_invalid_commands_are_rejected_and_stop_the_arm(desk: Scene) -> None:
 def test_joint_position_limits_clip(desk: Scene) -> None:
     upper = JOINT_UPPER[0]
     q0 = [upper - 0.01, -1.0, 0.0, 1.5, 0.0, 1.0, 0.0]
-    with peers(17663) as (daemon, robot), FakeBridge(robot, "sawyer", desk, q0=q0) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk, q0=q0) as fake:
         connected(daemon, fake)
         daemon.put(KEYS["command"], command(joint0(1.0), ttl=0.3))
         time.sleep(0.5)
@@ -167,7 +167,7 @@ def test_joint_position_limits_clip(desk: Scene) -> None:
 
 
 def test_estop_and_disable_hold_the_arm(desk: Scene) -> None:
-    with peers(17664) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         log = connected(daemon, fake)
         fake.set_estop(True)
         assert wait_for(lambda: log.last().estop and not log.last().enabled)
@@ -186,7 +186,7 @@ def test_estop_and_disable_hold_the_arm(desk: Scene) -> None:
 
 
 def test_heartbeat_can_be_stopped_and_resumed(desk: Scene) -> None:
-    with peers(17665) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         log = connected(daemon, fake)
         t0, n0 = time.monotonic(), log.count()
         time.sleep(0.5)
@@ -205,7 +205,7 @@ def test_heartbeat_can_be_stopped_and_resumed(desk: Scene) -> None:
 
 
 def test_gripper_moves_then_reports_the_request(desk: Scene) -> None:
-    with peers(17666) as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         log = connected(daemon, fake)
         daemon.put(KEYS["command"], command([0.0] * 7, ttl=0.1, gripper="closed"))
         assert wait_for(lambda: fake.gripper == "moving")
@@ -216,7 +216,7 @@ def test_gripper_moves_then_reports_the_request(desk: Scene) -> None:
 
 
 def test_close_stops_publishing(desk: Scene) -> None:
-    with peers(17667) as (daemon, robot):
+    with peers() as (daemon, robot):
         fake = FakeBridge(robot, "sawyer", desk)
         with fake:
             log = connected(daemon, fake)

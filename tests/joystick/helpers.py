@@ -1,7 +1,7 @@
 """Plain helpers of the joystick tests: loopback transports and a collecting subscriber.
 
-zenoh on loopback only, scouting off, sessions always closed; ports 17600-17649 belong to
-the joystick tests.
+zenoh on loopback only, scouting off, sessions always closed; each test takes its port
+from :func:`tests.net.free_port`.
 """
 
 from __future__ import annotations

@@ -28,8 +28,8 @@ from legws_daemon.joystick.can_input import (
 from legws_daemon.joystick.publisher import Publisher, clip_norm
 from legws_daemon.transport.session import config_from_spec
 from tests.joystick.helpers import KEY, daemon_side, dial_spec
+from tests.net import free_port
 
-PORT = 17610
 SPEC = CanSpec()
 
 
@@ -244,9 +244,10 @@ def test_virtual_bus_end_to_end_over_zenoh(channel: str) -> None:
     bus = open_bus("virtual", channel, spec=SPEC)
     stop = threading.Event()
     results: list[int] = []
-    pub = Publisher(config_from_spec(dial_spec(PORT)), KEY, source="can-test")
+    port = free_port()
+    pub = Publisher(config_from_spec(dial_spec(port)), KEY, source="can-test")
     try:
-        with daemon_side(PORT) as inbox, pub:
+        with daemon_side(port) as inbox, pub:
             assert pub.wait_matched(10.0)
             reader = CanReader(bus, SPEC, timeout=0.25)
             loop = threading.Thread(

@@ -28,8 +28,8 @@ from legws_daemon.joystick.publisher import (
 from legws_daemon.transport.session import config_from_spec
 from tests.joystick.helpers import KEY, daemon_side
 from tests.joystick.helpers import dial_spec as dial_port
+from tests.net import free_port
 
-PORT = 17600
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -99,8 +99,9 @@ def test_process_source_is_a_valid_label_unique_to_the_process() -> None:
 
 def test_messages_arrive_validated_with_increasing_seq_and_are_recorded(tmp_path: Path) -> None:
     record = tmp_path / "rec.jsonl"
-    pub = Publisher(config_from_spec(dial_port(PORT)), KEY, source="unit", record=record)
-    with daemon_side(PORT) as inbox, pub:
+    port = free_port()
+    pub = Publisher(config_from_spec(dial_port(port)), KEY, source="unit", record=record)
+    with daemon_side(port) as inbox, pub:
         assert pub.wait_matched(10.0)
         before = time.time()
         sent = [

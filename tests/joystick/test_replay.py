@@ -19,8 +19,7 @@ from legws_daemon.joystick.publisher import Publisher, Sample
 from legws_daemon.joystick.replay import load_recording, nominal_interval, replay, schedule
 from legws_daemon.transport.session import config_from_spec
 from tests.joystick.helpers import KEY, daemon_side, dial_spec
-
-PORT = 17620
+from tests.net import free_port
 
 
 def message(
@@ -195,8 +194,9 @@ def test_record_then_replay_round_trip_over_zenoh(tmp_path: Path) -> None:
     recorded = load_recording(record)
     assert len(recorded) == len(pattern) + 1  # with the final zero
 
-    pub = Publisher(config_from_spec(dial_spec(PORT)), KEY, source="replay-test")
-    with daemon_side(PORT) as inbox, pub:
+    port = free_port()
+    pub = Publisher(config_from_spec(dial_spec(port)), KEY, source="replay-test")
+    with daemon_side(port) as inbox, pub:
         assert pub.wait_matched(10.0)
         assert replay(pub, recorded, gap=nominal_interval(recorded, 0.05)) == len(recorded)
         got = inbox.wait_for(len(recorded) + 1)

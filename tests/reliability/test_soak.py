@@ -19,18 +19,18 @@ from pathlib import Path
 import pytest
 
 from tests.daemon.procs import REPO, env
+from tests.net import free_port
 
 pytestmark = pytest.mark.slow
 
 SECONDS = 45.0
-PORT = 17760
 
 
 def test_a_short_soak_ends_cleanly_with_a_valid_recording(tmp_path: Path) -> None:
-    out = tmp_path / "soak.json"
+    out, port = tmp_path / "soak.json", free_port()
     run = subprocess.run(
         [sys.executable, str(REPO / "benchmarks" / "soak.py"), "--minutes", str(SECONDS / 60),
-         "--reset-every", "15", "--load-every", "20", "--port", str(PORT), "--out", str(out),
+         "--reset-every", "15", "--load-every", "20", "--port", str(port), "--out", str(out),
          "--keep", str(tmp_path / "run")],
         capture_output=True, text=True, timeout=SECONDS + 240, env=env(), cwd=REPO,
     )  # fmt: skip

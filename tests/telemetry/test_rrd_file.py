@@ -113,6 +113,7 @@ def test_close_reports_a_file_it_could_not_finish(
     assert read_stages(path)
 
 
+@pytest.mark.slow  # five `legws recording finish` processes: ~5 s
 def test_the_cli_finishes_a_file_and_refuses_what_is_not_a_recording(tmp_path: Path) -> None:
     path = _raw(tmp_path / "raw.rrd")
     out = subprocess.run(

@@ -11,8 +11,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import JoystickMessage, dump, parse
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_file, config_from_spec, keys, open_session
-
-PORT = 17461  # a fixed loopback port for this test module
+from tests.net import free_port
 
 
 def test_default_spec_is_loopback_without_multicast() -> None:
@@ -23,8 +22,9 @@ def test_default_spec_is_loopback_without_multicast() -> None:
 
 
 def test_two_peers_exchange_a_joystick_message_on_loopback() -> None:
-    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{PORT}"])
-    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{PORT}"])
+    port = free_port()
+    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
+    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
     received: list[JoystickMessage] = []
     got = threading.Event()
     msg = JoystickMessage.model_validate(
