@@ -67,11 +67,16 @@ def main() -> None:
                 "t_mean": a["t_infer_mean"], "t_sd": a["t_infer_sd"],
                 "commit": a["commit_rate"], "wrong": a["wrong_commit_rate"],
                 "none": a["no_commit_rate"], "infeasible": a["infeasible_picks"],
+                "confirmed": a["confirmed_rate"], "completed": a["completion_rate"],
+                "completed_acted": a["completion_committed"], "failures": a["failures"],
                 "episodes": a["episodes"], "seconds": t["seconds"],
                 "eps": t["episodes_per_second"],
             }
         )  # fmt: skip
     total = time.perf_counter() - started
+
+    def pct1(x: float | None) -> str:
+        return "—" if x is None else f"{100 * x:.1f} %"
 
     def f(x: float | None, pct: bool = False) -> str:
         if x is None:
@@ -81,17 +86,21 @@ def main() -> None:
     lines = [
         "| tier | scene | M | accuracy (ours) | accuracy (paper) | T_infer s (ours) "
         "| T_infer s (paper) | accuracy, feasible picks | commit | wrong commit | no commit "
-        "| infeasible picks | picks | seconds |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| confirmed | completed | completed, acted on | infeasible picks | other failures "
+        "| picks | seconds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         pa, pm, ps = r["paper"]
+        other = {k: v for k, v in r["failures"].items() if k != "infeasible_grasp"}
+        others = ", ".join(f"{k} {v}" for k, v in other.items()) or "none"
         lines.append(
             f"| {r['tier']} | {r['scene']} | {r['m']} | {f(r['accuracy'], True)} "
             f"| {f(pa, True)} | {f(r['t_mean'])} ± {f(r['t_sd'])} | {pm} ± {ps} "
             f"| {f(r['accuracy_feasible'], True)} | {f(r['commit'], True)} "
-            f"| {f(r['wrong'], True)} | {f(r['none'], True)} "
-            f"| {r['infeasible']} | {r['episodes']} | {r['seconds']:.0f} |"
+            f"| {f(r['wrong'], True)} | {f(r['none'], True)} | {f(r['confirmed'], True)} "
+            f"| {f(r['completed'], True)} | {pct1(r['completed_acted'])} "
+            f"| {r['infeasible']} | {others} | {r['episodes']} | {r['seconds']:.0f} |"
         )
     eps = sum(r["episodes"] for r in rows) / total
     lines += [

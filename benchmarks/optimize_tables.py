@@ -101,17 +101,20 @@ def markdown(rows: dict[str, dict[str, Any]], methods: list[str]) -> str:
         "",
         "| tier | M | J opt. (ours) | J opt. (paper) | best J of 10,000 random | T_infer random "
         "| T_infer opt. (ours) | T_infer opt. (paper) | acc. random | acc. opt. (ours) "
-        "| acc. opt. (paper) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| acc. opt. (paper) | commit random | commit opt. | completed random "
+        "| completed opt. |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, row in rows.items():
         tier, j_paper, t_paper, acc_paper, *_ = TIERS[name]
         m = len(load_scene(name).goal_names)
+        r, o = row["random_eval"], row["eval"]
         out.append(
             f"| {tier} | {m} | {row['cma-me']['objective']:.2f} | {j_paper} "
-            f"| {row['random_best_j_10000']:.2f} | {t(row['random_eval'])} | {t(row['eval'])} "
-            f"| {t_paper} | {pct(row['random_eval']['accuracy'])} | {pct(row['eval']['accuracy'])} "
-            f"| {pct(acc_paper)} |"
+            f"| {row['random_best_j_10000']:.2f} | {t(r)} | {t(o)} "
+            f"| {t_paper} | {pct(r['accuracy'])} | {pct(o['accuracy'])} "
+            f"| {pct(acc_paper)} | {pct(r['commit_rate'])} | {pct(o['commit_rate'])} "
+            f"| {pct(r['completion_rate'])} | {pct(o['completion_rate'])} |"
         )
     out += [
         "",

@@ -17,9 +17,10 @@ from scipy.special import betaincinv
 
 from legws_daemon.core.certificate import horizon_steps
 from legws_daemon.core.costs import path_costs
-from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
+from legws_daemon.core.geometry import FloatArray, IntArray, symmetric_angle
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import CostForm, Params
+from legws_daemon.core.user_model import clip_unit, deflection, noise
 from legws_daemon.errors import InputError
 
 #: Confidence level of the reported Clopper-Pearson interval (two-sided).
@@ -84,12 +85,10 @@ def simulate_user(
     length = np.zeros((m, trials))
     for t in range(int(steps.max())):
         active = (t < steps)[:, None]  # (M, 1)
-        noise = rng.standard_normal((m, trials, 3)) * params.sigma
-        v = params.v_max * safe_unit(target - x) + noise
+        u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
         if clip_speed:
-            speed = np.sqrt(np.einsum("mnk,mnk->mn", v, v))[..., None]
-            v = v * np.minimum(1.0, params.v_max / np.maximum(speed, 1e-12))
-        dx = v * params.dt
+            u = clip_unit(u)
+        dx = params.v_max * params.dt * u
         x += np.where(active[..., None], dx, 0.0)
         length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
     return HorizonStates(x, length, steps)

@@ -19,6 +19,11 @@ from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 
+#: Orientation changes below this (rad) leave the rotation term of ``d(x_t, g)`` as it is: its
+#: error is at most ``lambda_R`` times it (4e-6 m at the default), never accumulated.
+ROTATION_RESOLUTION = 1e-4
+_HALF_COS_RESOLUTION = math.cos(ROTATION_RESOLUTION / 2)
+
 
 class IntentObserver:
     """Posterior over the goals of a :class:`GoalSet`, updated once per control tick.
@@ -116,7 +121,8 @@ class IntentObserver:
             if q.tobytes() != self._rot_bytes:
                 if q.shape != (4,) or not np.all(np.isfinite(q)) or not np.any(q):
                     raise InputError(f"expected a finite non-zero quaternion, got {quaternion!r}")
-                self._set_rotation(q)
+                if self._turned(q):
+                    self._set_rotation(q)
         lx, ly, lz = self._last
         length = self._length + math.sqrt((x - lx) ** 2 + (y - ly) ** 2 + (z - lz) ** 2)
         here = (x, y, z)
@@ -141,6 +147,16 @@ class IntentObserver:
                 self._committed = best
                 self._commit_tick = self._ticks
         return post
+
+    def _turned(self, q: FloatArray) -> bool:
+        """Whether ``q`` is more than :data:`ROTATION_RESOLUTION` from the orientation the
+        rotation term was last computed for (a held orientation jitters in its last
+        digits every tick; the term is not recomputed for that)."""
+        a: list[float] = q.tolist()
+        b: list[float] = self._rot_quat.tolist()
+        dot = abs(sum(x * y for x, y in zip(a, b, strict=True)))
+        norms = math.sqrt(sum(x * x for x in a) * sum(y * y for y in b))
+        return dot < norms * _HALF_COS_RESOLUTION
 
     def _set_rotation(self, q: FloatArray) -> None:
         self._rot_term = self._lam * symmetric_angle(quat_to_matrix(q), self._goal_rot, self._sym)

@@ -12,6 +12,9 @@ import threading
 from collections import Counter
 from dataclasses import dataclass
 
+import numpy as np
+
+from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import JoystickMessage, parse
 
@@ -22,6 +25,15 @@ class Sample:
 
     message: JoystickMessage
     received: float
+
+    @property
+    def operator(self) -> OperatorInput:
+        """The sample as the controller takes it."""
+        m = self.message
+        return OperatorInput(
+            np.array(m.axes, dtype=np.float64), m.buttons.confirm, m.buttons.cancel,
+            self.received, m.seq, m.stamp,
+        )  # fmt: skip
 
 
 class JoystickInbox:

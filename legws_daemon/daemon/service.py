@@ -43,9 +43,21 @@ import numpy as np
 import zenoh
 
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
+from legws_daemon.autonomy.controller import Controller, TickRecord
+from legws_daemon.autonomy.events import (
+    Event,
+    Fallback,
+    Fault,
+    Overrun,
+    Shutdown,
+    Started,
+    TelemetryProblem,
+    TraceFailed,
+    jsonable,
+)
+from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
-from legws_daemon.daemon.controller import Controller, TickRecord
 from legws_daemon.daemon.inbox import JoystickInbox
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
@@ -59,8 +71,10 @@ from legws_daemon.formats.messages import (
     parse,
 )
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.hardware.base import Adapter, RobotState, adapter_class
+from legws_daemon.hardware.base import Adapter, JointCommand, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.robot.world import World
+from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
@@ -167,11 +181,37 @@ class GuardedAdapter(Adapter):
         state: RobotState = self._call("read_state", self.inner.read_state)
         return state
 
-    def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
-        self._call("command", self.inner._command, velocity, hold)
+    @property
+    def kinematics(self) -> World:
+        model: World = self._call("kinematics", lambda: self.inner.kinematics)
+        return model
 
-    def send_velocity(self, velocity: object, hold: FloatArray | None = None) -> FloatArray:
-        sent: FloatArray = self._call("send_velocity", self.inner.send_velocity, velocity, hold)
+    def _command(
+        self, state: RobotState, velocity: FloatArray, hold: FloatArray | None, box: Box
+    ) -> None:
+        self._call("command", self.inner._command, state, velocity, hold, box)
+
+    def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
+        self._call("command", self.inner._command_joints, state, qdot)
+
+    def send_velocity(
+        self,
+        state: RobotState,
+        velocity: object,
+        hold: FloatArray | None = None,
+        floor: float | None = None,
+    ) -> FloatArray:
+        sent: FloatArray = self._call(
+            "send_velocity", self.inner.send_velocity, state, velocity, hold, floor
+        )
+        return sent
+
+    def send_joint_velocity(
+        self, state: RobotState, qdot: object, floor: float | None = None
+    ) -> JointCommand:
+        sent: JointCommand = self._call(
+            "send_joint_velocity", self.inner.send_joint_velocity, state, qdot, floor
+        )
         return sent
 
     def halt(self) -> None:
@@ -188,10 +228,6 @@ class GuardedAdapter(Adapter):
 
     def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
         return bool(self._call("place_objects", self.inner.place_objects, layout))
-
-    def link_poses(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        poses: tuple[FloatArray, FloatArray] = self._call("link_poses", self.inner.link_poses, q)
-        return poses
 
 
 @dataclass
@@ -237,7 +273,7 @@ class DaemonService:
         self._status_seq = 0
         self._status_lock = threading.Lock()
         self._status_bytes = b""
-        self._events: deque[tuple[str, dict[str, Any]]] = deque(maxlen=RECENT_EVENTS)
+        self._events: deque[Event] = deque(maxlen=RECENT_EVENTS)
         self._session: zenoh.Session | None = None
         self._event_pub: Any = None
         self._t0 = time.monotonic()
@@ -279,14 +315,14 @@ class DaemonService:
                 raise
             self.fallback = True
             self.ticker.paced = True
-            self._emit("fallback", {"reason": str(err), "adapter": "sim", "note": "falling back"})
+            self._emit(Fallback(str(err), "sim"))
             sim = GuardedAdapter(SimAdapter(self.profile, scene, self._session))
             sim.connect()
             return sim
         return adapter
 
     # --- events and status ------------------------------------------------------------
-    def _emit(self, kind: str, detail: dict[str, Any]) -> None:
+    def _emit(self, event: Event) -> None:
         """Publish an event and log it (called on the loop thread)."""
         self._event_seq += 1
         msg = EventMessage.model_validate(
@@ -295,13 +331,13 @@ class DaemonService:
                 "robot": self.profile.robot,
                 "seq": self._event_seq,
                 "stamp": time.time(),
-                "kind": kind,
-                "detail": _jsonable(detail),
+                "kind": event.kind,
+                "detail": event.detail(),
             }
         )
-        self._events.append((kind, detail))
-        text = _event_text(kind, detail)
-        severity = _SEVERITY.get(kind, "INFO")
+        self._events.append(event)
+        text = event.text()
+        severity = _SEVERITY.get(event.kind, "INFO")
         log.log(logging.getLevelName(severity.replace("WARN", "WARNING")), "%s", text)
         if self._event_pub is not None:
             self._event_pub.put(dump(msg))
@@ -320,7 +356,7 @@ class DaemonService:
             "robot": self.profile.robot,
             "seq": self._status_seq,
             "stamp": time.time(),
-            "mode": c.mode,
+            "mode": c.mode.value,
             "stage": c.stage.name,
             "posterior": c.posterior(),
             "committed": c.committed,
@@ -364,7 +400,7 @@ class DaemonService:
         if not pending.done.wait(COMMAND_TIMEOUT):
             query.reply_err(json.dumps({"ok": False, "error": "timed out"}).encode())
             return
-        body = json.dumps(_jsonable(pending.reply)).encode()
+        body = json.dumps(jsonable(pending.reply)).encode()
         if pending.reply.get("ok"):
             query.reply(self.keys["command"], body)
         else:
@@ -420,7 +456,7 @@ class DaemonService:
             scene=c.scene,
             goals=c.stage.goals_home,
             goal_objects={g: g for g in c.stage.goal_names if g in c.scene.objects},
-            planned=dict(c.planned),
+            planned=dict(c.layouts.planned),
             p_thresh=c.params.p_thresh,
             params_json=json.dumps(c.params.as_dict()),
             stage=c.stage.name,
@@ -430,7 +466,7 @@ class DaemonService:
     def _observed_objects(c: Controller) -> dict[str, tuple[FloatArray, FloatArray]]:
         """Reported object poses as 3-D poses (objects rest on the table)."""
         out = {}
-        for name, p in c.observed.items():
+        for name, p in c.layouts.observed.items():
             position = np.array([p.x, p.y, c.scene.z_center(name)])
             out[name] = (position, np.array([np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]))
         return out
@@ -440,7 +476,6 @@ class DaemonService:
         if tel is None or c is None or rec.state is None or worker is None:
             return
         try:
-            links_p, links_R = c.adapter.link_poses(rec.state.q)
             objects = c.adapter.object_poses() or self._observed_objects(c)
         except Exception as err:  # drawing must not stop control: reported as telemetry
             worker.record_error(f"tick snapshot: {type(err).__name__}: {err}")
@@ -449,15 +484,15 @@ class DaemonService:
             tel.log_tick,
             rec.tick,
             time.monotonic() - self._t0,
-            link_positions=links_p,
-            link_rotations=links_R,
+            link_positions=rec.state.links.positions,
+            link_rotations=rec.state.links.rotations,
             ee_position=rec.state.ee_position,
             ee_quaternion=rec.state.ee_quaternion,
             objects=objects,
-            posterior=rec.posterior if rec.mode == "teleop" or rec.committed else None,
+            posterior=rec.posterior if rec.mode == Mode.TELEOP or rec.committed else None,
             joystick=rec.joystick,
             command=rec.command,
-            mode=rec.mode,
+            mode=rec.mode.value,
             slack=slack,
             committed=rec.committed,
             tick_seconds=self.ticker.last_duration,
@@ -483,10 +518,8 @@ class DaemonService:
         assert last is not None
         self._last_telemetry_warning = now
         self._emit(
-            "warning",
-            {"telemetry": last.last_error, "new_errors": self._telemetry_unreported,
-             "errors": last.errors, "dropped": last.dropped, "control": "continues"},
-        )  # fmt: skip
+            TelemetryProblem(last.last_error, self._telemetry_unreported, last.errors, last.dropped)
+        )
         self._telemetry_unreported = 0
 
     # --- the loop -------------------------------------------------------------------------
@@ -523,10 +556,10 @@ class DaemonService:
             self._logged_stage = controller.stage
             self._log_setup()
             self._emit(
-                "started",
-                {"adapter": "sim" if self.fallback else self.adapter_kind,
-                 "scene": cfg.scene.name, "task": controller.graph.name,
-                 "stage": controller.stage.name, "certificate": controller.stage.certificate},
+                Started(
+                    "sim" if self.fallback else self.adapter_kind, cfg.scene.name,
+                    controller.graph.name, controller.stage.name, controller.stage.certificate,
+                )
             )  # fmt: skip
             subscriber = session.declare_subscriber(
                 self.keys["joystick"],
@@ -547,13 +580,13 @@ class DaemonService:
                 self._loop(stop, status_pub)
             except Exception as err:  # recorded, then the shutdown below, then re-raised
                 error = f"daemon loop: {type(err).__name__}: {err}"
-                _quietly("fault event", self._emit, "fault", {"error": error})
+                _quietly("fault event", self._emit, Fault(error))
                 raise
             finally:
                 # each step on its own: one failing must not skip the others
                 _quietly("robot shutdown", controller.shutdown)
-                _quietly("shutdown event", self._emit, "shutdown",
-                         {"ticks": controller.ticks, "overruns": self.ticker.overruns})  # fmt: skip
+                _quietly("shutdown event", self._emit,
+                         Shutdown(controller.ticks, self.ticker.overruns))  # fmt: skip
                 _quietly("last status", self._publish_status, status_pub, None, None)
                 for entity in (subscriber, queryable, objects):
                     _quietly("undeclare", entity.undeclare)
@@ -590,7 +623,7 @@ class DaemonService:
             commands = self._run_commands()
             self._apply_objects()
             sample = self.inbox.latest(now, control.deadman_timeout)
-            rec = c.tick(sample)
+            rec = c.tick(sample.operator if sample is not None else None)
             if c.stage is not self._logged_stage:
                 self._logged_stage = c.stage
                 self._log_setup()
@@ -616,10 +649,8 @@ class DaemonService:
             self._last_overrun_warning = now
             last = self.ticker.last_duration or 0.0
             self._emit(
-                "warning",
-                {"overrun_ms": round(1000 * last, 2), "period_ms": 1000 * self.ticker.period,
-                 "overruns": self.ticker.overruns},
-            )  # fmt: skip
+                Overrun(round(1000 * last, 2), 1000 * self.ticker.period, self.ticker.overruns)
+            )
 
     def _trace(self, rec: TickRecord, started: float, commands: int) -> None:
         """One JSON line: this tick's work so far (s), when it began, the sample used, the
@@ -631,7 +662,7 @@ class DaemonService:
             "tick": rec.tick,
             "work": time.monotonic() - started,
             "begin": started,
-            "mode": rec.mode,
+            "mode": rec.mode.value,
             "seq": rec.sample_seq,
             "stamp": rec.sample_stamp,
             "received": rec.sample_received,
@@ -649,7 +680,7 @@ class DaemonService:
             self._trace_failed = True
             with contextlib.suppress(OSError, ValueError):
                 out.close()  # closed even when its last flush fails: nothing raises at exit
-            self._emit("warning", {"trace": f"{type(err).__name__}: {err}", "control": "continues"})
+            self._emit(TraceFailed(f"{type(err).__name__}: {err}"))
 
     def _fail_pending(self) -> None:
         while True:
@@ -730,22 +761,3 @@ def catalog_taskgraph(name: str) -> tuple[TaskGraph, Scene]:
     if not re.fullmatch(r"[a-z][a-z0-9_]*", name):
         raise InputError(f"expected a task graph name, got {name!r}", field="argument")
     return load_taskgraph(resolve_taskgraph(name))
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def _event_text(kind: str, detail: dict[str, Any]) -> str:
-    if kind == "commit":
-        return f"commit goal={detail['goal']} p={detail['p']}"
-    parts = " ".join(f"{k}={v}" for k, v in detail.items() if k != "posterior")
-    return f"{kind} {parts}".strip()

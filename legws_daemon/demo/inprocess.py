@@ -4,19 +4,20 @@ tick in one process, as fast as the stand-in computes. For tests and benchmarks 
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
 
+from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.events import Event
+from legws_daemon.autonomy.inputs import OperatorInput
+from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.params import Params
-from legws_daemon.daemon.controller import Controller
-from legws_daemon.daemon.inbox import JoystickInbox
-from legws_daemon.formats.messages import StatusMessage
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.sim import SimAdapter
-from legws_daemon.joystick.sim_user import SimUser
+from legws_daemon.joystick.sim_user import SimUser, UserView
 from legws_daemon.scene.scene import Scene
+from legws_daemon.sim.protocol import SimClock
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 
@@ -24,15 +25,11 @@ from legws_daemon.task.plan import Plan
 TICK_LIMIT = 18_000
 
 
-def status_of(c: Controller) -> StatusMessage:
-    """What the daemon would publish (the fields the simulated user reads)."""
+def user_view(c: Controller) -> UserView:
+    """What the daemon's status would show the user (the fields it reads)."""
     s = c.adapter.read_state()
-    return StatusMessage.model_validate(
-        {"schema": 1, "robot": "sim", "seq": c.ticks, "stamp": 0.0, "mode": c.mode,
-         "stage": c.stage.name, "adapter": "sim", "decision": c.decisions,
-         "ee": {"position": s.ee_position.tolist(), "quaternion": s.ee_quaternion.tolist()},
-         "targets": {t.name: t.position.tolist() for t in c.stage.targets}},
-    )  # fmt: skip
+    targets = {t.name: t.position for t in c.stage.targets}
+    return UserView(c.mode.value, c.decisions, c.stage.name, s.ee_position, targets)
 
 
 def run_inprocess(
@@ -46,35 +43,34 @@ def run_inprocess(
     limit: int = TICK_LIMIT,
 ) -> tuple[Controller, list[dict[str, Any]], SimUser]:
     """Run ``graph`` with the simulated user choosing at random (seeded); returns the
-    controller (its final state), the events and the user (its choices)."""
+    controller (its final state), the events (as on the wire) and the user (its choices)."""
     stand_in = profile.model_copy(
         update={"sim": profile.sim.model_copy(update={"realtime": False})}
     )
     events: list[dict[str, Any]] = []
+    clock = SimClock(1.0 / profile.control.rate_hz)
 
     def make(sc: Scene) -> SimAdapter:
-        a = SimAdapter(stand_in, sc)
+        a = SimAdapter(stand_in, sc, clock=clock)
         a.connect()
         return a
+
+    def emit(event: Event) -> None:
+        events.append({"kind": event.kind, "detail": event.detail()})
 
     c = Controller(
         stand_in, scene, scene.default_layout(), make,
         params or Params(v_max=profile.control.v_max, dt=1.0 / profile.control.rate_hz),
-        lambda k, d: events.append({"kind": k, "detail": d}), graph=graph, plan=plan,
+        emit, graph=graph, plan=plan, clock=clock,
     )  # fmt: skip
     user = SimUser([], Params().sigma, profile.control.v_max, np.random.default_rng(seed))
-    inbox = JoystickInbox()
     try:
         for tick in range(1, limit):
-            if c.mode in ("idle", "fault"):
+            if c.mode in (Mode.IDLE, Mode.FAULT):
                 break
-            out = user.sample(status_of(c), tick * c.dt)
-            if out is None:
-                raise RuntimeError("the simulated user got no status")
-            axes, buttons = out
-            msg = {"schema": 1, "seq": tick, "stamp": 0.0, "axes": list(axes),
-                   "buttons": buttons.model_dump()}  # fmt: skip
-            c.tick(inbox.offer(json.dumps(msg).encode(), float(tick)))
+            act = user.act(user_view(c), clock())
+            c.tick(OperatorInput(act.axes, act.confirm, act.cancel, clock(), tick))
+            clock.advance()
     finally:
         c.shutdown()
     return c, events, user

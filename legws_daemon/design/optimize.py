@@ -31,10 +31,11 @@ from legws_daemon.errors import InfeasibleError, LegwsError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.robot.assets import sawyer_dir
-from legws_daemon.robot.feasibility import check_grasps
+from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.planner import FEASIBILITY, MotionPlanner, stand_in_planner
 from legws_daemon.robot.reachability import load_or_build
-from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET, World
+from legws_daemon.robot.world import World
 from legws_daemon.scene.layout_file import dump_json, layout_to_data
 from legws_daemon.scene.scene import Layout, Scene
 
@@ -67,7 +68,8 @@ def settings_key(scene: Scene, settings: dict[str, Any]) -> str:
     h = hashlib.sha256()
     h.update(Path(scene.source).read_bytes())
     h.update((sawyer_dir() / "robot.xml").read_bytes())
-    extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP}
+    extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP,
+             "feasibility": FEASIBILITY}  # fmt: skip
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
     return h.hexdigest()[:20]
 
@@ -78,23 +80,28 @@ def cache_dir() -> Path:
 
 
 def verify(
-    problem: LayoutProblem, result: SearchResult, world: World, q_home: np.ndarray
+    problem: LayoutProblem, result: SearchResult, planner: MotionPlanner
 ) -> tuple[Layout, int]:
-    """The best elite that satisfies every constraint and whose grasps all pass the full
-    IK + collision check; returns it and its rank among the elites."""
+    """The best elite that satisfies every constraint and whose grasps all pass the motion
+    planner's full check (IK, collisions, a straight approach, a clear way from home: what
+    ``legws eval`` counts as feasible); returns it and its rank among the elites."""
     scene = problem.scene
     for rank, elite in enumerate(result.elites[:MAX_VERIFIED]):
         layout = problem.layout(elite.solution)
         poses = scene.poses(layout)
         if problem.constraints.problems(poses):
             continue
+        planner.set_layout(poses)
         goals = scene.goal_set(layout, goals=problem.names)
-        checks = check_grasps(world, goals, q_home, poses)
-        if all(c.feasible for c in checks.values()):
+        rotations = goals.rotations
+        if all(
+            planner.check(n, goals.positions[i], rotations[i], int(goals.symmetry[i])).feasible
+            for i, n in enumerate(goals.names)
+        ):
             return layout, rank
     raise InfeasibleError(
         f"none of the best {min(MAX_VERIFIED, len(result.elites))} elites passed the full "
-        "IK and collision check; run more iterations or relax the scene"
+        "IK, collision and approach check; run more iterations or relax the scene"
     )
 
 
@@ -155,11 +162,9 @@ def optimize(
         return summary
     world = World(scene)
     q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
-    world = World(scene)
-    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
     problem.screen = load_or_build(world, q_home)
     result = search(problem, method, iterations, seed, progress)
-    layout, rank = verify(problem, result, world, q_home)
+    layout, rank = verify(problem, result, stand_in_planner(world))
     goals = scene.goal_set(layout, goals=problem.names)
     write_atomic(out_dir / "best_layout.json", dump_json(layout_to_data(layout)).encode())
     write_atomic(out_dir / "goals.json", dump_json(goalset_to_data(goals, problem.params)).encode())

@@ -27,7 +27,8 @@ from typing import Any
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.robot.assets import sawyer_dir
-from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET
+from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
+from legws_daemon.robot.planner import FEASIBILITY
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
@@ -54,7 +55,7 @@ def plan_key(graph: TaskGraph, scene: Scene, settings: dict[str, Any]) -> str:
     h.update(source.read_bytes() if source.is_file() else repr(graph).encode())
     h.update(b"\0" + Path(scene.source).read_bytes() + b"\0")
     h.update((sawyer_dir() / "robot.xml").read_bytes())
-    extra = {"tcp": TCP_OFFSET, "gap": FINGER_GAP}
+    extra = {"tcp": TCP_OFFSET, "gap": FINGER_GAP, "feasibility": FEASIBILITY}
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
     return h.hexdigest()[:20]
 

@@ -24,8 +24,8 @@ from legws_daemon.design.problem import GoalModel, GoalPoses
 from legws_daemon.errors import LegwsError
 from legws_daemon.robot.reachability import ReachabilityMap
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.task.actions import target
 from legws_daemon.task.decisions import DecisionPoint
-from legws_daemon.task.targets import target
 
 
 class TargetGoals(GoalModel):

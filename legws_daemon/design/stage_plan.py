@@ -55,16 +55,17 @@ from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_goals import TargetGoals
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.files import write_atomic
-from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds, symmetric_rotations
-from legws_daemon.robot.kinematics import home_configuration, solve_ik
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.planner import MotionPlanner, stand_in_planner
 from legws_daemon.robot.reachability import ReachabilityMap, load_or_build
 from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.task.actions import target
 from legws_daemon.task.decisions import DecisionPoint, decision_points
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
 from legws_daemon.task.plan_file import dump_plan
-from legws_daemon.task.targets import Target, goal_set, target
+from legws_daemon.task.targets import Target, goal_set
 
 #: Elites tried, best first, before the plan gives up on a decision's full check.
 MAX_VERIFIED = 30
@@ -86,6 +87,7 @@ class _Planner:
     world: World
     q_home: FloatArray
     _screen: ReachabilityMap | None = None
+    _motion: MotionPlanner | None = None
 
     @property
     def screen(self) -> ReachabilityMap:
@@ -104,40 +106,18 @@ class _Planner:
         return certify(goals, self.params).objective
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
-        """``None`` when every target passes the IK and collision check, else the first
-        target that does not and why."""
-        self.world.set_layout(self.scene.poses(layout))
-        try:
-            for t in self.targets(point, layout):
-                reason = _reach(self.world, t, self.q_home)
-                if reason is not None:
-                    return t, reason
-            return None
-        finally:
-            self.world.set_q(self.q_home)
-
-
-def _reach(world: World, t: Target, q_home: FloatArray) -> str | None:
-    """``None`` when IK reaches ``t`` (one of its symmetric equivalents) within the
-    feasibility tolerances with the arm touching nothing but ``t``'s own object."""
-    reason = "out of reach"
-    for seed in ik_seeds(world, q_home):
-        for R in symmetric_rotations(t.rotation, t.symmetry, world.scene.home.rotation):
-            ik = solve_ik(
-                world,
-                t.position,
-                R,
-                seed,
-                tol_position=TOL_POSITION / 5,
-                tol_rotation=TOL_ROTATION / 5,
-            )
-            if ik.position_error > TOL_POSITION or ik.rotation_error > TOL_ROTATION:
-                continue
-            hits = world.arm_contacts(ignore=frozenset({t.name}))
-            if not hits:
-                return None
-            reason = f"collides with {hits[0][1]} ({hits[0][0]})"
-    return reason
+        """``None`` when every target passes the motion planner's check (IK, collisions, a
+        straight approach, a clear way from home), else the first target that does not
+        and why."""
+        if self._motion is None:
+            self._motion = stand_in_planner(self.world)
+        motion = self._motion
+        motion.set_layout(self.scene.poses(layout))
+        for t in self.targets(point, layout):
+            found = motion.check(t.name, t.position, t.rotation, t.symmetry)
+            if not found.feasible:
+                return t, found.reason
+        return None
 
 
 def _optimised(graph: TaskGraph, scene: Scene, point: DecisionPoint) -> tuple[str, ...]:

@@ -95,25 +95,28 @@ class StatusMessage(_Message):
     targets: dict[Label, Vec3] = {}  # goal positions of the current decision (base frame, m)
 
 
+EventKind = Literal[
+    "commit",
+    "cancel",
+    "stage_done",
+    "task_done",
+    "fault",
+    "recovered",
+    "fallback",
+    "warning",
+    "reset",
+    "stop",
+    "loaded",
+    "started",
+    "shutdown",
+]
+
+
 class EventMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
-    kind: Literal[
-        "commit",
-        "cancel",
-        "stage_done",
-        "task_done",
-        "fault",
-        "recovered",
-        "fallback",
-        "warning",
-        "reset",
-        "stop",
-        "loaded",
-        "started",
-        "shutdown",
-    ]
+    kind: EventKind
     detail: dict[str, Any] = {}
 
 

@@ -1,47 +1,99 @@
 """The adapter interface and its registry (name -> class, no if/elif factory).
 
-An adapter connects to one robot, reports its state, and sends EE velocity commands. Every
-command passes through the safety envelope (:mod:`legws_daemon.safety.envelope`) inside
-:meth:`Adapter.send_velocity`, which returns what was actually sent.
+An adapter connects to one robot, reports its state, and sends EE velocity or joint
+velocity commands. Every command passes through the safety envelope
+(:mod:`legws_daemon.safety.envelope`) inside :meth:`Adapter.send_velocity` and
+:meth:`Adapter.send_joint_velocity`, which return what was actually sent.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import TracebackType
-from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
 
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, matrix_to_quat
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.safety.envelope import Box, clamp_ee_velocity
+from legws_daemon.robot.gripper import floor_height
+from legws_daemon.robot.kinematics import LIMIT_MARGIN
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.safety.envelope import (
+    Box,
+    clamp_ee_velocity,
+    clamp_joint_velocity,
+    limit_ee_speed,
+)
 from legws_daemon.scene.scene import ObjectPose, Scene
 
-if TYPE_CHECKING:
-    from legws_daemon.robot.world import World
+
+@dataclass(frozen=True, slots=True)
+class LinkPoses:
+    """Where the arm's bodies are, base first: origins ``(K, 3)``, rotations ``(K, 3, 3)``."""
+
+    positions: FloatArray
+    rotations: FloatArray
 
 
 @dataclass(frozen=True, slots=True)
 class RobotState:
-    """What the robot reports: joint positions, EE pose, and when it was measured."""
+    """What the robot reports, read once per tick: joint positions, the EE pose from the
+    kinematic model (rotation and quaternion), the arm's link poses, and when it was
+    measured."""
 
     q: FloatArray  # (7,) rad
     ee_position: FloatArray  # (3,) m
-    ee_quaternion: FloatArray  # (4,) [w, x, y, z]
+    ee_rotation: FloatArray  # (3, 3)
     stamp: float  # monotonic seconds of the measurement
+    links: LinkPoses
     gripper_closed: bool = False
+    ee_quaternion: FloatArray = field(init=False)  # (4,) [w, x, y, z]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ee_quaternion", matrix_to_quat(self.ee_rotation))
+
+
+def model_state(model: World, stamp: float, gripper_closed: bool) -> RobotState:
+    """The state of a kinematic model at its current configuration."""
+    positions, rotations = model.link_poses()
+    return RobotState(
+        model.q, model.ee_position(), model.ee_rotation(), stamp,
+        LinkPoses(positions, rotations), gripper_closed,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class JointCommand:
+    """What :meth:`Adapter.send_joint_velocity` sent: the joint velocities (rad/s) and the
+    EE's linear velocity they make, to first order (m/s)."""
+
+    qdot: FloatArray
+    ee_velocity: FloatArray
+
+
+#: Joint-space moves keep the EE's turning rate below this, rad/s.
+MAX_EE_ANGULAR_SPEED = 0.8
+#: Bisection steps cutting a joint step that would leave the workspace box.
+BOX_BISECTIONS = 16
 
 
 class Adapter(ABC):
     """A robot reached through a hardware profile.
 
     Every adapter is built the same way, so the daemon picks one from the registry by the
-    profile's ``adapter`` name.
+    profile's ``adapter`` name. The control loop reads the state once per tick
+    (:meth:`read_state`) and hands that state to the command it sends
+    (:meth:`send_velocity` or :meth:`send_joint_velocity`), which clamps the command to
+    the safety envelope and returns what was actually sent.
+
+    The envelope is the profile's workspace box with a floor that keeps the fingertips
+    :data:`~legws_daemon.robot.gripper.FINGERTIP_CLEARANCE` above the table at the EE's
+    orientation; a move may lower that floor to its own target (the final approach of a
+    grasp), never below the box.
 
     Args:
         profile: the hardware profile (rates, limits, workspace box, adapter settings).
@@ -57,11 +109,11 @@ class Adapter(ABC):
         self.profile = profile
         self.scene = scene
         self.session = session
-        self._kinematics: World | None = None
-        ws = profile.workspace
-        self.box = Box(np.array([ws.x[0], ws.y[0], ws.z[0]]), np.array([ws.x[1], ws.y[1], ws.z[1]]))
+        self.box = Box.of(profile.workspace)
         self.dt = 1.0 / profile.control.rate_hz
         self.v_max = max(profile.control.v_max, profile.control.assist_speed)
+        self.w_max = MAX_EE_ANGULAR_SPEED
+        self.table_height = scene.workspace.table_height
 
     @abstractmethod
     def connect(self) -> None:
@@ -75,19 +127,36 @@ class Adapter(ABC):
     def read_state(self) -> RobotState:
         """The latest measured state."""
 
+    @property
     @abstractmethod
-    def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
-        """Apply an already clamped EE velocity for one control period."""
+    def kinematics(self) -> World:
+        """The robot's kinematic model (connected adapters only): the envelope predicts
+        joint steps with it, the motion planner plans on a twin of it."""
+
+    @abstractmethod
+    def _command(
+        self, state: RobotState, velocity: FloatArray, hold: FloatArray | None, box: Box
+    ) -> None:
+        """Apply an already clamped EE velocity for one control period, from ``state``;
+        the EE must not leave ``box`` (the envelope the velocity was clamped to)."""
+
+    @abstractmethod
+    def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
+        """Apply already clamped joint velocities for one control period, from ``state``."""
 
     @abstractmethod
     def grip(self, closed: bool) -> None:
         """Close (``True``) or open the gripper."""
 
+    @abstractmethod
+    def halt(self) -> None:
+        """Command zero velocity now, without a state (the state may be what failed)."""
+
     def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         """Measured object poses, name -> (position, quaternion ``[w, x, y, z]``).
 
-        Empty when the adapter cannot see objects (a real robot without a tracker; issue
-        6 feeds them from ``legws/<robot>/objects``).
+        Empty when the adapter cannot see objects (a real robot: a tracker reports them on
+        ``legws/<robot>/objects``).
         """
         return {}
 
@@ -95,35 +164,93 @@ class Adapter(ABC):
         """Put objects at ``layout``; ``False`` when a person has to (a real robot)."""
         return False
 
-    def link_poses(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Origins ``(K, 3)`` and rotations ``(K, 3, 3)`` of the arm's links at ``q``
-        (from a kinematic model of the robot; for drawing)."""
-        if self._kinematics is None:
-            from legws_daemon.robot.world import World  # compiled once, ~20 ms
+    def envelope(self, rotation: FloatArray, floor: float | None = None) -> Box:
+        """The workspace box with the fingertip floor for the EE orientation ``rotation``
+        (lowered to ``floor`` for a final approach, never below the box)."""
+        z = floor_height(rotation, self.table_height)
+        if floor is not None:
+            z = min(z, floor)
+        return self.box.with_floor(z)
 
-            self._kinematics = World(self.scene, visual=False)
-        return self._kinematics.link_poses(q)
-
-    def send_velocity(self, velocity: object, hold: FloatArray | None = None) -> FloatArray:
-        """Clamp ``velocity`` to the safety envelope, send it, return what was sent.
+    def send_velocity(
+        self,
+        state: RobotState,
+        velocity: object,
+        hold: FloatArray | None = None,
+        floor: float | None = None,
+    ) -> FloatArray:
+        """Clamp ``velocity`` to the safety envelope at ``state``, send it, return what
+        was sent.
 
         Args:
+            state: this tick's state (read once, by the caller).
             velocity: requested EE linear velocity (3,), m/s; anything invalid sends zero.
             hold: EE orientation (3, 3) to hold, or ``None`` for the current one.
+            floor: the lowest EE height this command may reach (a final approach), m.
         """
-        state = self.read_state()
-        sent = clamp_ee_velocity(state.ee_position, velocity, self.dt, self.box, self.v_max)
-        self._command(sent, hold)
+        box = self.envelope(state.ee_rotation, floor)
+        sent = clamp_ee_velocity(state.ee_position, velocity, self.dt, box, self.v_max)
+        self._command(state, sent, hold, box)
         return sent
 
-    def halt(self) -> None:
-        """Command zero velocity without reading the state first (the state may be what
-        failed); adapters that talk to a robot override it to send zero directly."""
-        self._command(np.zeros(3), None)
+    def send_joint_velocity(
+        self, state: RobotState, qdot: object, floor: float | None = None
+    ) -> JointCommand:
+        """Clamp joint velocities (joint speed and position limits, EE speed at most
+        ``v_max``, turning at most ``w_max``, the EE inside the envelope), send them,
+        return what was sent.
+
+        Args:
+            state: this tick's state.
+            qdot: requested joint velocities (7,), rad/s; anything invalid sends zero.
+            floor: the lowest EE height this command may reach, m.
+        """
+        model = self.kinematics
+        arm = model.arm
+        qd = clamp_joint_velocity(
+            state.q, qdot, self.dt, arm.lower + LIMIT_MARGIN, arm.upper - LIMIT_MARGIN,
+            JOINT_SPEED_LIMITS,
+        )  # fmt: skip
+        ee_velocity = np.zeros(3)
+        if qd.any():
+            if not np.array_equal(model.q, state.q):
+                model.set_q(state.q)  # (the adapter's model is usually there: it was read)
+            J = model.jacobian()
+            qd = limit_ee_speed(J, qd, self.v_max, self.w_max)
+            qd = self._joint_step_in_envelope(model, state, qd, floor)
+            ee_velocity = J[:3] @ qd
+        self._command_joints(state, qd)
+        return JointCommand(qd, ee_velocity)
+
+    def _joint_step_in_envelope(
+        self, model: World, state: RobotState, qdot: FloatArray, floor: float | None
+    ) -> FloatArray:
+        """``qdot`` shortened (same direction) so that the step ends with the EE no further
+        outside the envelope, on any axis, than it is now (inside: not outside at all)."""
+        box0 = self.envelope(state.ee_rotation, floor)
+        p0 = state.ee_position
+        allowed = np.maximum(np.maximum(box0.lower - p0, p0 - box0.upper), 0.0)
+
+        def fits(fraction: float) -> bool:
+            model.set_q(state.q + fraction * qdot * self.dt)
+            p = model.ee_position()
+            box = self.envelope(model.ee_rotation(), floor)
+            return bool(np.all(np.maximum(box.lower - p, p - box.upper) <= allowed + 1e-9))
+
+        if fits(1.0):
+            return qdot
+        good, bad = 0.0, 1.0
+        for _ in range(BOX_BISECTIONS):
+            mid = 0.5 * (good + bad)
+            if fits(mid):
+                good = mid
+            else:
+                bad = mid
+        return qdot * good
 
     def stop(self) -> FloatArray:
-        """Send zero velocity."""
-        return self.send_velocity(np.zeros(3))
+        """Send zero velocity from a freshly read state."""
+        return self.send_velocity(self.read_state(), np.zeros(3))
 
     def __enter__(self) -> Adapter:
         self.connect()

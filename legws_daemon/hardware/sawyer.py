@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import zenoh
 
-from legws_daemon.core.geometry import FloatArray, matrix_to_quat
+from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
     JOINT_SPEED_LIMITS,
@@ -36,10 +36,10 @@ from legws_daemon.formats.bridge_messages import (
 )
 from legws_daemon.formats.messages import dump
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.hardware.base import Adapter, RobotState, register
-from legws_daemon.hardware.sim import ORIENTATION_GAIN
-from legws_daemon.robot.kinematics import small_rotation_error
+from legws_daemon.hardware.base import Adapter, RobotState, model_state, register
+from legws_daemon.robot.kinematics import ORIENTATION_GAIN, small_rotation_error
 from legws_daemon.robot.world import World
+from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.scene import Scene
 
 if TYPE_CHECKING:
@@ -93,7 +93,7 @@ class SawyerAdapter(Adapter):
         self._first = threading.Event()
         self._subscriber: zenoh.Subscriber[None] | None = None
         self._publisher: zenoh.Publisher | None = None
-        self._fk: World | None = None  # own model: link_poses may run on another thread
+        self._fk: World | None = None  # the kinematic model (the control thread's)
         self._ik: MinkVelocityIK | None = None
         self._seq = 0
         self._gripper: Literal["open", "closed"] | None = None
@@ -113,7 +113,8 @@ class SawyerAdapter(Adapter):
         if self.connected:
             return
         if self._fk is None:
-            self._fk = World(self.scene, visual=False)
+            # with the link meshes: the motion planner checks collisions on a twin of it
+            self._fk = World(self.scene)
         if self._ik is None:
             # imported here: mink and qpsolvers add ~0.25 s to the import, for this adapter only
             from legws_daemon.robot.mink_ik import MinkVelocityIK
@@ -212,8 +213,12 @@ class SawyerAdapter(Adapter):
             raise LegwsError("the sawyer adapter is not connected")
         return self._ik
 
+    @property
+    def kinematics(self) -> World:
+        return self._model()
+
     def read_state(self) -> RobotState:
-        """The newest measured state, with the EE pose from the kinematic model.
+        """The newest measured state, with the EE and link poses from the kinematic model.
 
         Raises:
             HardwareError: the state is older than ``heartbeat_timeout``, or the bridge
@@ -221,39 +226,37 @@ class SawyerAdapter(Adapter):
         """
         msg, received = self._fresh()
         model = self._model()
-        q = np.array(msg.q, dtype=np.float64)
-        model.set_q(q)
-        return RobotState(
-            q,
-            model.ee_position(),
-            matrix_to_quat(model.ee_rotation()),
-            received,
-            gripper_closed=msg.gripper == "closed",
-        )
+        model.set_q(np.array(msg.q, dtype=np.float64))
+        return model_state(model, received, msg.gripper == "closed")
 
     # --- commands -----------------------------------------------------------------
-    def _command(self, velocity: FloatArray, hold: FloatArray | None) -> None:
-        """Joint velocities realising the EE velocity from the newest measured ``q``.
+    def _command(
+        self, state: RobotState, velocity: FloatArray, hold: FloatArray | None, box: Box
+    ) -> None:
+        """Joint velocities realising the EE velocity from this tick's measured ``q``.
+
+        The twist is tracked by the QP within the joint limits; the box was enforced on
+        ``velocity`` by the envelope (first order, one period).
 
         Raises:
             InputError: a non-finite orientation to hold (nothing is sent).
             InfeasibleError: the IK's QP found no solution (nothing is sent; the daemon
                 halts the arm on any error).
         """
-        msg, _ = self._fresh()
         dq = np.zeros(7)
         if np.any(velocity):
-            model = self._model()
-            q = np.array(msg.q, dtype=np.float64)
-            model.set_q(q)
-            R = model.ee_rotation()
+            R = state.ee_rotation
             target = R if hold is None else np.asarray(hold, dtype=np.float64)
             twist = np.concatenate([velocity, ORIENTATION_GAIN * small_rotation_error(R, target)])
-            dq = self._solver().joint_velocity(q, twist, self.dt)
+            dq = self._solver().joint_velocity(state.q, twist, self.dt)
             # the contract's limits (bridge_messages); the IK keeps to the same values
             dq = np.clip(dq, -_SPEED_LIMITS, _SPEED_LIMITS)
         # a zero command moves nothing: no orientation correction, no null-space drift
         self._publish(dq)
+
+    def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
+        """Publish joint velocities the envelope has already clamped."""
+        self._publish(np.clip(qdot, -_SPEED_LIMITS, _SPEED_LIMITS))
 
     def halt(self) -> None:
         """Publish zero joint velocities now, without reading the state (e.g. on a fault)."""

@@ -16,26 +16,69 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.user_model import clip_unit, deflection, noise
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import Buttons, StatusMessage, parse
-from legws_daemon.joystick.publisher import Axes, Sample, clip_norm
+from legws_daemon.joystick.publisher import Sample
 
 #: A status older than this is not used to steer, seconds.
 STATUS_STALE = 0.5
 #: Within this distance of the goal position the user stops pushing and confirms, metres.
 ARRIVED = 0.01
-ZERO: Axes = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class UserView:
+    """What the user sees of the robot: the daemon's status, or the controller itself when
+    both run in one process (``legws eval``, the in-process demo).
+
+    Attributes:
+        mode: the controller's mode; decision: the decision's number in the run.
+        stage: the stage (``a|b`` while the user chooses between stages).
+        ee_position: where the EE is, m.
+        targets: goal -> position of the current decision, m.
+    """
+
+    mode: str
+    decision: int
+    stage: str
+    ee_position: FloatArray
+    targets: Mapping[str, FloatArray]
+
+    @classmethod
+    def from_status(cls, status: StatusMessage) -> UserView | None:
+        """The view a status gives, or ``None`` when it has no EE pose."""
+        if status.ee is None:
+            return None
+        targets = {g: np.array(p) for g, p in status.targets.items()}
+        return cls(
+            status.mode, status.decision, status.stage or "", np.array(status.ee.position),
+            targets,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class UserAction:
+    """What the user does this tick: a deflection (3,) and the buttons."""
+
+    axes: FloatArray
+    confirm: bool = False
+    cancel: bool = False
+
+
+def _hands_off() -> UserAction:
+    return UserAction(np.zeros(3))
 
 
 @dataclass
 class SimUser:
-    """The user model.
+    """The user model (:mod:`legws_daemon.core.user_model`) with a mind of its own.
 
     Args:
         wants: goals in order of preference; at each decision the first one on offer is
@@ -62,9 +105,9 @@ class SimUser:
     def goal(self) -> str | None:
         return self._goal
 
-    def _choose(self, status: StatusMessage) -> str | None:
-        offered = tuple(sorted(status.targets))
-        key = (status.decision, status.stage or "", offered)
+    def _choose(self, view: UserView) -> str | None:
+        offered = tuple(sorted(view.targets))
+        key = (view.decision, view.stage, offered)
         if key != self._decision:
             self._decision = key
             used = {g for _, g in self.chosen}
@@ -79,36 +122,40 @@ class SimUser:
                 self.chosen.append((key[1], self._goal))
         return self._goal
 
-    def deflection(self, position: FloatArray, target: FloatArray) -> Axes:
-        to_goal = target - position
-        dist = math.sqrt(float(to_goal @ to_goal))
-        if dist < ARRIVED:
-            return ZERO
-        u = to_goal / dist + self.rng.standard_normal(3) * (self.sigma / self.v_max)
-        return clip_norm(u.tolist())
+    def deflection(self, position: FloatArray, target: FloatArray) -> FloatArray:
+        """The stick toward ``target``: method.md §2, clipped to ``|u| <= 1``."""
+        eps = noise(self.rng, (), self.sigma, self.v_max)
+        return clip_unit(deflection(position, target, eps))
 
-    def sample(self, status: StatusMessage | None, now: float) -> Sample | None:
-        """What the user does given the newest status (``None``: nothing to go on)."""
-        if status is None or status.ee is None:
-            return None
-        if status.mode == "teleop":
+    def act(self, view: UserView, now: float) -> UserAction:
+        """What the user does given what it sees at ``now`` (seconds)."""
+        if view.mode == "teleop":
             self._assist_since = None
-            goal = self._choose(status)
+            goal = self._choose(view)
             if goal is None:
-                return ZERO, Buttons()  # nothing wanted on offer: hold the dead-man, wait
-            position = np.array(status.ee.position)
-            target = np.array(status.targets[goal])
-            if float(np.linalg.norm(target - position)) < ARRIVED:
+                return _hands_off()  # nothing wanted on offer: hold the dead-man, wait
+            target = view.targets[goal]
+            to_goal = target - view.ee_position
+            if math.sqrt(float(to_goal @ to_goal)) < ARRIVED:
                 # at the goal and still no commit: confirm it, as a person would
-                return ZERO, Buttons(confirm=True)
-            return self.deflection(position, target), Buttons()
-        if status.mode == "assist" and self.cancel_after is not None and not self.cancelled:
+                return UserAction(np.zeros(3), confirm=True)
+            return UserAction(self.deflection(view.ee_position, target))
+        if view.mode == "assist" and self.cancel_after is not None and not self.cancelled:
             if self._assist_since is None:
                 self._assist_since = now
             if now - self._assist_since >= self.cancel_after:
                 self.cancelled = True
-                return ZERO, Buttons(cancel=True)
-        return ZERO, Buttons()
+                return UserAction(np.zeros(3), cancel=True)
+        return _hands_off()
+
+    def sample(self, status: StatusMessage | None, now: float) -> Sample | None:
+        """What the user publishes given the newest status (``None``: nothing to go on)."""
+        view = UserView.from_status(status) if status is not None else None
+        if view is None:
+            return None
+        a = self.act(view, now)
+        x, y, z = (float(v) for v in a.axes)
+        return (x, y, z), Buttons(cancel=a.cancel, confirm=a.confirm)
 
 
 class StatusWatch:

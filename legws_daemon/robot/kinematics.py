@@ -20,6 +20,9 @@ from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
 DAMPING = 0.02
 #: Joint limits are kept this far inside the hardware range, rad.
 LIMIT_MARGIN = 0.02
+#: Gain turning the EE toward an orientation it is told to hold, 1/s (the stand-in's and the
+#: real arm's Cartesian commands alike).
+ORIENTATION_GAIN = 2.0
 _DAMPING_EYE = DAMPING**2 * np.eye(6)
 
 
@@ -70,20 +73,21 @@ READY_POSTURE = np.array([0.0, -0.6, 0.0, 1.4, 0.0, 0.8, 0.0])
 POSTURE_GAIN = 0.5
 
 
-def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
+def velocity_step(world: World, twist: ArrayLike, dt: float, *, posture: bool = True) -> StepResult:
     """Move the arm by the EE twist ``[v (3), w (3)]`` for ``dt`` seconds.
 
-    The arm's redundancy is used, in the null space of the EE task, to drift slowly toward
-    :data:`READY_POSTURE`. The joint velocity is then scaled down uniformly (direction kept)
-    to respect the joint speed limits, and joint positions are clamped inside the limits.
+    With ``posture``, the arm's redundancy drifts slowly toward :data:`READY_POSTURE` in the
+    exact null space of the EE task (it does not move the EE to first order). The joint
+    velocity is then scaled down uniformly (direction kept) to respect the joint speed
+    limits, and joint positions are clamped inside the limits.
     """
     J = world.jacobian()
     q = world.q
-    posture = POSTURE_GAIN * (READY_POSTURE - q)
-    posture[6] = 0.0  # the wrist roll is free: it follows the grasp yaw
+    pull = POSTURE_GAIN * (READY_POSTURE - q) if posture else np.zeros(7)
+    pull[6] = 0.0  # the wrist roll is free: it follows the grasp yaw
     tw = np.asarray(twist, dtype=np.float64)
     lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
-    qdot = _redundant_solve(J, tw, posture)
+    qdot = _redundant_solve(J, tw, pull)
     q_next = q + qdot * dt
     blocked = ((q_next < lo) & (qdot < 0)) | ((q_next > hi) & (qdot > 0))
     any_blocked = bool(blocked.any())
@@ -91,7 +95,7 @@ def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
         # joints that would pass a limit stop there; the others take over their share
         free = ~blocked
         qdot = np.zeros(7)
-        qdot[free] = _redundant_solve(J[:, free], tw, posture[free])
+        qdot[free] = _redundant_solve(J[:, free], tw, pull[free])
     ratio = float((np.abs(qdot) / JOINT_SPEED_LIMITS).max())
     scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
     if scale != 1.0:
@@ -102,14 +106,25 @@ def velocity_step(world: World, twist: ArrayLike, dt: float) -> StepResult:
     return StepResult(qdot, scale, any_blocked or bool((clamped != q).any()))
 
 
+#: Regularisation of the null-space projector: small enough that the projection is exact
+#: to first order, large enough to stay finite at a singularity.
+_PROJECTOR_EYE = 1e-9 * np.eye(6)
+
+
 def _redundant_solve(J: FloatArray, twist: FloatArray, posture: FloatArray) -> FloatArray:
-    """``J+ twist + (I - J+ J) posture`` with the damped ``J+ = J^T (J J^T + l^2 I)^-1``."""
-    A = J @ J.T + _DAMPING_EYE
-    rhs = np.empty((6, 2))
-    rhs[:, 0] = twist
-    rhs[:, 1] = J @ posture
-    y = np.linalg.solve(A, rhs)
-    return np.asarray(J.T @ (y[:, 0] - y[:, 1]) + posture, dtype=np.float64)
+    """``J+ twist + (I - J# J) posture``: the damped ``J+ = J^T (J J^T + l^2 I)^-1`` for the
+    task, the (nearly) undamped ``J#`` for the null-space projector.
+
+    The damped projector would not be a projector: ``J (I - J+ J) posture`` is
+    ``l^2 (J J^T + l^2 I)^-1 J posture``, a drift of the EE of up to centimetres a second
+    near a singular direction, with a zero command.
+    """
+    JJt = J @ J.T
+    task = J.T @ np.linalg.solve(JJt + _DAMPING_EYE, twist)
+    if not posture.any():
+        return np.asarray(task, dtype=np.float64)
+    null = posture - J.T @ np.linalg.solve(JJt + _PROJECTOR_EYE, J @ posture)
+    return np.asarray(task + null, dtype=np.float64)
 
 
 def home_configuration(world: World, position: ArrayLike, rotation: ArrayLike) -> IKResult:

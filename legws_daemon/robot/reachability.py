@@ -68,7 +68,8 @@ from legws_daemon.formats.files import write_atomic
 from legws_daemon.robot.assets import assets_dir, sawyer_dir
 from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
 from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
-from legws_daemon.robot.world import FINGER_GAP, TCP_OFFSET, World
+from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
+from legws_daemon.robot.world import World
 from legws_daemon.scene.grasps import GRASP_KINDS, SIDE_MIN_HEIGHT, derive_grasp
 from legws_daemon.scene.scene import ObjectPose, Scene
 

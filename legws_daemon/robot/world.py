@@ -13,6 +13,7 @@ primitives (only without meshes; hidden in renders), 4 grasp markers.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -22,16 +23,13 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat
 from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.robot.gripper import FINGER_GAP, FINGER_HALF, TCP_OFFSET
 from legws_daemon.scene.scene import ObjectPose, Scene
 
 PREFIX = "sawyer/"
 ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))
 #: Joint speed limits of the Sawyer (Intera specification), rad/s.
 JOINT_SPEED_LIMITS = np.array([1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545])
-#: Distance from the hand flange to the grasp point between the fingertips, metres.
-TCP_OFFSET = 0.11
-#: Half of the opening between the fingers' inner faces, metres.
-FINGER_GAP = 0.042
 
 #: Links whose meshes collide (with meshes loaded); the base, shoulder and head keep the
 #: robot description's primitives (their meshes are not all convex-hullable, and they
@@ -95,11 +93,12 @@ def _robot_spec(visual: bool) -> mujoco.MjSpec:
         name="gripper_base", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.055, 0.03],
         pos=[0, 0, 0.03], rgba=grey, group=1,
     )  # fmt: skip
+    hx, hy, hz = FINGER_HALF  # in the ee frame: hand y is the closing direction
     for side, y in (("l", 1.0), ("r", -1.0)):
         # fingers end at the grasp point (the TCP), so fingertips never pass below it
         hand.add_geom(
-            name=f"finger_{side}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.008, 0.006, 0.03],
-            pos=[0, y * (FINGER_GAP + 0.006), TCP_OFFSET - 0.03], rgba=[0.1, 0.1, 0.1, 1.0],
+            name=f"finger_{side}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hy, hx, hz],
+            pos=[0, y * (FINGER_GAP + hx), TCP_OFFSET - hz], rgba=[0.1, 0.1, 0.1, 1.0],
             group=1,
         )  # fmt: skip
     # site frame: z along the hand's z (approach), x along the hand's -y (closing direction;
@@ -184,6 +183,20 @@ class World:
         assert np.array_equal(qadr, np.arange(qadr[0], qadr[-1] + 1))
         mujoco.mj_forward(m, self.data)
 
+    def twin(self) -> World:
+        """Another arm and layout state on the same compiled model (its own ``MjData``,
+        starting where this one is): to plan, check or draw without moving this one.
+        Cheap: nothing is compiled again."""
+        other = copy.copy(self)
+        other.data = mujoco.MjData(self.model)
+        other.data.qpos[:] = self.data.qpos
+        other.data.mocap_pos[:] = self.data.mocap_pos
+        other.data.mocap_quat[:] = self.data.mocap_quat
+        other._jacp = np.zeros_like(self._jacp)
+        other._jacr = np.zeros_like(self._jacr)
+        mujoco.mj_forward(self.model, other.data)
+        return other
+
     # --- layout -------------------------------------------------------------------
     def set_layout(self, layout: Mapping[str, ObjectPose]) -> None:
         """Move the named objects (others keep their pose); kinematics is updated."""
@@ -219,7 +232,8 @@ class World:
         return np.array(self.data.site_xpos[self.arm.ee_site])
 
     def ee_rotation(self) -> FloatArray:
-        return np.asarray(self.data.site_xmat[self.arm.ee_site], dtype=np.float64).reshape(3, 3)
+        """The EE orientation (3, 3): a copy (MuJoCo's buffer changes with the arm)."""
+        return np.array(self.data.site_xmat[self.arm.ee_site], dtype=np.float64).reshape(3, 3)
 
     def ee_pose(self) -> Pose:
         return Pose(self.ee_position(), matrix_to_quat(self.ee_rotation()))

@@ -10,6 +10,9 @@ commands, :func:`clamp_joint_velocity`). The rules, in order:
    is allowed.
 
 The result is what may be sent; the caller reports it as "what was actually sent".
+Joint velocity commands (the assistance's joint-space moves) are bounded the same way:
+:func:`clamp_joint_velocity` for the joints' own limits, :func:`limit_ee_speed` for the EE's
+linear and angular speed; the adapter keeps the resulting step inside the box.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
+from legws_daemon.formats.profile import WorkspaceBox
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,9 +48,26 @@ class Box:
         object.__setattr__(self, "lower", lo)
         object.__setattr__(self, "upper", hi)
 
+    @classmethod
+    def of(cls, workspace: WorkspaceBox) -> Box:
+        """The box of a hardware profile's ``[workspace]``."""
+        x, y, z = workspace.x, workspace.y, workspace.z
+        return cls(np.array([x[0], y[0], z[0]]), np.array([x[1], y[1], z[1]]))
+
     def contains(self, p: ArrayLike, tol: float = 1e-9) -> bool:
         q = np.asarray(p, dtype=np.float64)
         return bool(np.all(q >= self.lower - tol) and np.all(q <= self.upper + tol))
+
+    def with_floor(self, z: float) -> Box:
+        """This box with its floor at height ``z``: raised or lowered, but never below this
+        box's own floor and always below its ceiling (a non-finite ``z`` keeps the floor)."""
+        lower = self.lower.copy()
+        if math.isfinite(z):
+            lower[2] = min(max(z, self.lower[2]), self.upper[2] - 1e-6)
+        box = object.__new__(Box)  # valid by construction: no second validation per tick
+        object.__setattr__(box, "lower", lower)
+        object.__setattr__(box, "upper", self.upper)
+        return box
 
 
 def _finite_vector(v: object, n: int) -> FloatArray | None:
@@ -121,3 +142,29 @@ def clamp_joint_velocity(
         np.maximum(qd[under], 0.0),
     )
     return np.asarray(out, dtype=np.float64)
+
+
+def limit_ee_speed(jacobian: ArrayLike, qdot: ArrayLike, v_max: float, w_max: float) -> FloatArray:
+    """``qdot`` scaled down uniformly (direction kept) so that the EE moves at most
+    ``v_max`` (m/s) and turns at most ``w_max`` (rad/s), to first order.
+
+    Args:
+        jacobian: ``(6, n)`` EE Jacobian, linear rows then angular rows.
+        qdot: ``(n,)`` finite joint velocities (e.g. from :func:`clamp_joint_velocity`).
+    """
+    J = np.asarray(jacobian, dtype=np.float64)
+    qd = np.asarray(qdot, dtype=np.float64)
+    twist = J @ qd
+    v = math.hypot(*twist[:3])
+    w = math.hypot(*twist[3:])
+    ratio = max(_over(v, v_max), _over(w, w_max))
+    if not math.isfinite(ratio):
+        return np.zeros_like(qd)
+    return qd / ratio if ratio > 1.0 else qd.copy()
+
+
+def _over(speed: float, limit: float) -> float:
+    """How many times ``limit`` the ``speed`` is (0 for no motion, inf past a zero limit)."""
+    if not speed > 0.0:
+        return 0.0 if speed == 0.0 else math.inf  # NaN: refuse
+    return speed / limit if limit > 0.0 else math.inf

@@ -1,1 +1,2 @@
-"""The MuJoCo Sawyer stand-in: assets, world composition, control, IK, feasibility, episodes."""
+"""The paper's simulation protocol (method.md §8) on the deployed shared-autonomy loop:
+``legws eval``."""

@@ -18,7 +18,7 @@ from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.layout_file import layout_to_data
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.protocol import Evaluator, Pick, metrics
+from legws_daemon.sim.protocol import Evaluator, PickResult, metrics
 from legws_daemon.workers import worker_context
 
 _worker: Evaluator | None = None
@@ -29,7 +29,7 @@ def _init_worker(scene_source: str, params: Params) -> None:
     _worker = Evaluator(load_scene(scene_source), params)
 
 
-def _evaluate(job: tuple[int, Layout, int]) -> tuple[int, dict[str, Any], list[Pick]]:
+def _evaluate(job: tuple[int, Layout, int]) -> tuple[int, dict[str, Any], list[PickResult]]:
     index, layout, seed = job
     assert _worker is not None
     ev = _worker.evaluate(layout, [seed, index])
@@ -57,7 +57,7 @@ def run_eval(
     params = params or Params()
     started = time.perf_counter()
     jobs = [(i, dict(layout), seed) for i, layout in enumerate(layouts)]
-    results: dict[int, tuple[dict[str, Any], list[Pick]]] = {}
+    results: dict[int, tuple[dict[str, Any], list[PickResult]]] = {}
     if workers <= 1:
         _init_worker(scene.source, params)
         for job in jobs:
@@ -78,14 +78,14 @@ def run_eval(
                     progress(1)
     seconds = time.perf_counter() - started
     per_layout = []
-    all_picks: list[Pick] = []
+    all_picks: list[PickResult] = []
     for i, layout in enumerate(layouts):
         extra, picks = results[i]
         all_picks += picks
         per_layout.append({"index": i, "layout": layout_to_data(layout), **extra, **metrics(picks)})
     accs = [row["accuracy"] for row in per_layout]
-    episodes = sum(p.episode is not None for p in all_picks)
-    simulated = sum(p.episode.duration for p in all_picks if p.episode is not None)
+    episodes = sum(p.feasible for p in all_picks)
+    simulated = sum(p.duration for p in all_picks)
     aggregate = {
         **metrics(all_picks),
         "accuracy_layout_mean": float(np.mean(accs)),
@@ -120,7 +120,7 @@ def _sec(x: float | None) -> str:
 
 
 def markdown(report: dict[str, Any]) -> str:
-    """The report as Markdown: the aggregate row, then one row per layout."""
+    """The report as Markdown: the aggregate row, the failures, then one row per layout."""
     a = report["aggregate"]
     t_infer = (
         f"{_sec(a['t_infer_mean'])} ± {_sec(a['t_infer_sd'])}"
@@ -132,23 +132,30 @@ def markdown(report: dict[str, Any]) -> str:
         f"{report['layouts']} layouts, seed {report['seed']}",
         "",
         "| accuracy | accuracy, feasible picks | T_infer (s) | commit | wrong commit | no commit "
-        "| infeasible picks | picks | episodes/s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| confirmed | completed | completed, acted on | infeasible picks | picks | picks/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
         f"| {_pct(a['accuracy'])} | {_pct(a['accuracy_feasible'])} | {t_infer} "
-        f"| {_pct(a['commit_rate'])} "
-        f"| {_pct(a['wrong_commit_rate'])} | {_pct(a['no_commit_rate'])} "
+        f"| {_pct(a['commit_rate'])} | {_pct(a['wrong_commit_rate'])} "
+        f"| {_pct(a['no_commit_rate'])} | {_pct(a['confirmed_rate'])} "
+        f"| {_pct(a['completion_rate'])} | {_pct(a['completion_committed'])} "
         f"| {a['infeasible_picks']} | {a['episodes']} "
         f"| {report['timing']['episodes_per_second']:.0f} |",
         "",
-        "| layout | accuracy | T_infer (s) | commit | wrong | no commit | infeasible grasps |",
-        "|---|---|---|---|---|---|---|",
+        "Failures: " + (", ".join(f"{k} {v}" for k, v in a["failures"].items()) or "none") + ".",
+        "",
+        "| layout | accuracy | T_infer (s) | commit | wrong | no commit | completed "
+        "| infeasible grasps | other failures |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in report["per_layout"]:
         bad = ", ".join(f"{n} ({r})" for n, r in row["infeasible"].items()) or "—"
+        other = {k: v for k, v in row["failures"].items() if k != "infeasible_grasp"}
+        others = ", ".join(f"{k} {v}" for k, v in other.items()) or "—"
         lines.append(
             f"| {row['index']} | {_pct(row['accuracy'])} | {_sec(row['t_infer_mean'])} "
             f"| {_pct(row['commit_rate'])} | {_pct(row['wrong_commit_rate'])} "
-            f"| {_pct(row['no_commit_rate'])} | {bad} |"
+            f"| {_pct(row['no_commit_rate'])} | {_pct(row['completion_rate'])} | {bad} "
+            f"| {others} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -1,29 +1,75 @@
-"""The paper's simulation protocol (method.md §8) for one layout, and its metrics.
+"""The paper's simulation protocol (method.md §8) on the deployed shared-autonomy loop.
 
-Per layout: every grasp is checked for IK reachability and collisions; infeasible grasps
-leave the candidate set but every episode that wants them counts as a failure. Pick
-orders are all permutations of the goals (at most 120 sampled for M >= 5); after each
-pick the object returns, the arm goes home and inference resets.
+What is measured is what runs on the robot: the daemon's
+:class:`~legws_daemon.autonomy.controller.Controller` drives the ``sim`` adapter (the
+MuJoCo stand-in) in simulated time — no pacing, the stand-in's cheap differential
+kinematics — with the simulated user of method.md §2 on the joystick
+(:class:`~legws_daemon.joystick.sim_user.SimUser`, the same as ``legws joystick
+sim-user``). The protocol's definitions are kept:
+
+- per layout every candidate's grasp is checked for IK reachability and collisions (the
+  motion planner's feasibility check, whose IK solution the assistance then uses); an
+  infeasible grasp leaves the candidate set, but every pick that wants it is a failure;
+- pick orders are all permutations of the goals (at most :data:`MAX_ORDERS` sampled);
+  every pick starts with the arm at home, the objects at the layout and inference reset;
+- the user steers toward the true goal's grasp position; the observer commits at
+  ``p >= p_thresh``; a user who reaches the grasp position (within
+  :data:`~legws_daemon.joystick.sim_user.ARRIVED`) before any commit presses *confirm*
+  (the controller then acts on its most likely goal); a pick with neither within
+  :data:`TIMEOUT_S` of motion onset is a failure.
+
+Beyond the paper, the whole pick runs: after the commit the controller's assistance plans
+and executes the approach, closes the gripper and lifts the object, then goes home. A pick
+is *completed* when the true goal's object is in the gripper with its lowest point at least
+:data:`LIFT_CLEARANCE` above the table; every pick that is not gets a named failure.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.events import AssistFailed, Commit, Event, Fault, StageDone
+from legws_daemon.autonomy.inputs import OperatorInput
+from legws_daemon.autonomy.modes import Mode
+from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.core.params import Params
-from legws_daemon.robot.feasibility import GraspCheck, check_grasps
-from legws_daemon.robot.kinematics import home_configuration
-from legws_daemon.robot.world import World
+from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.joystick.sim_user import SimUser, UserView
+from legws_daemon.robot.feasibility import GraspCheck
+from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.episode import EpisodeResult, run_episode
+from legws_daemon.task.runner import scene_graph
 
 #: Most pick orders per layout (the paper samples 120 for M >= 5).
 MAX_ORDERS = 120
+#: A pick with neither a commit nor the user's confirmation this long after motion onset
+#: fails (the paper's episode limit), seconds.
+TIMEOUT_S = 30.0
+#: Simulated seconds a pick may take after its commit (assistance times out per step).
+ASSIST_LIMIT_S = 90.0
+#: A pick is completed when the object's lowest point is this far above the table, m.
+LIFT_CLEARANCE = 0.02
+
+#: Named failures of a pick (``PickResult.failure``).
+FAILURES = (
+    "infeasible_grasp",  # the grasp failed the feasibility check: no episode
+    "no_commit",  # neither a commit nor a confirmation within TIMEOUT_S
+    "wrong_commit",  # the controller acted on another goal
+    "plan_failed",  # the commit's assistance could not be planned
+    "assist_failed",  # a step of the assistance timed out or made no progress
+    "not_lifted",  # the plan finished without the object clear of the table
+    "fault",  # the adapter failed
+    "limit",  # the pick ran past TIMEOUT_S + ASSIST_LIMIT_S
+)
 
 
 def pick_orders(names: Sequence[str], rng: np.random.Generator) -> list[tuple[str, ...]]:
@@ -34,19 +80,42 @@ def pick_orders(names: Sequence[str], rng: np.random.Generator) -> list[tuple[st
 
 
 @dataclass(frozen=True, slots=True)
-class Pick:
-    """One pick of an order: an episode, or a failure because the grasp is infeasible."""
+class PickResult:
+    """One pick of an order.
+
+    Attributes:
+        true_goal: what the simulated user wanted.
+        feasible: its grasp passed the feasibility check (else nothing ran).
+        committed: the goal the observer committed to (``p >= p_thresh``, or a single
+            candidate), or ``None``.
+        commit_time: seconds from motion onset to that commit (``None`` for none, and for
+            a single candidate, which needs no inference).
+        confirmed: the goal the controller acted on after the user's confirmation (at the
+            grasp without a commit), or ``None``.
+        final_goal: the goal acted on, else the observer's argmax at the end (``None``
+            without an episode).
+        completed: the true goal's object was lifted clear of the table.
+        complete_time: seconds from motion onset to completion.
+        failure: one of :data:`FAILURES`, or ``None``; detail: what exactly.
+        duration: simulated seconds.
+    """
 
     true_goal: str
-    episode: EpisodeResult | None  # None when the true goal's grasp is infeasible
+    feasible: bool
+    committed: str | None = None
+    commit_time: float | None = None
+    confirmed: str | None = None
+    final_goal: str | None = None
+    completed: bool = False
+    complete_time: float | None = None
+    failure: str | None = None
+    detail: str = ""
+    duration: float = 0.0
 
     @property
     def correct(self) -> bool:
-        return self.episode is not None and self.episode.correct
-
-    @property
-    def committed(self) -> str | None:
-        return self.episode.committed if self.episode is not None else None
+        """Argmax accuracy of the paper: the final inferred goal is the true goal."""
+        return self.final_goal == self.true_goal
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,68 +124,204 @@ class LayoutEvaluation:
 
     layout: Layout
     feasibility: dict[str, GraspCheck]
-    picks: list[Pick] = field(repr=False)
-
-    def metrics(self) -> dict[str, float | int | None]:
-        return metrics(self.picks)
+    picks: list[PickResult] = field(repr=False)
 
 
-def metrics(picks: Sequence[Pick]) -> dict[str, float | int | None]:
-    """Argmax accuracy, T_infer (mean ± sd over commits), commit / wrong / no-commit rates.
+def _mean(xs: Sequence[float]) -> float | None:
+    return float(np.mean(xs)) if xs else None
+
+
+def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
+    """The paper's metrics and the whole pick's.
 
     ``accuracy`` counts a pick whose grasp is infeasible as a failure (the protocol);
-    ``accuracy_feasible`` is the accuracy over the picks that ran an episode.
+    ``accuracy_feasible`` is over the picks that ran. ``commit_rate`` counts the observer's
+    commits (single candidates included), ``confirmed_rate`` the user's confirmations;
+    ``completion_rate`` is over all picks, ``completion_committed`` over the feasible picks
+    the controller acted on (committed or confirmed).
     """
     n = len(picks)
-    feasible = [p for p in picks if p.episode is not None]
-    times = [
-        p.episode.commit_time for p in picks if p.episode and p.episode.commit_time is not None
-    ]
+    ran = [p for p in picks if p.feasible]
+    times = [p.commit_time for p in picks if p.commit_time is not None]
     committed = [p for p in picks if p.committed is not None]
     wrong = [p for p in committed if p.committed != p.true_goal]
+    acted = [p for p in ran if p.committed is not None or p.confirmed is not None]
+    done = [p.complete_time for p in picks if p.complete_time is not None]
+    failures = Counter(p.failure for p in picks if p.failure is not None)
     return {
         "episodes": n,
         "accuracy": sum(p.correct for p in picks) / n if n else None,
-        "accuracy_feasible": (
-            sum(p.correct for p in feasible) / len(feasible) if feasible else None
-        ),
-        "t_infer_mean": float(np.mean(times)) if times else None,
+        "accuracy_feasible": sum(p.correct for p in ran) / len(ran) if ran else None,
+        "t_infer_mean": _mean(times),
         "t_infer_sd": float(np.std(times, ddof=1)) if len(times) > 1 else None,
         "commit_rate": len(committed) / n if n else None,
         "wrong_commit_rate": len(wrong) / n if n else None,
         "no_commit_rate": (n - len(committed)) / n if n else None,
-        "infeasible_picks": sum(p.episode is None for p in picks),
+        "confirmed_rate": sum(p.confirmed is not None for p in picks) / n if n else None,
+        "completion_rate": sum(p.completed for p in picks) / n if n else None,
+        "completion_committed": (sum(p.completed for p in acted) / len(acted) if acted else None),
+        "t_complete_mean": _mean(done),
+        "infeasible_picks": sum(not p.feasible for p in picks),
+        "failures": {k: failures[k] for k in FAILURES if failures[k]},
     }
 
 
-class Evaluator:
-    """Runs the protocol on layouts of one scene; keeps one compiled world."""
+class SimClock:
+    """Simulated monotonic time: whole control periods (no rounding builds up, so a pick's
+    times do not depend on how many picks ran before it)."""
 
-    def __init__(self, scene: Scene, params: Params | None = None) -> None:
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.ticks = 0
+
+    def __call__(self) -> float:
+        return self.ticks * self.dt
+
+    def advance(self) -> None:
+        self.ticks += 1
+
+
+def stand_in_profile(params: Params, base: ProfileSpec | None = None) -> ProfileSpec:
+    """The ``sim`` profile with the method's ``v_max`` and ``dt``, unpaced."""
+    p = base if base is not None else load_profile_named("sim")
+    control = p.control.model_copy(update={"v_max": params.v_max, "rate_hz": 1.0 / params.dt})
+    sim = p.sim.model_copy(update={"realtime": False})
+    return p.model_copy(update={"control": control, "sim": sim})
+
+
+class Evaluator:
+    """Runs the protocol on layouts of one scene with one controller on the stand-in.
+
+    Args:
+        scene: the scene.
+        params: observer, user-model and certificate parameters.
+        profile: the stand-in's profile (default: :func:`stand_in_profile`).
+    """
+
+    def __init__(
+        self, scene: Scene, params: Params | None = None, profile: ProfileSpec | None = None
+    ) -> None:
         self.scene = scene
         self.params = params or Params()
-        self.world = World(scene)
-        self.q_home = home_configuration(self.world, scene.home.position, scene.home.rotation).q
+        self.profile = profile if profile is not None else stand_in_profile(self.params)
+        self.clock = SimClock(self.params.dt)
+        self.events: list[Event] = []
+        self.adapter: SimAdapter | None = None
+
+        def make(sc: Scene) -> SimAdapter:
+            adapter = SimAdapter(self.profile, sc, clock=self.clock)
+            adapter.connect()
+            self.adapter = adapter
+            return adapter
+
+        self.controller = Controller(
+            self.profile, scene, scene.default_layout(), make, self.params,
+            self.events.append, clock=self.clock,
+        )  # fmt: skip
+
+    @property
+    def stand_in(self) -> SimAdapter:
+        assert self.adapter is not None
+        return self.adapter
+
+    def check(self, layout: Layout) -> dict[str, GraspCheck]:
+        """Load ``layout`` (every candidate offered) and check every candidate's grasp."""
+        c = self.controller
+        c.load(self.scene, layout, scene_graph(self.scene))
+        return {
+            t.name: c.planner.check(t.name, t.position, t.rotation, t.symmetry)
+            for t in c.stage.targets
+        }
 
     def evaluate(self, layout: Layout, seed: int | Sequence[int]) -> LayoutEvaluation:
+        """Every pick order of ``layout``; seeded, so the same seed gives the same picks."""
         rng = np.random.default_rng(seed)
-        sc = self.scene
-        self.world.set_layout(sc.poses(layout))
-        goals_all = sc.goal_set(layout)
-        checks = check_grasps(self.world, goals_all, self.q_home)
-        feasible = [n for n in goals_all.names if checks[n].feasible]
-        picks: list[Pick] = []
-        orders = pick_orders(list(goals_all.names), rng)
-        if len(feasible) >= 2:
-            goals = sc.goal_set(layout, goals=feasible)
-        for order in orders:
+        checks = self.check(layout)
+        feasible = [n for n in self.scene.goal_names if checks[n].feasible]
+        c = self.controller
+        c.load(self.scene, layout, scene_graph(self.scene, feasible))
+        picks: list[PickResult] = []
+        for order in pick_orders(list(self.scene.goal_names), rng):
             for name in order:
-                if name not in feasible:
-                    picks.append(Pick(name, None))
-                elif len(feasible) == 1:
-                    # a single candidate needs no inference: the robot takes it at once
-                    picks.append(Pick(name, EpisodeResult(name, name, None, name, False, 0.0)))
+                if name in feasible:
+                    picks.append(self.pick(name, rng))
                 else:
-                    ep = run_episode(self.world, goals, name, self.q_home, rng, self.params)
-                    picks.append(Pick(name, ep))
+                    picks.append(PickResult(name, False, failure="infeasible_grasp",
+                                            detail=checks[name].reason))  # fmt: skip
         return LayoutEvaluation(dict(layout), checks, picks)
+
+    def _lifted(self, goal: str) -> bool:
+        """The object ``goal`` is in the gripper, its lowest point clear of the table."""
+        a = self.stand_in
+        if a.held != goal:
+            return False
+        position, quaternion = a.kinematics.object_pose(goal)
+        o = self.scene.objects[goal]
+        ext = np.array(extents(o.shape, tuple(o.size)))
+        half = 0.5 * float(np.abs(quat_to_matrix(quaternion)[2]) @ ext)
+        return float(position[2]) - half >= self.scene.workspace.table_height + LIFT_CLEARANCE
+
+    def pick(self, goal: str, rng: np.random.Generator) -> PickResult:
+        """One pick of ``goal`` from home, as the protocol says (see the module docstring)."""
+        c, a, clock = self.controller, self.stand_in, self.clock
+        a.reset_arm()
+        c.restart_task()
+        user = SimUser([goal], self.params.sigma, self.params.v_max, rng)
+        start = clock.ticks
+        first = len(self.events)
+        committed = confirmed = failure = None
+        commit_time = complete_time = None
+        detail = ""
+        completed = False
+        targets: dict[str, np.ndarray] = {}
+        stage = None
+        while True:
+            now = (clock.ticks - start) * clock.dt
+            if c.mode == Mode.IDLE or failure is not None:
+                break
+            acted = committed is not None or confirmed is not None
+            if not acted and now >= TIMEOUT_S:
+                failure, detail = "no_commit", f"no commit within {TIMEOUT_S:g} s"
+                break
+            if now >= TIMEOUT_S + ASSIST_LIMIT_S:
+                failure, detail = "limit", f"still in '{c.mode}' after {now:.0f} s"
+                break
+            if c.stage is not stage:
+                stage = c.stage
+                targets = {t.name: t.position for t in stage.targets}
+            here = a.kinematics.ee_position()
+            view = UserView(c.mode.value, c.decisions, c.stage.name, here, targets)
+            act = user.act(view, now)
+            c.tick(OperatorInput(act.axes, act.confirm, act.cancel, clock()))
+            clock.advance()
+            for event in self.events[first:]:
+                match event:
+                    case Commit():
+                        if event.confirmed:
+                            confirmed = event.goal
+                        else:
+                            committed = event.goal
+                            if not event.single:
+                                commit_time = event.seconds
+                        if event.goal != goal:
+                            failure, detail = "wrong_commit", f"acted on '{event.goal}'"
+                    case AssistFailed():
+                        failure = "plan_failed" if event.phase == "plan" else "assist_failed"
+                        detail = f"{event.phase}: {event.error}"
+                    case Fault():
+                        failure, detail = "fault", event.error
+                    case StageDone() if not completed:
+                        failure, detail = "not_lifted", f"'{goal}' was not lifted clear"
+                    case _:
+                        pass
+            first = len(self.events)
+            if not completed and self._lifted(goal):
+                completed, complete_time = True, (clock.ticks - start) * clock.dt
+        final = committed or confirmed
+        if final is None and c.observer is not None:
+            final = c.observer.goals.names[int(np.argmax(c.observer.posterior))]
+        self.events.clear()
+        return PickResult(
+            goal, True, committed, commit_time, confirmed, final, completed, complete_time,
+            failure, detail, (clock.ticks - start) * clock.dt,
+        )  # fmt: skip

@@ -23,23 +23,6 @@ Action = Literal["pick", "place", "dip", "feed", "return"]
 ACTIONS: tuple[str, ...] = get_args(Action)
 Repeat = Literal["once", "until_consumed"]
 
-#: Which actions need a held object (True), an empty gripper (False), or either (None).
-NEEDS_HELD: dict[str, bool | None] = {
-    "pick": False,
-    "place": True,
-    "dip": True,
-    "feed": True,
-    "return": True,
-}
-#: Whether the gripper holds something after the action (None: unchanged).
-HOLDS_AFTER: dict[str, bool | None] = {
-    "pick": True,
-    "place": False,
-    "dip": True,
-    "feed": False,
-    "return": False,
-}
-
 
 @dataclass(frozen=True, slots=True)
 class Stage:

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+from legws_daemon.task.actions import action
 from legws_daemon.task.graph import Stage, TaskGraph
-from legws_daemon.task.targets import Target, target
+from legws_daemon.task.targets import Target
 
 
-def scene_graph(scene: Scene) -> TaskGraph:
-    """The one-stage graph of a plain scene: pick one of its candidate goals."""
-    stage = Stage("pick", tuple(scene.goal_names), "pick", (), "Which object?")
+def scene_graph(scene: Scene, goals: Sequence[str] | None = None) -> TaskGraph:
+    """The one-stage graph of a plain scene: pick one of its candidate goals (or of
+    ``goals``)."""
+    names = tuple(scene.goal_names if goals is None else goals)
+    stage = Stage("pick", names, "pick", (), "Which object?")
     return TaskGraph(f"{scene.name}_pick", scene.name, {"pick": stage}, source=scene.source)
 
 
@@ -57,7 +60,7 @@ class TaskRun:
 
     def targets(self, layout: Mapping[str, ObjectPose]) -> list[Target]:
         return [
-            target(self.scene, layout, s.name, s.action, c, self.held, self.picked_from)
+            action(s.action).target(self.scene, layout, s.name, c, self.held, self.picked_from)
             for c, s in self.candidates()
         ]
 
@@ -71,13 +74,7 @@ class TaskRun:
         """The committed ``goal``'s stage is done: update what is held, move on."""
         stage = self.stage_of(goal)
         self.history.append((stage.name, goal))
-        if stage.action == "pick":
-            self.held = goal
-            self.consumed.add(goal)
-            if goal in layout:
-                self.picked_from[goal] = layout[goal]
-        elif stage.action in ("place", "feed", "return"):
-            self.held = None
+        action(stage.action).apply(self, goal, layout)
         nxt = self.graph.successors(stage.name)
         again = not nxt and self.graph.repeat == "until_consumed"
         if again:

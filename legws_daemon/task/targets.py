@@ -1,11 +1,12 @@
-"""The pose each action aims at, for every candidate of a stage.
+"""Goal poses of a stage's candidates, and what the gripper holds.
 
 The observer infers over these poses, the certificate certifies them, and assistance
-moves to them: ``pick`` — the object's grasp; ``place`` — above the container or surface,
-gripper down, with the held object clearing its top; ``dip`` — the held food's tip just
-below the bowl's rim; ``feed`` and a ``place`` at a named place — the place's pose;
-``return`` — the grasp the object was picked with. Orientation about the vertical is
-free (symmetry 0) where the action does not care.
+moves to them; each action computes its own (:mod:`legws_daemon.task.actions`): ``pick``
+— the object's grasp; ``place`` — above the container or surface, gripper down, with the
+held object clearing its top; ``dip`` — the held food's tip just below the bowl's rim;
+``feed`` and a ``place`` at a named place — the place's pose; ``return`` — the grasp the
+object was picked with. Orientation about the vertical is free (symmetry 0) where the
+action does not care.
 
 :class:`Held` records an object the gripper has closed on, as it was taken: where the EE
 was (the pose to put it back with) and where the object sits in the gripper (to set it
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, quat_to_matrix, rot_z
+from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, rot_z
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.scene.grasps import FINGER_DEPTH, extents
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
@@ -50,7 +51,7 @@ class Target:
     symmetry: int
 
 
-def _held_above_grasp(scene: Scene, held: str | None) -> float:
+def held_above_grasp(scene: Scene, held: str | None) -> float:
     """Distance from the grasp point down to the held object's bottom."""
     if held is None or held not in scene.objects:
         return DEFAULT_HELD_HEIGHT - FINGER_DEPTH
@@ -59,44 +60,11 @@ def _held_above_grasp(scene: Scene, held: str | None) -> float:
     return h - min(FINGER_DEPTH, h / 2)
 
 
-def _top(scene: Scene, name: str, pose: ObjectPose) -> FloatArray:
+def top_of(scene: Scene, name: str, pose: ObjectPose) -> FloatArray:
+    """The centre of an object's top face, standing at ``pose``."""
     o = scene.objects[name]
     h = extents(o.shape, tuple(o.size))[2]
     return np.array([pose.x, pose.y, scene.workspace.table_height + h])
-
-
-def target(
-    scene: Scene,
-    layout: Mapping[str, ObjectPose],
-    stage: str,
-    action: str,
-    name: str,
-    held: str | None = None,
-    picked_from: Mapping[str, ObjectPose] | None = None,
-) -> Target:
-    """The goal pose of candidate ``name`` for ``action`` in ``layout``."""
-    places = {p.name: p for p in scene.spec.places}
-    if name in places:
-        p = places[name]
-        R = quat_to_matrix(np.array(p.quaternion))
-        return Target(name, stage, action, np.array(p.position), R, p.symmetry)
-    poses = scene.poses(dict(layout))
-    if action == "pick":
-        arr = np.array([[[poses[name].x, poses[name].y, poses[name].yaw]]])
-        pos, rot, sym = scene.grasp_batch([name], arr)
-        return Target(name, stage, action, pos[0, 0], rot[0, 0], int(sym[0]))
-    if action == "return":
-        origin = (picked_from or {}).get(name, poses[name])
-        arr = np.array([[[origin.x, origin.y, origin.yaw]]])
-        pos, rot, sym = scene.grasp_batch([name], arr)
-        return Target(name, stage, action, pos[0, 0], rot[0, 0], int(sym[0]))
-    top = _top(scene, name, poses[name])
-    below = _held_above_grasp(scene, held)
-    if action == "dip":
-        position = top + np.array([0.0, 0.0, below - DIP_DEPTH])
-    else:  # place (and feed at an object, which the task graph does not allow)
-        position = top + np.array([0.0, 0.0, below + DROP_CLEARANCE])
-    return Target(name, stage, action, position, DOWN.copy(), 0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -109,6 +77,8 @@ class Held:
             that puts it back exactly where it stood).
         center, frame: the object's centre and rotation in the grasp (EE) frame.
         extents: the object's bounding box, m.
+        q: the arm's joint angles when the gripper closed (the motion planner starts its
+            IK of the way back from there).
     """
 
     name: str
@@ -117,6 +87,7 @@ class Held:
     center: FloatArray
     frame: FloatArray
     extents: FloatArray
+    q: FloatArray
 
     @property
     def origin(self) -> FloatArray:
@@ -149,9 +120,10 @@ def held_object(
     name: str,
     position: FloatArray,
     rotation: FloatArray,
+    q: FloatArray,
 ) -> Held:
-    """What the gripper took when it closed at EE pose (``position``, ``rotation``) on
-    ``name``, standing at its pose in ``layout``."""
+    """What the gripper took when it closed at EE pose (``position``, ``rotation``) and
+    joint angles ``q`` on ``name``, standing at its pose in ``layout``."""
     o = scene.object(name)
     pose = scene.poses(dict(layout))[name]
     p = np.asarray(position, dtype=np.float64)
@@ -164,6 +136,7 @@ def held_object(
         R.T @ (center - p),
         R.T @ rot_z(pose.yaw),
         np.array(extents(o.shape, tuple(o.size))),
+        np.asarray(q, dtype=np.float64).copy(),
     )
 
 

@@ -20,7 +20,8 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import Name, read_text, read_toml, validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from legws_daemon.task.graph import HOLDS_AFTER, NEEDS_HELD, Stage, TaskGraph, find_cycle, reachable
+from legws_daemon.task.actions import action
+from legws_daemon.task.graph import Stage, TaskGraph, find_cycle, reachable
 
 
 class _Model(BaseModel):
@@ -138,14 +139,14 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
         held = False
         for name in path:
             act = stages[name].action
-            need = NEEDS_HELD[act]
-            if need is not None and need != held:
+            need = action(act).needs_held
+            if need != held:
                 what = "holds nothing" if need else "already holds an object"
                 before = " -> ".join(path[: path.index(name)]) or "the start"
                 raise fail(
                     index[name], "action", f"'{act}' after {before}: the gripper {what} there"
                 )
-            after = HOLDS_AFTER[act]
+            after = action(act).holds_after
             held = held if after is None else after
         if spec.repeat == "until_consumed" and held:
             raise fail(index[path[-1]], "action", "the graph repeats but ends holding an object")

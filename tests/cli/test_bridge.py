@@ -22,6 +22,7 @@ from legws_daemon.hardware.sawyer import SawyerAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.cli.helpers import Result, assert_bad_input
+from tests.net import free_port
 
 REPO = Path(__file__).parents[2]
 PROFILE = REPO / "hw_profiles" / "sawyer.toml"
@@ -81,8 +82,9 @@ def test_transport_connects_to_the_daemon_by_default() -> None:
     assert (spec.listen, spec.connect) == (["tcp/127.0.0.1:17690"], [])
 
 
-@pytest.mark.parametrize(("port", "signum"), [(17680, signal.SIGTERM), (17681, signal.SIGINT)])
-def test_serves_the_sawyer_adapter_and_stops_on_a_signal(port: int, signum: int) -> None:
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_serves_the_sawyer_adapter_and_stops_on_a_signal(signum: int) -> None:
+    port = free_port()
     keys = bridge_keys("sawyer")
     heard = threading.Event()
     listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
@@ -99,7 +101,7 @@ def test_serves_the_sawyer_adapter_and_stops_on_a_signal(port: int, signum: int)
             with SawyerAdapter(load_profile(PROFILE), load_scene("desk"), daemon) as adapter:
                 s0 = adapter.read_state()
                 for _ in range(10):
-                    adapter.send_velocity([0.0, 0.03, 0.0])
+                    adapter.send_velocity(adapter.read_state(), [0.0, 0.03, 0.0])
                     time.sleep(adapter.dt)
                 adapter.stop()
                 time.sleep(0.05)

@@ -6,15 +6,14 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from legws_daemon.autonomy.controller import Controller
 from legws_daemon.core.params import Params
-from legws_daemon.daemon.controller import Controller
 from legws_daemon.demo.inprocess import run_inprocess
 from legws_daemon.demo.run import summarise
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
@@ -68,14 +67,12 @@ def test_feeding_takes_both_branches_across_seeds(fast: ProfileSpec) -> None:
 @pytest.mark.slow
 def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    t0 = time.monotonic()
     run = subprocess.run(
         [sys.executable, "-m", "legws_daemon", "demo", "tea", "--out", str(out), "--seed", "1",
          "--timeout", "300"],
         capture_output=True, text=True, timeout=400, check=False,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
-    assert time.monotonic() - t0 < 400
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     assert [d["decision"] for d in summary["decisions"]] == [
@@ -106,7 +103,7 @@ def test_a_plan_moves_each_decisions_objects_to_their_planned_poses(fast: Profil
 
     c = Controller(
         fast, scene, scene.default_layout(), make, Params(),
-        lambda k, d: events.append((k, d)), graph=graph, plan=plan,
+        lambda e: events.append((e.kind, e.detail())), graph=graph, plan=plan,
     )  # fmt: skip
     first = plan.decision("choose_tea")
     assert c.stage.certificate == pytest.approx(first.certificate)

@@ -26,11 +26,12 @@ from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.scene import ObjectPose, Scene
+from legws_daemon.task.actions import target
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.plan_file import load_plan
-from legws_daemon.task.targets import goal_set, target
+from legws_daemon.task.targets import goal_set
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 GRAPHS = ("tea", "lego", "feeding")
@@ -254,6 +255,7 @@ def test_no_gl_means_no_pictures_and_a_warning(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.json"]
 
 
+@pytest.mark.slow  # plans a scene whose target no layout reaches: ~4 s
 def test_unreachable_target_is_reported_not_hidden(tmp_path: Path) -> None:
     # the feeding scene with the mouth 1.6 m away, and the bowls free to move
     text = (Path(load_scene("feeding").source)).read_text()

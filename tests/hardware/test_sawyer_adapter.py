@@ -64,7 +64,7 @@ def test_registered_and_needs_a_session(desk: Scene) -> None:
     profile = sawyer_profile()
     with pytest.raises(LegwsError, match="zenoh session"):
         SawyerAdapter(profile, desk, None)
-    with peers(17650) as (daemon, _):
+    with peers() as (daemon, _):
         with pytest.raises(InputError, match=r"sawyer\.command"):
             SawyerAdapter(sawyer_profile(command="ee_velocity"), desk, daemon)
         adapter = SawyerAdapter(profile, desk, daemon)
@@ -75,7 +75,7 @@ def test_registered_and_needs_a_session(desk: Scene) -> None:
 def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
     profile = sawyer_profile()
     with (
-        peers(17651) as (daemon, robot),
+        peers() as (daemon, robot),
         FakeBridge(robot, "sawyer", desk) as fake,
     ):
         log = CommandLog(robot)
@@ -103,7 +103,7 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
         # 20 ticks of +x: the EE moves about 0.03 m/s times the time commanded
         start = time.monotonic()
         for k in range(20):
-            sent = adapter.send_velocity([0.03, 0.0, 0.0])
+            sent = adapter.send_velocity(adapter.read_state(), [0.03, 0.0, 0.0])
             np.testing.assert_allclose(sent, [0.03, 0.0, 0.0])
             time.sleep(max(0.0, start + (k + 1) * adapter.dt - time.monotonic()))
         adapter.stop()
@@ -144,7 +144,7 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
 
 def test_no_bridge_times_out(desk: Scene) -> None:
     profile = sawyer_profile(bridge_timeout=0.4)
-    with peers(17652) as (daemon, _):
+    with peers() as (daemon, _):
         adapter = SawyerAdapter(profile, desk, daemon)
         start = time.monotonic()
         with pytest.raises(BridgeTimeoutError) as info:
@@ -159,7 +159,7 @@ def test_no_bridge_times_out(desk: Scene) -> None:
 def test_heartbeat_loss_and_estop_are_hardware_errors(desk: Scene) -> None:
     profile = sawyer_profile(heartbeat_timeout=0.3)
     with (
-        peers(17653) as (daemon, robot),
+        peers() as (daemon, robot),
         FakeBridge(robot, "sawyer", desk) as fake,
         SawyerAdapter(profile, desk, daemon) as adapter,
     ):
@@ -169,7 +169,7 @@ def test_heartbeat_loss_and_estop_are_hardware_errors(desk: Scene) -> None:
         assert wait_for(faulted_with(adapter, "heartbeat"), 2.0)
         assert time.monotonic() - lost < profile.sawyer.heartbeat_timeout + 0.2
         with pytest.raises(HardwareError, match="heartbeat"):
-            adapter.send_velocity([0.01, 0.0, 0.0])
+            adapter.send_velocity(adapter.read_state(), [0.01, 0.0, 0.0])
 
         fake.resume_publishing()  # recovery: fresh states are usable again
         assert wait_for(partial(healthy, adapter))
@@ -207,7 +207,7 @@ def faulted_with(adapter: Adapter, needle: str) -> Callable[[], bool]:
 def test_invalid_states_are_counted_and_ignored(desk: Scene) -> None:
     profile = sawyer_profile(bridge_timeout=0.5)
     bad = [b"not json", b'{"schema": 1}', b'{"schema": 2, "seq": 0}', b"[1, 2]"]
-    with peers(17654) as (daemon, robot):
+    with peers() as (daemon, robot):
         adapter = SawyerAdapter(profile, desk, daemon)
         stop = threading.Event()
 

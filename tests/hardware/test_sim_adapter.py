@@ -37,7 +37,7 @@ def test_starts_at_home_and_moves_as_commanded(adapter: SimAdapter) -> None:
         s0 = adapter.read_state()
         np.testing.assert_allclose(s0.ee_position, adapter.scene.home.position, atol=1e-3)
         for _ in range(20):
-            sent = adapter.send_velocity([0.03, 0.0, -0.02])
+            sent = adapter.send_velocity(adapter.read_state(), [0.03, 0.0, -0.02])
             np.testing.assert_allclose(sent, [0.03, 0.0, -0.02])
         s1 = adapter.read_state()
         np.testing.assert_allclose(s1.ee_position - s0.ee_position, [0.03, 0.0, -0.02], atol=2e-3)
@@ -45,13 +45,15 @@ def test_starts_at_home_and_moves_as_commanded(adapter: SimAdapter) -> None:
 
 def test_what_is_sent_is_clamped_and_bad_commands_are_zero(adapter: SimAdapter) -> None:
     with adapter:
-        sent = adapter.send_velocity([3.0, 0.0, 0.0])
+        sent = adapter.send_velocity(adapter.read_state(), [3.0, 0.0, 0.0])
         assert math.isclose(float(np.linalg.norm(sent)), adapter.v_max)
         p = adapter.read_state().ee_position
-        np.testing.assert_array_equal(adapter.send_velocity([math.nan, 0.0, 0.0]), 0.0)
+        np.testing.assert_array_equal(
+            adapter.send_velocity(adapter.read_state(), [math.nan, 0.0, 0.0]), 0.0
+        )
         np.testing.assert_array_equal(adapter.read_state().ee_position, p)  # did not move
         np.testing.assert_array_equal(adapter.stop(), 0.0)
         # pushing down into the table for a while: the EE never leaves the workspace box
         for _ in range(200):
-            adapter.send_velocity([0.0, 0.0, -0.1])
+            adapter.send_velocity(adapter.read_state(), [0.0, 0.0, -0.1])
         assert adapter.box.contains(adapter.read_state().ee_position, tol=1e-6)

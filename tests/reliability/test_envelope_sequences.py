@@ -6,7 +6,8 @@ huge, the wrong shape) with any orientation to hold, joystick ticks, stale and m
 input, the gripper, objects moved, operator commands and tracker poses. After every step:
 the EE is inside the workspace box (1e-6 m), the last command sent is finite and at most
 ``v_max``, every joint is within its limits, and stale or missing input sent exactly zero
-and moved nothing.
+and moved nothing. Joint velocity commands (the assistance's joint-space moves) of any
+value keep the joints' limits and the EE's speed.
 
 The real arm's mapping (:class:`MinkVelocityIK`, used by the ``sawyer`` adapter) is checked
 for arbitrary configurations and twists: joint speeds within ``JOINT_SPEED_LIMITS``, no joint
@@ -53,6 +54,11 @@ velocities: st.SearchStrategy[Any] = st.one_of(
     st.lists(st.one_of(anything, huge), min_size=3, max_size=3),
     st.lists(st.floats(-1.0, 1.0), max_size=5).filter(lambda v: len(v) != 3),
     st.sampled_from([None, "fast", [[0.1, 0.0, 0.0]], [1e308, 1e308, 1e308], [0.0, 0.0, 0.0]]),
+)
+joint_velocities: st.SearchStrategy[Any] = st.one_of(
+    st.lists(st.floats(-5.0, 5.0), min_size=7, max_size=7),
+    st.lists(st.one_of(anything, huge), min_size=7, max_size=7),
+    st.lists(st.floats(-1.0, 1.0), max_size=9).filter(lambda v: len(v) != 7),
 )
 unit_quaternions = st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(
     lambda q: math.sqrt(sum(c * c for c in q)) > 1e-3
@@ -123,10 +129,9 @@ class EnvelopeMachine(RuleBasedStateMachine):
         bad_hold = isinstance(hold, str)
         R = BAD_HOLDS[hold] if bad_hold else hold
         before = adapter.read_state()
-        expected = clamp_ee_velocity(
-            before.ee_position, velocity, adapter.dt, adapter.box, adapter.v_max
-        )
-        sent, error = expect(InputError, adapter.send_velocity, velocity, R)
+        box = adapter.envelope(before.ee_rotation)
+        expected = clamp_ee_velocity(before.ee_position, velocity, adapter.dt, box, adapter.v_max)
+        sent, error = expect(InputError, adapter.send_velocity, before, velocity, R)
         assert (error is not None) == bad_hold, (hold, error)
         if isinstance(error, InputError):
             # an orientation that is not a rotation is refused and nothing moves
@@ -155,12 +160,36 @@ class EnvelopeMachine(RuleBasedStateMachine):
         adapter = self.rig.adapter
         v = np.array(direction) * speed
         for _ in range(periods):
-            p = adapter.read_state().ee_position
-            sent = adapter.send_velocity(v, hold)
-            check_command(adapter, p, sent)
+            state = adapter.read_state()
+            sent = adapter.send_velocity(state, v, hold)
+            check_command(adapter, state.ee_position, sent)
             check_envelope(adapter, sent)
         self.last_sent = sent
         self.step("push")
+
+    @rule(qdot=joint_velocities, periods=st.integers(1, 40))
+    def send_joint_velocity(self, qdot: Any, periods: int) -> None:
+        """Joint commands (assistance's joint-space moves) of any value, held for a while:
+        joints within their limits and speeds, the EE at most ``v_max`` fast (measured)
+        and inside the box; anything invalid is zero and moves nothing."""
+        adapter = self.rig.adapter
+        world = self.rig.world
+        valid = isinstance(qdot, list) and len(qdot) == 7 and all(map(math.isfinite, qdot))
+        for _ in range(periods):
+            before = adapter.read_state()
+            sent = adapter.send_joint_velocity(before, qdot)
+            assert sent.qdot.shape == (7,) and np.all(np.isfinite(sent.qdot))
+            assert np.all(np.abs(sent.qdot) <= JOINT_SPEED_LIMITS * (1 + 1e-9))
+            after = adapter.read_state()
+            assert np.all(after.q >= world.arm.lower) and np.all(after.q <= world.arm.upper)
+            moved = float(np.linalg.norm(after.ee_position - before.ee_position))
+            assert moved <= 1.2 * adapter.v_max * adapter.dt + 1e-9, moved
+            check_envelope(adapter, sent.ee_velocity)
+            if not valid:
+                np.testing.assert_array_equal(sent.qdot, 0.0)
+                np.testing.assert_array_equal(after.q, before.q)
+        self.last_sent = sent.ee_velocity
+        self.step("send_joint_velocity: " + ("valid" if valid else "invalid, zero"))
 
     @rule(closed=st.booleans())
     def grip(self, closed: bool) -> None:

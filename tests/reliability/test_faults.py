@@ -1,11 +1,12 @@
 """Faults (issue 7 §3) and recordings on every exit path (§6), with real processes.
 
 Each test runs ``legws daemon`` (or, to inject a broken adapter, the daemon's service in
-this process) on its own loopback port in 17740-17769, watches status and events from a
-monitor session, and injects one fault: a joystick publisher SIGKILLed mid-motion and
-restarted, the robot bridge SIGKILLed and restarted, the zenoh router restarted, an
-adapter raising, SIGINT during assistance, a recording path that cannot be written or a
-disk that fills up. Waits are bounded; every process is stopped and every session closed.
+this process) on its own loopback port (chosen free at run time), watches status and
+events from a monitor session, and injects one fault: a joystick publisher SIGKILLed
+mid-motion and restarted, the robot bridge SIGKILLed and restarted, the zenoh router
+restarted, an adapter raising, SIGINT during assistance, a recording path that cannot
+be written or a disk that fills up. Waits are bounded; every process is stopped and every
+session closed.
 
 The daemon's ``--trace`` (one line per tick: when it began, the newest sample's receive
 time, the command sent) is what the stop deadlines are checked on; both processes read
@@ -30,10 +31,10 @@ import numpy as np
 import pytest
 import zenoh
 
+from legws_daemon.autonomy.controller import Controller, TickRecord
+from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.core.params import Params
 from legws_daemon.daemon import service as service_module
-from legws_daemon.daemon.controller import Controller, TickRecord
-from legws_daemon.daemon.inbox import Sample
 from legws_daemon.daemon.service import DaemonConfig, DaemonService
 from legws_daemon.daemon.telemetry_worker import QUEUE_SIZE, TelemetryWorker
 from legws_daemon.formats.profile import TransportSpec, load_profile
@@ -56,6 +57,7 @@ from tests.daemon.procs import (
     stop,
     write_profile,
 )
+from tests.net import free_port
 
 pytestmark = pytest.mark.slow
 
@@ -200,7 +202,7 @@ def test_publisher_killed_mid_motion_stops_the_robot_and_a_new_one_carries_on(
     the deadman plus one tick of the last sample; a new publisher (a restarted zenoh peer)
     carries on: exactly one commit for the decision, the stage done. SIGTERM at the end: a
     valid recording."""
-    port = 17740
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     trace, rrd = tmp_path / "trace.jsonl", tmp_path / "run.rrd"
     daemon = start(
@@ -261,7 +263,7 @@ def test_publisher_killed_mid_motion_stops_the_robot_and_a_new_one_carries_on(
 
 
 def test_bridge_killed_and_restarted_fault_then_reset_recovers(tmp_path: Path) -> None:
-    port, bridge_port = 17743, 17744
+    port, bridge_port = free_port(), free_port()
     profile = write_profile(
         tmp_path, "sawyer", port, {"connect = []": f'connect = ["tcp/127.0.0.1:{bridge_port}"]'}
     )
@@ -360,10 +362,10 @@ def test_router_restarted_everyone_reconnects_and_nothing_commits_twice(tmp_path
     """Daemon, publisher and monitor are zenoh clients of a router; the router is
     SIGKILLed mid-motion and restarted. The robot stops while the router is gone (no
     input), everyone reconnects, the user finishes, exactly one commit."""
-    port = 17746
+    port, unused = free_port(), free_port()  # the router's; the daemon listens on nothing
     daemon_profile = write_profile(
-        tmp_path, "sim", 17747,
-        {'mode = "peer"': 'mode = "client"', 'listen = ["tcp/127.0.0.1:17747"]': "listen = []",
+        tmp_path, "sim", unused,
+        {'mode = "peer"': 'mode = "client"', f'listen = ["tcp/127.0.0.1:{unused}"]': "listen = []",
          "connect = []": f'connect = ["tcp/127.0.0.1:{port}"]'},
     )  # fmt: skip
     zcfg = client_config(tmp_path, port)
@@ -416,7 +418,7 @@ def test_router_restarted_everyone_reconnects_and_nothing_commits_twice(tmp_path
 
 
 def test_sigint_during_assistance_stops_and_leaves_a_valid_recording(tmp_path: Path) -> None:
-    port = 17750
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     rrd = tmp_path / "sigint.rrd"
     daemon = start(
@@ -467,7 +469,7 @@ def test_an_unwritable_recording_path_is_a_one_line_error_at_start(
     tmp_path: Path, where: str, expected: str
 ) -> None:
     (tmp_path / "a-file").write_text("x")
-    profile = write_profile(tmp_path, "sim", 17751)
+    profile = write_profile(tmp_path, "sim", free_port())
     path = where.format(tmp=tmp_path)
     out = subprocess.run(
         [*LEGWS, "daemon", "--profile", str(profile), "--rerun", f"save:{path}",
@@ -500,7 +502,7 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
 def test_a_disk_that_fills_up_is_reported_and_control_continues(
     tmp_path: Path, small_disk: Path
 ) -> None:
-    port = 17752
+    port = free_port()
     profile = write_profile(tmp_path, "sim", port)
     daemon = start(
         ["daemon", "--profile", str(profile), "--scene", "desk", "--rerun",
@@ -596,7 +598,7 @@ def test_an_adapter_exception_is_a_safe_stop_and_status_keeps_publishing(
 ) -> None:
     monkeypatch.setattr(service_module, "SimAdapter", _Flaky)
     _Flaky.broken.clear()
-    port = 17755
+    port = free_port()
     rrd = tmp_path / "adapter.rrd"
     with (
         in_process_daemon(tmp_path, port, rrd) as (service, _, errors, _thread),
@@ -639,13 +641,13 @@ def test_an_exception_in_the_loop_still_stops_the_robot_and_closes_the_recording
     real_tick = Controller.tick
     crash = threading.Event()
 
-    def tick(self: Controller, sample: Sample | None) -> TickRecord:
+    def tick(self: Controller, sample: OperatorInput | None) -> TickRecord:
         if crash.is_set():
             raise RuntimeError("injected: a bug in the loop")
         return real_tick(self, sample)
 
     monkeypatch.setattr(Controller, "tick", tick)
-    port = 17756
+    port = free_port()
     rrd = tmp_path / "crash.rrd"
     with (
         in_process_daemon(tmp_path, port, rrd) as (service, _, errors, thread),

@@ -36,9 +36,9 @@ from legws_daemon.task.plan_file import load_plan, plan_to_data
 from legws_daemon.task.taskgraph_file import load_taskgraph, taskgraphs_dir
 from tests.cli.helpers import EXAMPLE_GOALSET, Result, assert_bad_input
 from tests.formats.helpers import toml_dumps
-from tests.formats.test_plan_file import feeding_plan
 from tests.reliability.helpers import TALLIES, Tally, expect
 from tests.reliability.strategies import EDGE_TEXT, junk, leaves, mutated, nested
+from tests.task.test_plan_file import feeding_plan
 
 EXAMPLES = 1_500
 FILES = settings(

@@ -422,14 +422,18 @@ def test_object_payloads_never_crash_and_never_leave_the_envelope(
     kind, doc = item
     payload = doc if isinstance(doc, bytes) else encode(doc)
     c = rig.c
-    before = (dict(c.layout), dict(c.observed), c.stage.certificate, len(rig.events))
+
+    def layouts() -> tuple[object, ...]:
+        return (dict(c.layout), dict(c.layouts.observed), c.stage.certificate, len(rig.events))
+
+    before = layouts()
     tally.examples += 1
     tally.payloads += 1
     msg, error = expect(InputError, parse, ObjectsMessage, payload, "legws/sawyer_sim/objects")
     if isinstance(error, InputError):  # counted (status objects_rejected) and dropped
         tally.outcomes[f"{kind} rejected"] += 1
         tally.reasons[error.field or "payload"] += 1
-        assert (dict(c.layout), dict(c.observed), c.stage.certificate, len(rig.events)) == before
+        assert layouts() == before
     if msg is not None:
         tally.outcomes[f"{kind} accepted"] += 1
         for p in msg.objects.values():

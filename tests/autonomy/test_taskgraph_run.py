@@ -2,83 +2,45 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from legws_daemon.core.params import Params
-from legws_daemon.daemon.controller import Controller
-from legws_daemon.daemon.inbox import JoystickInbox, Sample
-from legws_daemon.formats.profile import ProfileSpec, load_profile
+from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.modes import Mode
+from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.scene.grasps import extents
-from legws_daemon.scene.scene import Scene
-from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
-
-PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
+from tests.autonomy.rig import Rig, stand_in_profile
 
 
 @pytest.fixture(scope="module")
 def profile() -> ProfileSpec:
-    p = load_profile(PROFILE)
-    return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
+    return stand_in_profile()
 
 
-class User:
-    """Drives toward the chosen goal of each stage, hands off during assistance."""
-
-    def __init__(self, controller: Controller) -> None:
-        self.c = controller
-        self.inbox = JoystickInbox()
-        self.seq = 0
-
-    def sample(self, axes: Any, confirm: bool = False) -> Sample:
-        self.seq += 1
-        msg = {"schema": 1, "seq": self.seq, "stamp": 0.0, "axes": [float(a) for a in axes],
-               "buttons": {"confirm": confirm}}  # fmt: skip
-        s = self.inbox.offer(json.dumps(msg).encode(), float(self.seq))
-        assert s is not None
-        return s
-
-    def run(self, choices: list[str], limit: int = 20000) -> None:
-        """Ticks until the task is done, going for ``choices`` in order in inference stages."""
-        todo = list(choices)
-        for _ in range(limit):
-            c = self.c
-            if c.mode == "idle":
-                return
-            if c.mode == "teleop":
-                goal = next(g for g in todo if g in c.stage.goal_names)
-                p = c.adapter.read_state().ee_position
-                d = c.stage.target(goal).position - p
-                n = float(np.linalg.norm(d))
-                # at the goal without a commit (an ambiguous layout): confirm, as a person would
-                c.tick(self.sample(d / n, False) if n > 0.01 else self.sample([0, 0, 0], True))
-                if c.mode != "teleop":
-                    todo.remove(goal)
-            else:
-                c.tick(self.sample([0.0, 0.0, 0.0]))
-        raise AssertionError(f"not done: mode {self.c.mode}, stage {self.c.stage.name}")
-
-
-def run_graph(profile: ProfileSpec, name: str, choices: list[str]) -> tuple[Controller, list[Any]]:
-    graph, scene = load_taskgraph(resolve_taskgraph(name))
-    events: list[tuple[str, dict[str, Any]]] = []
-
-    def make(sc: Scene) -> SimAdapter:
-        a = SimAdapter(profile, sc)
-        a.connect()
-        return a
-
-    c = Controller(
-        profile, scene, scene.default_layout(), make, Params(), lambda k, d: events.append((k, d)),
-        graph=graph,
-    )  # fmt: skip
-    User(c).run(choices)
-    return c, events
+def run_graph(
+    profile: ProfileSpec, name: str, choices: list[str], limit: int = 20000
+) -> tuple[Controller, list[Any]]:
+    """Tick until the task is done, going for ``choices`` in order in inference stages
+    (at the goal without a commit: confirm, as a person would); hands off in assistance."""
+    rig = Rig.of(profile, name)
+    c = rig.c
+    todo = list(choices)
+    for _ in range(limit):
+        if c.mode == Mode.IDLE:
+            return c, rig.events
+        if c.mode == Mode.TELEOP:
+            goal = next(g for g in todo if g in c.stage.goal_names)
+            d = c.stage.target(goal).position - c.adapter.read_state().ee_position
+            n = float(np.linalg.norm(d))
+            c.tick(rig.sample(d / n) if n > 0.01 else rig.sample([0, 0, 0], confirm=True))
+            if c.mode != Mode.TELEOP:
+                todo.remove(goal)
+        else:
+            c.tick(rig.hands_off())
+    raise AssertionError(f"not done: mode {c.mode}, stage {c.stage.name}")
 
 
 def commits(events: list[Any]) -> list[tuple[str, bool]]:

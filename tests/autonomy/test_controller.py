@@ -2,110 +2,29 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
-from legws_daemon.core.params import Params
-from legws_daemon.daemon.assist import CANCEL_SECONDS, LIFT_HEIGHT
-from legws_daemon.daemon.controller import Controller
-from legws_daemon.daemon.inbox import JoystickInbox, Sample
-from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
+from legws_daemon.autonomy.cancel import CANCEL_SECONDS
 from legws_daemon.errors import HardwareError, InputError
 from legws_daemon.formats.messages import CommandRequest
-from legws_daemon.formats.profile import ProfileSpec, load_profile
-from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.formats.profile import ProfileSpec
+from legws_daemon.robot.motion import LIFT_HEIGHT
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose, Scene
-
-PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
-LOADERS = (catalog_scene, catalog_taskgraph)
-
-
-class FlakyAdapter(SimAdapter):
-    """The stand-in with a switch that makes the hardware fail (the hardware edge)."""
-
-    failing = False
-
-    def read_state(self):  # type: ignore[no-untyped-def]
-        if self.failing:
-            raise HardwareError("bridge heartbeat lost")
-        return super().read_state()
-
-    def _command(self, velocity, hold):  # type: ignore[no-untyped-def]
-        if self.failing:
-            raise HardwareError("command refused")
-        super()._command(velocity, hold)
+from tests.autonomy.rig import LOADERS, Rig, stand_in_profile
 
 
 @pytest.fixture(scope="module")
 def profile() -> ProfileSpec:
-    p = load_profile(PROFILE)
-    return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
+    return stand_in_profile()
 
 
 @pytest.fixture(scope="module")
 def desk() -> Scene:
     return load_scene("desk")
-
-
-class Rig:
-    """A controller, an event log and a joystick."""
-
-    def __init__(self, profile: ProfileSpec, scene: Scene) -> None:
-        self.events: list[tuple[str, dict[str, Any]]] = []
-        self.inbox = JoystickInbox()
-        self.seq = 0
-        self.now = 0.0
-
-        def make(sc: Scene) -> FlakyAdapter:
-            a = FlakyAdapter(profile, sc)
-            a.connect()
-            return a
-
-        self.c = Controller(
-            profile,
-            scene,
-            scene.default_layout(),
-            make,
-            Params(v_max=profile.control.v_max, dt=1 / profile.control.rate_hz),
-            lambda k, d: self.events.append((k, d)),
-        )
-
-    @property
-    def adapter(self) -> FlakyAdapter:
-        a = self.c.adapter
-        assert isinstance(a, FlakyAdapter)
-        return a
-
-    def sample(self, axes: Any, **buttons: bool) -> Sample:
-        self.seq += 1
-        self.now += 0.05
-        msg = {"schema": 1, "seq": self.seq, "stamp": 0.0, "axes": list(axes), "source": "t"}
-        if buttons:
-            msg["buttons"] = buttons
-        s = self.inbox.offer(json.dumps(msg).encode(), self.now)
-        assert s is not None
-        return s
-
-    def toward(self, goal: str) -> Sample:
-        g = self.c.stage.goals_home
-        d = g.positions[g.index(goal)] - self.adapter.read_state().ee_position
-        return self.sample(d / max(np.linalg.norm(d), 1e-9))
-
-    def kinds(self) -> list[str]:
-        return [k for k, _ in self.events]
-
-    def drive_to_commit(self, goal: str, limit: int = 600) -> None:
-        for _ in range(limit):
-            self.c.tick(self.toward(goal))
-            if self.c.mode != "teleop":
-                return
-        raise AssertionError("no commit")
 
 
 @pytest.fixture
@@ -187,7 +106,7 @@ def test_holding_the_stick_against_the_motion_cancels(rig: Rig) -> None:
     rig.c.tick(rig.sample([0.0, 0.0, 0.0]))  # the plan starts moving
     a = rig.c.assistant
     assert a is not None
-    back = -rig.c._last_assist_v / np.linalg.norm(rig.c._last_assist_v)
+    back = -rig.c._motion / np.linalg.norm(rig.c._motion)
     ticks = 0
     while rig.c.mode == "assist" and ticks < 100:
         rig.c.tick(rig.sample(0.9 * back))
@@ -257,14 +176,14 @@ def test_a_misplaced_object_is_named_when_the_certificate_is_lost(rig: Rig) -> N
     planned = rig.c.stage.certificate
     assert planned is not None
     assert planned > 0
-    stapler = rig.c.planned["black_stapler"]
+    stapler = rig.c.layouts.planned["black_stapler"]
     # a tracker reports the mug right next to the stapler: the goals can no longer be told apart
     rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.02, stapler.y + 0.01, 0.0)})
     kind, detail = rig.events[-1]
     assert kind == "warning"
     assert detail["move"] == "white_mug"
     assert detail["certificate"] <= 0 < detail["planned_certificate"]
-    mug = rig.c.planned["white_mug"]
+    mug = rig.c.layouts.planned["white_mug"]
     assert detail["to"] == {"x": mug.x, "y": mug.y, "yaw": mug.yaw}
     n = len(rig.events)
     rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.021, stapler.y + 0.01, 0.0)})

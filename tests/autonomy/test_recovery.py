@@ -1,69 +1,48 @@
 """A reset while the robot holds an object, on the real MuJoCo stand-in.
 
-The reset puts the object back where it was taken from (the pick reversed, to the EE pose
-the gripper closed at) and goes home; when that cannot be done it sets the object down
-over its spot (or refuses once when no release pose is low enough). Regression: a 10-min
-soak's reset timed out in ``approach`` (the desk's mug, a side grasp: one straight-line
-move from home that also turned ~2 rad ran the stand-in's wrist into its joint limit).
+The reset puts the object back where it was taken from (the pick reversed, through the
+motion planner, to the EE pose the gripper closed at) and goes home; when that cannot be
+done it sets the object down over its spot (or refuses once when no release pose is low
+enough). Regression: a 10-min soak's reset timed out in ``approach`` (the desk's mug, a
+side grasp: one straight-line move from home that also turned ~2 rad ran the stand-in's
+wrist into its joint limit); the put-back now turns in a joint-space move at the carry
+height.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from legws_daemon.autonomy.assistant import PRIMITIVE_TIMEOUT, STALL_SECONDS, Assistant
+from legws_daemon.autonomy.events import Event, SetDown
+from legws_daemon.autonomy.recovery import PUT_BACK_PHASES
 from legws_daemon.core.geometry import quat_to_matrix
-from legws_daemon.core.params import Params
-from legws_daemon.daemon.assist import (
-    PRIMITIVE_TIMEOUT,
-    STALL_SECONDS,
-    Assistant,
-    Grip,
-    Move,
-    put_back_plan,
-    roll_first,
-)
-from legws_daemon.daemon.controller import PUT_BACK_PHASES, Controller
-from legws_daemon.daemon.inbox import JoystickInbox, Sample
-from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
 from legws_daemon.errors import InfeasibleError
-from legws_daemon.formats.messages import CommandRequest
-from legws_daemon.formats.profile import ProfileSpec, load_profile
-from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.formats.profile import ProfileSpec
+from legws_daemon.robot.kinematics import solve_ik
+from legws_daemon.robot.motion import Grip, JointMove, Move
+from legws_daemon.robot.planner import MotionPlanner
+from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.grasps import extents
-from legws_daemon.scene.scene import Scene
-from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.actions import PlanContext, put_back_plan
 from legws_daemon.task.targets import MAX_SET_DOWN_DROP, SET_DOWN_CLEARANCE
+from tests.autonomy.rig import Rig, stand_in_profile
 
-PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sim.toml"
-LOADERS = (catalog_scene, catalog_taskgraph)
 DOWN = np.diag([1.0, -1.0, -1.0])
 #: A reset that puts an object back takes ~10-23 s of robot time on the stand-in.
 RESET_SECONDS = 30.0
 
 
-class StandIn(SimAdapter):
-    """The stand-in, with a fault switch: a wrist that does not turn (orientation holds
-    are ignored, the arm keeps the orientation it has)."""
-
-    wrist_jammed = False
-
-    def _command(self, velocity, hold):  # type: ignore[no-untyped-def]
-        super()._command(velocity, None if self.wrist_jammed else hold)
-
-
 @pytest.fixture(scope="module")
 def profile() -> ProfileSpec:
-    p = load_profile(PROFILE)
-    return p.model_copy(update={"sim": p.sim.model_copy(update={"realtime": False})})
+    return stand_in_profile()
 
 
 @dataclass
@@ -81,89 +60,8 @@ class ResetRun:
         return [d for k, d in self.events if k == "warning"]
 
 
-class Rig:
-    """A controller on the stand-in running a task graph (or a scene's pick), a joystick,
-    and the events."""
-
-    def __init__(self, profile: ProfileSpec, name: str) -> None:
-        self.profile = profile
-        self.events: list[tuple[str, dict[str, Any]]] = []
-        self.inbox = JoystickInbox()
-        self.seq = 0
-        graph: TaskGraph | None
-        if name == "desk":
-            graph, scene = None, load_scene("desk")
-        else:
-            graph, scene = catalog_taskgraph(name)
-        self.name = name
-
-        def make(sc: Scene) -> StandIn:
-            a = StandIn(profile, sc)
-            a.connect()
-            return a
-
-        self.c = Controller(
-            profile, scene, scene.default_layout(), make,
-            Params(v_max=profile.control.v_max, dt=1 / profile.control.rate_hz),
-            lambda k, d: self.events.append((k, d)), graph=graph,
-        )  # fmt: skip
-
-    @property
-    def adapter(self) -> StandIn:
-        a = self.c.adapter
-        assert isinstance(a, StandIn)
-        return a
-
-    def sample(self, axes: Any, **buttons: bool) -> Sample:
-        self.seq += 1
-        msg: dict[str, Any] = {"schema": 1, "seq": self.seq, "stamp": 0.0,
-                               "axes": [float(a) for a in axes], "source": "t"}  # fmt: skip
-        if buttons:
-            msg["buttons"] = buttons
-        s = self.inbox.offer(json.dumps(msg).encode(), 0.05 * self.seq)
-        assert s is not None
-        return s
-
-    def hands_off(self) -> Sample:
-        """The dead-man held, the stick centred."""
-        return self.sample([0.0, 0.0, 0.0])
-
-    def commit(self, goal: str, limit: int = 2000) -> None:
-        """Drive toward ``goal`` until the controller commits to it (confirm at the goal)."""
-        c = self.c
-        for _ in range(limit):
-            if c.mode != "teleop":
-                break
-            d = c.stage.target(goal).position - self.adapter.read_state().ee_position
-            n = float(np.linalg.norm(d))
-            c.tick(self.sample(d / n) if n > 0.01 else self.sample([0, 0, 0], confirm=True))
-        assert c.mode == "assist"
-        assert c.committed == goal
-
-    def drive(self, goal: str, ticks: int) -> None:
-        """Steer toward a goal of the current stage (teleop) for a while."""
-        for _ in range(ticks):
-            if self.c.mode != "teleop":
-                return
-            d = self.c.stage.target(goal).position - self.adapter.read_state().ee_position
-            self.c.tick(self.sample(0.8 * d / max(float(np.linalg.norm(d)), 1e-9)))
-
-    def until(self, done: Callable[[], bool], limit: int = 3000) -> None:
-        for _ in range(limit):
-            if done():
-                return
-            self.c.tick(self.hands_off())
-        raise AssertionError(f"not reached: mode {self.c.mode}")
-
-    def phase(self) -> str | None:
-        a = self.c.assistant
-        return a.phase if a is not None else None
-
-    def command(self, command: str, argument: str | None = None) -> dict[str, Any]:
-        body: dict[str, Any] = {"schema": 1, "command": command}
-        if argument is not None:
-            body["argument"] = argument
-        return self.c.command(CommandRequest.model_validate(body), *LOADERS)
+class ResetRig(Rig):
+    """The autonomy rig with a reset that watches the safety envelope on every tick."""
 
     def reset(self, limit: int = 4000) -> ResetRun:
         """``reset``, then tick with the dead-man held until the reset ends or fails.
@@ -194,15 +92,15 @@ class Rig:
 
 
 @pytest.fixture
-def make_rig(profile: ProfileSpec) -> Iterator[Callable[..., Rig]]:
-    rigs: list[Rig] = []
+def make_rig(profile: ProfileSpec) -> Iterator[Callable[..., ResetRig]]:
+    rigs: list[ResetRig] = []
 
-    def make(name: str, rate_hz: float | None = None) -> Rig:
-        p = profile
-        if rate_hz is not None:
-            p = p.model_copy(update={"control": p.control.model_copy(update={"rate_hz": rate_hz})})
-        rigs.append(Rig(p, name))
-        return rigs[-1]
+    def make(name: str, rate_hz: float | None = None) -> ResetRig:
+        p = profile if rate_hz is None else stand_in_profile(rate_hz)
+        rig = ResetRig.of(p, name)
+        assert isinstance(rig, ResetRig)
+        rigs.append(rig)
+        return rig
 
     yield make
     for r in rigs:
@@ -327,7 +225,7 @@ def feeding_dipped_in_the_bowl(rig: Rig) -> str:
     ids=lambda v: v if isinstance(v, str) else v.__name__,
 )
 def test_reset_puts_the_held_object_back_and_goes_home(
-    make_rig: Callable[..., Rig], graph: str, setup: Callable[[Rig], str]
+    make_rig: Callable[..., ResetRig], graph: str, setup: Callable[[Rig], str]
 ) -> None:
     rig = make_rig(graph)
     name = setup(rig)
@@ -335,13 +233,11 @@ def test_reset_puts_the_held_object_back_and_goes_home(
     assert rig.adapter.held == name
     run = rig.reset()
     assert_put_back(rig, run, name, origin)
-    assert run.reply["plan"][-7:] == [
-        "reach", "release", "back_off", "up", "tilt_back", "roll_back", "home"
-    ]  # fmt: skip
+    assert run.reply["plan"][-5:] == ["reach", "release", "back_off", "up", "home"]
 
 
 def test_reset_again_and_again_keeps_putting_the_mug_back(
-    make_rig: Callable[..., Rig],
+    make_rig: Callable[..., ResetRig],
 ) -> None:
     """The soak's rhythm: pick, reset, pick again (the arm's posture drifts), reset."""
     rig = make_rig("desk")
@@ -353,7 +249,7 @@ def test_reset_again_and_again_keeps_putting_the_mug_back(
 
 
 @pytest.mark.parametrize("goal", ["white_mug", "maroon_pen_cup", "black_stapler"])
-def test_reset_puts_back_at_the_soaks_50_hz(make_rig: Callable[..., Rig], goal: str) -> None:
+def test_reset_puts_back_at_the_soaks_50_hz(make_rig: Callable[..., ResetRig], goal: str) -> None:
     """The soak ran the loop at 50 Hz (``--rate 50``): the same, with shorter steps."""
     rig = make_rig("desk", 50.0)
     origin = origin_of(rig, goal)
@@ -362,7 +258,7 @@ def test_reset_puts_back_at_the_soaks_50_hz(make_rig: Callable[..., Rig], goal: 
     assert_put_back(rig, rig.reset(limit=10000), goal, origin)
 
 
-def test_reset_right_after_a_load_while_holding(make_rig: Callable[..., Rig]) -> None:
+def test_reset_right_after_a_load_while_holding(make_rig: Callable[..., ResetRig]) -> None:
     """``load_taskgraph`` mid-task: the stand-in lets go and puts every object at the
     layout; the reset then has nothing to put back and only goes home."""
     rig = make_rig("lego")
@@ -380,7 +276,7 @@ def test_reset_right_after_a_load_while_holding(make_rig: Callable[..., Rig]) ->
 
 
 def test_the_dead_man_pauses_the_put_back_without_giving_up(
-    make_rig: Callable[..., Rig],
+    make_rig: Callable[..., ResetRig],
 ) -> None:
     rig = make_rig("desk")
     name = holding_after_the_task(rig)
@@ -407,15 +303,21 @@ def test_the_dead_man_pauses_the_put_back_without_giving_up(
 
 
 def test_a_put_back_that_makes_no_progress_sets_the_object_down_over_its_spot(
-    make_rig: Callable[..., Rig],
+    make_rig: Callable[..., ResetRig],
 ) -> None:
-    """A wrist that does not turn: the put-back's turn stalls; after STALL_SECONDS (not
-    the 20 s timeout) the mug is set down over its spot, at the orientation it was
-    carried in, its bottom just above the table."""
+    """Joints that do not move (until the set-down begins): the put-back's joint-space
+    move stalls; after STALL_SECONDS (not the 20 s timeout) the mug is set down over its
+    spot, at the orientation it was carried in, its bottom just above the table."""
     rig = make_rig("desk")
     name = holding_after_the_task(rig)
     origin = origin_of(rig, name)
-    rig.adapter.wrist_jammed = True
+    rig.adapter.joints_jammed = True
+
+    def unjam(event: Event) -> None:
+        if isinstance(event, SetDown):
+            rig.adapter.joints_jammed = False
+
+    rig.on_event.append(unjam)
     run = rig.reset()
     [warning] = run.warnings()
     assert warning["reset"] == "set_down"
@@ -432,7 +334,7 @@ def test_a_put_back_that_makes_no_progress_sets_the_object_down_over_its_spot(
 
 
 def test_a_grasp_outside_the_workspace_box_is_set_down_at_the_lowest_reachable_pose(
-    make_rig: Callable[..., Rig],
+    make_rig: Callable[..., ResetRig],
 ) -> None:
     """The envelope was tightened after the pick (the floor raised above the mug's
     grasp): no put-back; set down over the spot as low as the box allows."""
@@ -455,7 +357,7 @@ def test_a_grasp_outside_the_workspace_box_is_set_down_at_the_lowest_reachable_p
 
 
 def test_with_no_release_pose_low_enough_the_reset_is_refused_once(
-    make_rig: Callable[..., Rig],
+    make_rig: Callable[..., ResetRig],
 ) -> None:
     """Nothing is dropped from high up: the first reset is refused (a person takes the
     object); the second opens the gripper where it is and goes home."""
@@ -472,69 +374,56 @@ def test_with_no_release_pose_low_enough_the_reset_is_refused_once(
     assert_back_home(rig, run)
 
 
-# --- the plan as pure math ------------------------------------------------------------
+# --- the plan ------------------------------------------------------------------------
 
 
-def _rot(axis: list[float], angle: float) -> np.ndarray:
-    a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
-
-
-@pytest.mark.parametrize(
-    "target",
-    [
-        np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]),  # the mug's side grasp
-        DOWN @ _rot([0, 0, 1], 2.0),  # a top grasp: a roll only
-        _rot([1, 0, 0], np.pi) @ DOWN,  # approach axis reversed
-        _rot([0.3, -0.5, 0.8], 2.5) @ DOWN,
-    ],
-)
-def test_roll_first_splits_a_turn_into_a_roll_then_a_tilt(target: np.ndarray) -> None:
-    mid = roll_first(DOWN, target)
-    np.testing.assert_allclose(mid.T @ mid, np.eye(3), atol=1e-9)
-    np.testing.assert_allclose(mid[:, 2], DOWN[:, 2], atol=1e-9)  # a roll: same approach
-    tilt = target @ mid.T  # what is left: a turn about an axis normal to both approaches
-    w = np.array([tilt[2, 1] - tilt[1, 2], tilt[0, 2] - tilt[2, 0], tilt[1, 0] - tilt[0, 1]])
-    if np.linalg.norm(w) > 1e-9:
-        assert abs(w @ DOWN[:, 2]) < 1e-9
-        assert abs(w @ target[:, 2]) < 1e-9
-
-
-def test_put_back_plan_turns_only_above_the_spot() -> None:
+def test_put_back_plan_turns_in_joint_space_above_the_spot() -> None:
+    """The pick reversed: up, a joint-space move to above the pre-grasp pose (the turn
+    happens there), straight down, in, release, back off; patience on every move before
+    the release."""
+    scene = load_scene("desk")
+    box = Box(np.array([0.2, -0.55, 0.0]), np.array([0.95, 0.7, 0.6]))
+    planner = MotionPlanner(World(scene).twin(), scene.home, box)
+    planner.set_layout(scene.default_layout())
     grasp = np.array([0.66, 0.22, 0.07])
     R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     start = np.array([0.55, 0.0, 0.10])
-    plan = put_back_plan(grasp, R, start, DOWN, 0.17, DOWN, STALL_SECONDS)
+    box = Box(np.array([0.2, -0.55, 0.0]), np.array([0.95, 0.7, 0.6]))
+    q = solve_ik(planner.world.twin(), start, DOWN, planner.q_home).q
+    ctx = PlanContext(start, DOWN, q, planner, None, box)
+    plan = put_back_plan("white_mug", grasp, R, ctx, patience=STALL_SECONDS)
     assert [p.label for p in plan] == [
-        "rise", "carry", "roll", "tilt", "approach", "reach", "release", "back_off", "up",
-        "tilt_back", "roll_back",
+        "rise", "carry", "approach", "reach", "release", "back_off"
     ]  # fmt: skip
-    moves = {p.label: p for p in plan if isinstance(p, Move)}
-    release = plan[6]
+    rise, carry, approach, reach, release, back_off = plan
+    assert isinstance(rise, Move) and isinstance(carry, JointMove)
+    assert isinstance(approach, Move) and isinstance(reach, Move)
     assert isinstance(release, Grip) and not release.closed
-    np.testing.assert_allclose(moves["rise"].position, [0.55, 0.0, 0.17])
-    np.testing.assert_allclose(moves["carry"].position, [0.58, 0.22, 0.17])  # above pre-grasp
-    for name in ("rise", "carry"):
-        np.testing.assert_allclose(moves[name].rotation, DOWN)  # no turn while moving
-    for name in ("roll", "tilt", "up", "tilt_back", "roll_back"):  # turns: in place, up there
-        np.testing.assert_allclose(moves[name].position, moves["carry"].position)
-    np.testing.assert_allclose(moves["approach"].position, [0.58, 0.22, 0.07])
-    np.testing.assert_allclose(moves["approach"].rotation, R)
-    np.testing.assert_allclose(moves["reach"].position, grasp)
-    np.testing.assert_allclose(moves["reach"].rotation, R)
-    np.testing.assert_allclose(moves["roll_back"].rotation, DOWN)
-    assert all(moves[n].patience == STALL_SECONDS for n in PUT_BACK_PHASES)
-    assert moves["back_off"].patience is None  # after the release: only the timeout
+    assert isinstance(back_off, Move)
+    pre = grasp - 0.08 * R[:, 2]
+    np.testing.assert_allclose(rise.position, [0.55, 0.0, 0.17])
+    np.testing.assert_allclose(rise.rotation, DOWN)  # no turn while rising
+    # the joint-space move ends above the pre-grasp pose, turned to the grasp
+    planner.world.set_q(carry.q)
+    np.testing.assert_allclose(planner.world.ee_position(), [pre[0], pre[1], 0.17], atol=2e-3)
+    np.testing.assert_allclose(planner.world.ee_rotation(), R, atol=2e-2)
+    np.testing.assert_allclose(approach.position, pre)
+    np.testing.assert_allclose(approach.rotation, R)
+    np.testing.assert_allclose(reach.position, grasp)
+    assert reach.floor == pytest.approx(grasp[2] - 0.004)  # in below the fingertip floor
+    np.testing.assert_allclose(back_off.position, pre)
+    assert all(p.patience == STALL_SECONDS for p in (rise, carry, approach, reach))
+    assert back_off.patience is None  # after the release: only the timeout
 
 
 def test_a_move_with_patience_fails_early_when_it_makes_no_progress() -> None:
     far = np.array([1.0, 0.0, 0.0])
+    q = np.zeros(7)
     patient = Assistant([Move("m", far, DOWN, patience=STALL_SECONDS)], speed=0.1, dt=0.05)
     ticks = 0
     while True:
         ticks += 1
-        step = patient.step(np.zeros(3), DOWN)  # the robot never moves
+        step = patient.step(q, np.zeros(3), DOWN)  # the robot never moves
         if step.failed:
             break
     assert "no progress" in step.failed
@@ -542,10 +431,23 @@ def test_a_move_with_patience_fails_early_when_it_makes_no_progress() -> None:
     # paused ticks (no joystick input) do not count
     paused = Assistant([Move("m", far, DOWN, patience=STALL_SECONDS)], speed=0.1, dt=0.05)
     for _ in range(200):
-        assert paused.step(np.zeros(3), DOWN, active=False).failed is None
+        assert paused.step(q, np.zeros(3), DOWN, active=False).failed is None
     # a move that keeps coming closer is not stalled, however slowly it goes
     slow = Assistant([Move("m", far, DOWN, patience=STALL_SECONDS)], speed=0.1, dt=0.05)
     p = np.zeros(3)
     for _ in range(int(3 * STALL_SECONDS / 0.05)):
-        assert slow.step(p, DOWN).failed is None
+        assert slow.step(q, p, DOWN).failed is None
         p = p + np.array([0.001, 0.0, 0.0])  # 2 cm/s
+
+
+def test_a_joint_move_with_patience_fails_early_when_the_arm_does_not_follow() -> None:
+    target = np.full(7, 0.5)
+    stuck = Assistant([JointMove("j", target, patience=STALL_SECONDS)], speed=0.1, dt=0.05)
+    ticks = 0
+    while ticks < 200:
+        ticks += 1
+        step = stuck.step(np.zeros(7), np.zeros(3), DOWN)
+        if step.failed:
+            break
+    assert "no progress" in (step.failed or "")
+    assert ticks * 0.05 == pytest.approx(STALL_SECONDS, abs=0.06)

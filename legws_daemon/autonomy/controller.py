@@ -1,0 +1,611 @@
+"""One control tick of shared autonomy: inference, commit, assistance, faults.
+
+The controller owns the robot adapter, the motion planner and the intent observer. It is
+driven by a loop — the daemon's real-time loop, or ``legws eval`` in simulated time — one
+:meth:`Controller.tick` per period, and by operator commands (:meth:`Controller.command`,
+on the loop's thread). It does no I/O of its own: events go to ``emit`` as typed records
+(:mod:`.events`), and each tick returns a :class:`TickRecord`.
+
+Each tick reads the robot state once and hands that state to everything that needs it:
+the observer, the assistance, the command's safety envelope, and (through the record)
+status and telemetry. Modes and transitions: :mod:`.modes`. In every mode, no valid
+joystick input means zero velocity: the joystick is a dead-man switch for assistance too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, assert_never
+
+import numpy as np
+
+from legws_daemon.autonomy.assistant import Assistant
+from legws_daemon.autonomy.cancel import CancelDetector
+from legws_daemon.autonomy.events import (
+    AssistFailed,
+    Cancel,
+    Commit,
+    Emit,
+    Fault,
+    Loaded,
+    PlaceObjects,
+    Recovered,
+    Reset,
+    StageDone,
+    Stop,
+    TaskDone,
+)
+from legws_daemon.autonomy.inputs import Cartesian, Command, Joints, OperatorInput, zero
+from legws_daemon.autonomy.layouts import LayoutBook
+from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
+from legws_daemon.autonomy.recovery import Recovery
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.geometry import FloatArray, Pose
+from legws_daemon.core.goals import MIN_GOAL_DISTANCE, GoalSet
+from legws_daemon.core.observer import IntentObserver
+from legws_daemon.core.params import Params
+from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
+from legws_daemon.formats.messages import CommandRequest
+from legws_daemon.formats.profile import ProfileSpec
+from legws_daemon.hardware.base import Adapter, RobotState
+from legws_daemon.robot.motion import Primitive
+from legws_daemon.robot.planner import MotionPlanner
+from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.task.actions import PlanContext, action
+from legws_daemon.task.graph import TaskGraph
+from legws_daemon.task.plan import Plan
+from legws_daemon.task.runner import TaskRun, scene_graph
+from legws_daemon.task.targets import Held, Target, goal_set, held_object
+
+#: The assistance target of a reset, which no cancel interrupts.
+RESET_TARGET = "(reset)"
+#: Builds a connected adapter for a scene (the service decides which kind).
+AdapterFactory = Callable[[Scene], Adapter]
+
+
+@dataclass(frozen=True, slots=True)
+class TickRecord:
+    """Everything one tick measured and decided (for status, Rerun and benchmarks)."""
+
+    tick: int
+    mode: Mode
+    state: RobotState | None
+    joystick: FloatArray | None
+    command: FloatArray  # (3,) EE velocity sent (to first order for a joint command), m/s
+    joints: FloatArray | None  # (7,) joint velocity sent by a joint-space move, rad/s
+    posterior: dict[str, float]
+    committed: str | None
+    phase: str | None
+    sample_received: float | None
+    sample_seq: int | None
+    sample_stamp: float | None  # the publisher's clock
+    command_sent: float
+
+
+@dataclass
+class StageState:
+    """The stage being run: its candidate goals' poses and the layout they stand in.
+
+    ``goals_home`` (the goal set seen from home) and ``certificate`` are ``None`` for a
+    stage with a single candidate, which needs no inference. ``observed_certificate`` is
+    the certificate recomputed from object poses a tracker reported (``None`` until then).
+    """
+
+    name: str
+    targets: list[Target]
+    layout: Layout
+    certificate: float | None
+    goals_home: GoalSet | None
+    observed_certificate: float | None = None
+
+    @property
+    def current_certificate(self) -> float | None:
+        """What status reports: the observed certificate once there is one, else the plan's."""
+        return self.certificate if self.observed_certificate is None else self.observed_certificate
+
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.targets)
+
+    def target(self, goal: str) -> Target:
+        for t in self.targets:
+            if t.name == goal:
+                return t
+        raise KeyError(goal)
+
+
+class Controller:
+    """The per-tick logic of shared autonomy (see the module docstring).
+
+    Args:
+        profile: the hardware profile.
+        scene: the scene the robot works in.
+        layout: the planned layout of the scene's movable objects.
+        make_adapter: builds and connects the adapter for a scene.
+        params: observer and certificate parameters (``dt`` and ``v_max`` from the profile).
+        emit: receives the events.
+        graph: the task graph to run (default: pick one of the scene's candidate goals).
+        plan: stage-specific layouts of the graph (``legws plan``): at each decision the
+            optimised objects go to their planned poses (the stand-in moves them; on a real
+            robot a ``warning`` says where a person should put them).
+        clock: monotonic clock (``legws eval`` passes its simulated one).
+    """
+
+    def __init__(
+        self,
+        profile: ProfileSpec,
+        scene: Scene,
+        layout: Layout,
+        make_adapter: AdapterFactory,
+        params: Params,
+        emit: Emit,
+        graph: TaskGraph | None = None,
+        plan: Plan | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.profile = profile
+        self.params = params
+        self.dt = 1.0 / profile.control.rate_hz
+        self.emit = emit
+        self.clock = clock
+        self._make_adapter = make_adapter
+        self.scene = scene
+        self.adapter = make_adapter(scene)
+        self.planner = MotionPlanner(self.adapter.kinematics.twin(), scene.home, self.adapter.box)
+        self.recovery = Recovery(self.adapter.table_height, emit)
+        self.modes = ModeMachine()
+        self.ticks = 0
+        self.cancel = CancelDetector(self.dt)
+        self.assistant: Assistant | None = None
+        self.committed: str | None = None
+        self.last_state: RobotState | None = None
+        self.observer: IntentObserver | None = None
+        self._gripper: bool | None = None
+        self._held: Held | None = None  # what the gripper closed on, and how
+        self._recovering = False  # the running reset began in fault
+        self._auto_commit = True
+        self.decisions = 0
+        self._motion: FloatArray = np.zeros(3)  # the EE velocity sent last tick
+        self._hold: FloatArray = scene.home.rotation
+        self.layouts = LayoutBook(layout, plan)
+        self.graph = graph if graph is not None else scene_graph(scene)
+        self.task = TaskRun(self.graph, scene)
+        self._place(self.layouts.layout)
+        self.stage = self._begin_stage()
+
+    @property
+    def mode(self) -> Mode:
+        return self.modes.mode
+
+    @property
+    def fault(self) -> str | None:
+        return self.modes.fault
+
+    @property
+    def layout(self) -> Layout:
+        return self.layouts.layout
+
+    # --- stages and inference -------------------------------------------------------
+    def _begin_stage(self) -> StageState:
+        """Targets of the stage(s) that come next; inference starts (or, with a single
+        candidate, the commit is immediate)."""
+        self.decisions += 1
+        self._apply_plan()
+        layout = self.layouts.layout
+        targets = self.task.targets(layout) if not self.task.finished else []
+        goals_home = cert = None
+        if len(targets) >= 2:
+            goals_home = goal_set(targets, self.scene.home)
+            cert = certify(goals_home, self.params).objective
+        self.stage = StageState(self.task.label, targets, dict(layout), cert, goals_home)
+        self.committed = None
+        self.observer = None
+        if self.task.finished:
+            self.modes.to(Mode.IDLE)
+            self.emit(TaskDone(self.graph.name, tuple(self.task.history)))
+        elif len(targets) == 1:
+            self._auto_commit = True
+            self.modes.to(Mode.TELEOP)
+            state = self._read_state_safely()
+            if state is not None:
+                self._commit(targets[0].name, 1.0, state, confirmed=False, single=True)
+        else:
+            self.modes.to(Mode.TELEOP)
+            self._restart_inference()
+        return self.stage
+
+    def _apply_plan(self) -> None:
+        """Move this decision's optimised objects to their planned poses."""
+        if self.task.finished:
+            return
+        planned = self.layouts.plan_moves(self.task.label)
+        if planned is None:
+            return
+        moves, decision = planned
+        if not self._place(moves):
+            place = {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in moves.items()}
+            self.emit(PlaceObjects(place, self.task.label, decision.certificate))
+
+    def _place(self, layout: Layout) -> bool:
+        """Objects to ``layout`` (``False``: a person has to put them there); the planner
+        plans around the layout inference uses."""
+        placed = self.adapter.place_objects(layout)
+        self.planner.set_layout(self.layouts.layout)
+        return placed
+
+    def _restart_inference(self) -> None:
+        """A fresh observer whose start pose is where the EE is now."""
+        self.committed = None
+        if self.stage.goals_home is None:
+            self.observer = None
+            return
+        state = self._read_state_safely()
+        goals = self.stage.goals_home
+        if state is not None:
+            x0 = Pose(state.ee_position, state.ee_quaternion)
+            self._hold = state.ee_rotation
+            with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
+                goals = goal_set(self.stage.targets, x0)
+        self.observer = IntentObserver(goals, self.params)
+
+    def restart_task(self) -> None:
+        """Start the task again from its first stage where the arm is now, objects back at
+        the layout (on the stand-in), nothing in the gripper. For a simulation's restart
+        (``legws eval`` puts the stand-in's arm home first); the daemon's way is a reset."""
+        self.assistant = None
+        self._gripper, self._held = None, None
+        self.task = TaskRun(self.graph, self.scene)
+        self._place(self.layouts.layout)
+        self._begin_stage()
+
+    def observe(self, poses: Layout) -> None:
+        """Object poses reported on ``legws/<robot>/objects`` (a real robot's tracker).
+
+        Inference of the next decision uses them. The current decision's certificate is
+        recomputed from them; when it is no longer positive (and the plan's was), a
+        :class:`~legws_daemon.autonomy.events.Misplaced` warning names the object to move
+        back and where to.
+        """
+        if not self.layouts.observe(poses, self.scene.movable):
+            return
+        self.planner.set_layout(self.layouts.layout)
+        if len(self.stage.targets) < 2 or self.task.finished:
+            return
+        current = self._decision_certificate(self.layouts.layout)
+        self.stage.observed_certificate = current
+        warning = self.layouts.misplaced(
+            self.decisions, self.stage.name, self.stage.goal_names, current,
+            self.stage.certificate, self._decision_certificate,
+        )  # fmt: skip
+        if warning is not None:
+            self.emit(warning)
+
+    def _decision_certificate(self, layout: Layout) -> float:
+        targets = self.task.targets(layout)
+        return certify(goal_set(targets, self.scene.home), self.params).objective
+
+    def posterior(self) -> dict[str, float]:
+        if self.observer is None:
+            return {}
+        names = self.observer.goals.names
+        return dict(zip(names, (float(p) for p in self.observer.posterior), strict=True))
+
+    def live_slack(self) -> float | None:
+        """The certificate seen from the current EE pose (how reliably intent can be read
+        from here), or ``None`` (no inference, or the EE sits on a goal)."""
+        state, goals = self.last_state, self.stage.goals_home
+        if state is None or self.mode != Mode.TELEOP or goals is None:
+            return None
+        x0 = Pose(state.ee_position, state.ee_quaternion)
+        if np.min(np.linalg.norm(goals.positions - x0.position, axis=1)) < 2 * MIN_GOAL_DISTANCE:
+            return None
+        live = GoalSet(goals.names, goals.positions, goals.quaternions, goals.symmetry, x0)
+        return certify(live, self.params).objective
+
+    # --- the tick -------------------------------------------------------------------------
+    def _read_state_safely(self) -> RobotState | None:
+        try:
+            return self.adapter.read_state()
+        except LegwsError:
+            return None
+
+    def tick(self, inp: OperatorInput | None) -> TickRecord:
+        """Run one control period with the newest valid operator input (or ``None``)."""
+        self.ticks += 1
+        command: Command = zero()
+        phase: str | None = None
+        state: RobotState | None = None
+        if self.mode != Mode.FAULT:
+            try:
+                state = self.adapter.read_state()
+            except LegwsError as err:
+                self._to_fault(f"read_state: {err}")
+        if state is not None:
+            self.last_state = state
+            if self.mode == Mode.TELEOP:
+                command = self._teleop(state, inp)
+            if self.mode == Mode.ASSIST and self.assistant is not None:
+                command, phase = self._assist(state, inp)
+        sent, joints = self._send(state, command)
+        self._motion = sent
+        return TickRecord(
+            tick=self.ticks,
+            mode=self.mode,
+            state=state,
+            joystick=inp.axes if inp is not None else None,
+            command=sent,
+            joints=joints,
+            posterior=self.posterior(),
+            committed=self.committed,
+            phase=phase,
+            sample_received=inp.received if inp is not None else None,
+            sample_seq=inp.seq if inp is not None else None,
+            sample_stamp=inp.stamp if inp is not None else None,
+            command_sent=self.clock(),
+        )
+
+    def _teleop(self, state: RobotState, inp: OperatorInput | None) -> Command:
+        obs = self.observer
+        confirm = inp is not None and inp.confirm
+        if obs is None:
+            # a single-candidate stage: it starts by itself, but after a failed attempt
+            # only when the user confirms (no retrying for ever on its own)
+            if len(self.stage.targets) == 1 and (self._auto_commit or confirm):
+                self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
+                return zero()
+        else:
+            post = obs.update(state.ee_position, state.ee_quaternion)
+            if obs.committed is not None:
+                goal = obs.goals.names[obs.committed]
+                self._commit(goal, float(post[obs.committed]), state, confirmed=False)
+                return zero()  # assistance starts next tick from a fresh state
+            if confirm:
+                # the user vouches for the most likely goal (e.g. the stick is already there)
+                best = int(np.argmax(post))
+                self._commit(obs.goals.names[best], float(post[best]), state, confirmed=True)
+                return zero()
+        if inp is None:
+            return zero()  # deadman: nothing moves, not even the orientation
+        return Cartesian(self.profile.control.v_max * inp.axes, self._hold)
+
+    def _context(self, state: RobotState) -> PlanContext:
+        held = self._held if self._gripper is not False else None
+        box = self.adapter.box
+        return PlanContext(state.ee_position, state.ee_rotation, state.q, self.planner, held, box)
+
+    def _commit(
+        self, goal: str, p: float, state: RobotState, *, confirmed: bool, single: bool = False
+    ) -> None:
+        t = self.stage.target(goal)
+        seconds = self.observer.ticks * self.dt if self.observer is not None else 0.0
+        self.committed = goal
+        self.emit(
+            Commit(
+                goal, p, self.ticks, seconds, t.stage, self.stage.name, t.action, confirmed,
+                single, self.stage.certificate, self.posterior(),
+            )
+        )  # fmt: skip
+        ctx = self._context(state)
+        try:
+            plan = action(t.action).plan(t, ctx)
+        except InfeasibleError as err:
+            self._give_back(AssistFailed(goal, "plan", str(err)))
+            return
+        self._start_assist([*plan, *ctx.home_after(plan)], goal)
+
+    def _start_assist(self, plan: list[Primitive], target: str) -> None:
+        held = {self._held.name} if self._held is not None else set()
+        ignore = frozenset({target, *held})  # what the arm may touch: its goal, what it holds
+
+        def path(q0: FloatArray, q1: FloatArray) -> list[FloatArray]:
+            return self.planner.joint_path(q0, q1, self.adapter.box, ignore)
+
+        speed = self.profile.control.assist_speed
+        self.assistant = Assistant(plan, speed, self.dt, target, path)
+        self.cancel.reset()
+        self._motion = np.zeros(3)
+        self.modes.to(Mode.ASSIST)
+
+    def _give_back(self, warning: AssistFailed) -> None:
+        """Assistance cannot go on: the user drives again (a single-candidate stage then
+        waits for the confirm button), inference restarts from here."""
+        self.emit(warning)
+        self._auto_commit = False
+        self.assistant = None
+        self.modes.to(Mode.TELEOP)
+        self._restart_inference()
+
+    def _assist(self, state: RobotState, inp: OperatorInput | None) -> tuple[Command, str]:
+        a = self.assistant
+        assert a is not None
+        button = inp is not None and inp.cancel
+        reason = self.cancel.update(inp.axes if inp else None, self._motion, button)
+        if reason is not None and a.target != RESET_TARGET:
+            self._cancel(a, reason)
+            return zero(), "cancelled"
+        step = a.step(state.q, state.ee_position, state.ee_rotation, inp is not None)
+        if step.grip is not None and step.grip != self._gripper:
+            try:
+                self.adapter.grip(step.grip)
+                self._gripper = step.grip
+            except LegwsError as err:
+                self._to_fault(f"grip: {err}")
+                return zero(), step.phase
+            self._record_grip(a, state, step.grip)
+        if step.failed is not None:
+            if a.target == RESET_TARGET:
+                ctx = self._context(state)
+                plan = self.recovery.fallback(ctx, ctx.held, step.phase, step.failed)
+                if plan is not None:
+                    self._start_assist(plan, RESET_TARGET)
+                    return zero(), step.phase
+            self._give_back(AssistFailed(a.target, step.phase, step.failed))
+            return zero(), step.phase
+        if step.done:
+            self._finish_assist(a)
+            return zero(), step.phase
+        if inp is None:
+            return zero(), step.phase  # deadman pauses the plan
+        return step.command, step.phase
+
+    def _record_grip(self, a: Assistant, state: RobotState, closed: bool) -> None:
+        """Remember what the gripper closed on, the EE pose and joint angles it took it at
+        (a reset puts it back there); forget it when the gripper opens."""
+        if not closed:
+            self._held = None
+        elif a.target in self.scene.movable:
+            self._held = held_object(
+                self.scene, self.layouts.layout, a.target, state.ee_position,
+                state.ee_rotation, state.q,
+            )  # fmt: skip
+
+    def _cancel(self, a: Assistant, reason: str) -> None:
+        """Give control back. Before the plan's gripper acted, the same stage's inference
+        restarts from here; after it (grasped, released), the stage's effect has happened:
+        the stage counts as done and the next one starts from here."""
+        self.assistant = None
+        self.emit(Cancel(reason, a.target, a.phase))
+        if a.gripper_acted:
+            stage = self.task.advance(a.target, self.layouts.layout)
+            self.emit(StageDone(stage.name, a.target, stage.action, self.ticks, cancelled=True))
+            self._begin_stage()
+            if self.mode != Mode.TELEOP:
+                return  # a single-candidate stage goes on by itself, or the task is done
+        self.modes.to(Mode.TELEOP)
+        self._restart_inference()
+
+    def _finish_assist(self, a: Assistant) -> None:
+        self.assistant = None
+        if a.target == RESET_TARGET:
+            done = Recovered if self._recovering else Reset
+            self._recovering = False
+            self.emit(done(self.graph.name))
+            self.task = TaskRun(self.graph, self.scene)
+            self._place(self.layouts.layout)
+            self._begin_stage()
+            return
+        stage = self.task.advance(a.target, self.layouts.layout)
+        self.emit(StageDone(stage.name, a.target, stage.action, self.ticks))
+        self._begin_stage()
+
+    def _send(
+        self, state: RobotState | None, command: Command
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """Send this tick's command through the adapter's envelope; what was sent (EE
+        velocity, joint velocities or ``None``). Nothing moves in ``idle``, ``stopped``
+        and ``fault``; without a state the command is a halt."""
+        if self.mode == Mode.FAULT or state is None:
+            with contextlib.suppress(LegwsError):
+                self.adapter.halt()  # if even this fails, the robot side's deadman stops it
+            return np.zeros(3), None
+        if self.mode in STILL:
+            command = zero()
+        try:
+            match command:
+                case Cartesian(velocity, hold, floor):
+                    return self.adapter.send_velocity(state, velocity, hold, floor), None
+                case Joints(qdot):
+                    sent = self.adapter.send_joint_velocity(state, qdot)
+                    return sent.ee_velocity, sent.qdot
+                case _:
+                    assert_never(command)
+        except LegwsError as err:
+            self._to_fault(f"send_velocity: {err}")
+            return np.zeros(3), None
+
+    def _to_fault(self, reason: str) -> None:
+        first = self.modes.to_fault(reason)
+        self.assistant = None
+        if first:
+            self.emit(Fault(reason))
+        with contextlib.suppress(LegwsError):
+            self.adapter.halt()
+
+    # --- operator commands ------------------------------------------------------------
+    def command(
+        self,
+        request: CommandRequest,
+        scenes: Callable[[str], Scene],
+        graphs: Callable[[str], tuple[TaskGraph, Scene]],
+    ) -> dict[str, Any]:
+        """Carry out an operator command; returns the reply's detail.
+
+        Args:
+            request: the validated command.
+            scenes / graphs: load a scene / a task graph (and its scene) by name.
+        """
+        match request.command:
+            case "stop":
+                self.modes.to(Mode.STOPPED)
+                self.assistant = None
+                with contextlib.suppress(LegwsError):
+                    self.adapter.halt()
+                self.emit(Stop(self.mode.value))
+                return {"mode": self.mode.value}
+            case "reset":
+                return self._reset()
+            case "status":
+                return {"mode": self.mode.value}
+            case "load_scene":
+                assert request.argument is not None
+                return self.load(scenes(request.argument), None, None)
+            case "load_taskgraph":
+                assert request.argument is not None
+                graph, scene = graphs(request.argument)
+                same = scene.name == self.scene.name
+                return self.load(self.scene if same else scene, None, graph)
+            case _:
+                assert_never(request.command)
+
+    def _reset(self) -> dict[str, Any]:
+        """Clear a stop or fault and start the task again: put back what the robot holds
+        (or set it down: :mod:`.recovery`), go home, objects back at the layout (on the
+        stand-in), infer from the first stage.
+
+        Raises:
+            HardwareError: the robot still fails.
+            InfeasibleError: the robot holds an object it can set down nowhere without
+                dropping it from too high (refused once; see :mod:`.recovery`).
+        """
+        state = self._read_state_safely()
+        if state is None:
+            raise HardwareError(f"the robot is still failing: {self.fault or 'no state'}")
+        held = self._held if self._gripper is not False else None
+        plan = self.recovery.begin(self._context(state), held)
+        self._recovering = self.mode == Mode.FAULT
+        self.observer = None
+        self._start_assist(plan, RESET_TARGET)
+        return {"mode": self.mode.value, "plan": [p.label for p in plan]}
+
+    def load(self, scene: Scene, layout: Layout | None, graph: TaskGraph | None) -> dict[str, Any]:
+        """Swap to another scene or task graph (the robot stops first); the task restarts."""
+        with contextlib.suppress(LegwsError):
+            self.adapter.halt()
+        if scene is not self.scene:
+            old = self.adapter
+            adapter = self._make_adapter(scene)
+            old.disconnect()
+            self.adapter = adapter
+            self.scene = scene
+            self.planner = MotionPlanner(adapter.kinematics.twin(), scene.home, adapter.box)
+            self.recovery = Recovery(adapter.table_height, self.emit)
+        self.layouts.reset(dict(layout if layout is not None else scene.default_layout()))
+        self.graph = graph if graph is not None else scene_graph(scene)
+        self.task = TaskRun(self.graph, scene)
+        self.assistant, self._gripper, self._recovering = None, None, False
+        if self._place(self.layouts.layout):
+            self._held = None  # the stand-in let go of it and put it back
+        self.recovery.drop_asked = False
+        self._begin_stage()
+        detail = Loaded(scene.name, self.graph.name, self.stage.name, self.stage.certificate)
+        self.emit(detail)
+        return detail.detail()
+
+    def shutdown(self) -> None:
+        """Zero velocity and disconnect (idempotent)."""
+        with contextlib.suppress(LegwsError):
+            self.adapter.halt()
+        self.adapter.disconnect()

@@ -1,0 +1,245 @@
+"""What the daemon tells the world: typed event records, serialised in one place.
+
+Every event is a frozen dataclass whose fields are its ``detail`` on
+``legws/<robot>/events`` (docs/messages.md); :meth:`Event.detail` is the only place that
+turns one into the wire form, :meth:`Event.text` the only place that writes its log line.
+``warning`` events come in several shapes, one class each.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from legws_daemon.formats.messages import EventKind
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with numpy arrays and scalars, tuples and non-string keys made JSON-ready."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """An event; subclasses set :attr:`kind` and declare the detail's fields."""
+
+    kind: ClassVar[EventKind]
+
+    def detail(self) -> dict[str, Any]:
+        """The wire ``detail``: every field, JSON-ready."""
+        return {f.name: jsonable(getattr(self, f.name)) for f in fields(self)}
+
+    def text(self) -> str:
+        """One log line: the kind and the detail's fields (``key=value``)."""
+        parts = " ".join(f"{k}={v}" for k, v in self.detail().items())
+        return f"{self.kind} {parts}".strip()
+
+
+#: Receives events (the daemon publishes and logs them; ``legws eval`` reads them).
+Emit = Callable[[Event], None]
+
+
+# --- the run -------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Started(Event):
+    kind: ClassVar[EventKind] = "started"
+    adapter: str
+    scene: str
+    task: str
+    stage: str
+    certificate: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Loaded(Event):
+    kind: ClassVar[EventKind] = "loaded"
+    scene: str
+    task: str
+    stage: str
+    certificate: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Shutdown(Event):
+    kind: ClassVar[EventKind] = "shutdown"
+    ticks: int
+    overruns: int
+
+
+@dataclass(frozen=True, slots=True)
+class Fallback(Event):
+    kind: ClassVar[EventKind] = "fallback"
+    reason: str
+    adapter: str
+    note: str = "falling back"
+
+
+# --- inference and assistance ----------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Commit(Event):
+    """The robot acts on ``goal``: inferred (``p >= p_thresh``), ``confirmed`` by the
+    button, or ``single`` (one candidate, no inference)."""
+
+    kind: ClassVar[EventKind] = "commit"
+    goal: str
+    p: float
+    tick: int
+    seconds: float  # of inference
+    stage: str
+    decision: str
+    action: str
+    confirmed: bool
+    single: bool
+    certificate: float | None
+    posterior: dict[str, float] = field(default_factory=dict)
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
+        d["p"], d["seconds"] = round(self.p, 4), round(self.seconds, 3)
+        return d
+
+    def text(self) -> str:
+        return f"commit goal={self.goal} p={round(self.p, 4)}"
+
+
+@dataclass(frozen=True, slots=True)
+class Cancel(Event):
+    kind: ClassVar[EventKind] = "cancel"
+    reason: str  # button | opposed
+    goal: str
+    phase: str
+
+
+@dataclass(frozen=True, slots=True)
+class StageDone(Event):
+    kind: ClassVar[EventKind] = "stage_done"
+    stage: str
+    goal: str
+    action: str
+    ticks: int
+    cancelled: bool = False  # given back after the gripper acted: the stage counts as done
+
+
+@dataclass(frozen=True, slots=True)
+class TaskDone(Event):
+    kind: ClassVar[EventKind] = "task_done"
+    task: str
+    history: tuple[tuple[str, str], ...]  # (stage, goal) in order
+
+
+# --- faults and operator commands ------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Fault(Event):
+    kind: ClassVar[EventKind] = "fault"
+    error: str
+
+
+@dataclass(frozen=True, slots=True)
+class Recovered(Event):
+    """A reset after a fault finished: the robot answers again, the task restarts."""
+
+    kind: ClassVar[EventKind] = "recovered"
+    task: str
+
+
+@dataclass(frozen=True, slots=True)
+class Reset(Event):
+    """A reset finished: home, the task restarts."""
+
+    kind: ClassVar[EventKind] = "reset"
+    task: str
+
+
+@dataclass(frozen=True, slots=True)
+class Stop(Event):
+    kind: ClassVar[EventKind] = "stop"
+    mode: str
+
+
+# --- warnings --------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class AssistFailed(Event):
+    """A step of the assisted action failed (timed out, made no progress, or could not be
+    planned); control goes back to the user."""
+
+    kind: ClassVar[EventKind] = "warning"
+    assist: str
+    phase: str
+    error: str
+
+
+@dataclass(frozen=True, slots=True)
+class SetDown(Event):
+    """A reset could not put the held object back: it sets it down instead."""
+
+    kind: ClassVar[EventKind] = "warning"
+    object: str
+    phase: str
+    reason: str
+
+    def detail(self) -> dict[str, Any]:
+        return {"reset": "set_down", **Event.detail(self)}
+
+
+@dataclass(frozen=True, slots=True)
+class Overrun(Event):
+    kind: ClassVar[EventKind] = "warning"
+    overrun_ms: float
+    period_ms: float
+    overruns: int
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryProblem(Event):
+    kind: ClassVar[EventKind] = "warning"
+    telemetry: str | None
+    new_errors: int
+    errors: int
+    dropped: int
+    control: str = "continues"
+
+
+@dataclass(frozen=True, slots=True)
+class TraceFailed(Event):
+    kind: ClassVar[EventKind] = "warning"
+    trace: str
+    control: str = "continues"
+
+
+@dataclass(frozen=True, slots=True)
+class PlaceObjects(Event):
+    """A plan's layout on a robot that cannot move objects itself: where to put them."""
+
+    kind: ClassVar[EventKind] = "warning"
+    place: dict[str, dict[str, float]]
+    stage: str
+    certificate: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Misplaced(Event):
+    """Reported object poses make the decision's certificate non-positive."""
+
+    kind: ClassVar[EventKind] = "warning"
+    certificate: float
+    planned_certificate: float
+    move: str
+    to: dict[str, float]
+    stage: str
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
+        d["certificate"] = round(self.certificate, 4)
+        d["planned_certificate"] = round(self.planned_certificate, 4)
+        return d

@@ -1,0 +1,60 @@
+"""What the controller gets from the operator each tick, and what it hands back.
+
+:class:`OperatorInput` is one valid joystick sample as the controller uses it (the daemon's
+inbox makes it from a validated message; ``legws eval`` makes it from the simulated user).
+:class:`Cartesian` and :class:`Joints` are the commands a tick sends through the adapter's
+safety envelope.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from legws_daemon.core.geometry import FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorInput:
+    """A valid joystick sample.
+
+    Attributes:
+        axes: (3,) deflection in the robot base frame, ``|axes| <= 1``.
+        confirm: the confirm button (commit the most likely goal).
+        cancel: the cancel button (give control back during assistance).
+        received: when it arrived, local monotonic seconds.
+        seq, stamp: the publisher's sequence number and clock (for traces).
+    """
+
+    axes: FloatArray
+    confirm: bool = False
+    cancel: bool = False
+    received: float = 0.0
+    seq: int | None = None
+    stamp: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Cartesian:
+    """An EE velocity command: linear velocity (m/s), the orientation to hold (``None``:
+    the current one), and the lowest height it may reach (``None``: the envelope's)."""
+
+    velocity: FloatArray
+    hold: FloatArray | None = None
+    floor: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Joints:
+    """A joint velocity command, rad/s (a joint-space move of assistance)."""
+
+    qdot: FloatArray
+
+
+Command = Cartesian | Joints
+
+
+def zero() -> Cartesian:
+    """No motion: zero velocity, no orientation correction."""
+    return Cartesian(np.zeros(3))

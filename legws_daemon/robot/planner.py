@@ -1,0 +1,462 @@
+"""The one motion planner of assistance: IK of the goal pose, a joint-space move to the
+pose in front of it, a straight move in.
+
+Every approach the robot makes by itself — a pick after a commit, feeding, putting an
+object back (a task's ``return`` or a reset) — and every grasp ``legws eval`` counts as
+feasible come from here:
+
+1. the feasibility check of the goal pose (:func:`~legws_daemon.robot.feasibility.
+   check_grasp`: IK toward each symmetric equivalent from fixed seeds, the first
+   collision-free configuration wins; cached per pose);
+2. straight up to a carry height (``rise``), a joint-space move to the pose above the
+   pre-pose (``carry``: :class:`~legws_daemon.robot.motion.JointMove`, so no wrist limit
+   can stop it halfway, unlike a Cartesian move that also turns by ~2 rad), straight down
+   to the pre-pose ``distance`` back along the approach axis;
+3. a straight Cartesian move in, allowed below the envelope's fingertip floor down to the
+   goal itself.
+
+The joint-space move is checked before it is planned: at points of its straight line in
+joint space (at least :data:`PATH_SAMPLES`, at most :data:`PATH_STEP` apart in every
+joint) the fingertips stay above the table, the EE inside the workspace box, and the arm
+touches nothing but the goal's object. Its end configuration is the one nearest the arm's
+own that reaches the pose above, the pre-pose and the goal (touching nothing but the
+target there); else one from the feasibility check's configuration or from fixed seeds; a
+higher carry height, a via configuration and a shorter approach are tried when nothing
+else passes. The way home goes straight up to the home height first. Every joint-space
+move is checked again when it begins, from where the arm really is (:meth:`joint_path`),
+and fails after :data:`JOINT_PATIENCE` without progress.
+
+The planner works on its own twin of the robot's kinematic model (:meth:`World.twin`), so
+planning never moves the robot's model, and it checks collisions against the layout it was
+last given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from legws_daemon.core.geometry import FloatArray, Pose
+from legws_daemon.errors import InfeasibleError
+from legws_daemon.robot.feasibility import GraspCheck, check_grasp, ik_seeds
+from legws_daemon.robot.gripper import FINGERTIP_CLEARANCE, floor_height
+from legws_daemon.robot.kinematics import home_configuration, solve_ik
+from legws_daemon.robot.motion import (
+    APPROACH_FRACTIONS,
+    BOX_MARGIN,
+    LIFT_HEIGHT,
+    POSITION_TOLERANCE,
+    PREGRASP_DISTANCE,
+    JointMove,
+    Move,
+    Primitive,
+    carry_height,
+)
+from legws_daemon.robot.world import World
+from legws_daemon.safety.envelope import Box
+from legws_daemon.scene.scene import ObjectPose
+
+#: What a feasible goal is (a cached optimisation or plan made under another notion is
+#: made again): IK, collisions, a straight approach, a clear way from home.
+FEASIBILITY = "ik+collisions+approach+way-from-home"
+#: IK tolerances of the poses on the way (the straight moves correct what is left), m, rad.
+PRE_TOL_POSITION = 2e-3
+PRE_TOL_ROTATION = 2e-2
+#: Extra carry heights tried when the joint-space move is not clear at the first, m.
+HIGHER = (0.0, LIFT_HEIGHT, 2 * LIFT_HEIGHT)
+#: Fixed IK seeds tried after the arm's own and the feasibility check's configurations.
+EXTRA_SEEDS = 4
+#: A via configuration of a joint-space move stands this far below the box's ceiling, m.
+VIA_MARGIN = 0.05
+#: Points checked along a joint-space move (its ends included).
+PATH_SAMPLES = 12
+#: ... and at most this far apart in every joint, rad.
+PATH_STEP = 0.05
+#: A joint-space move that makes no progress for this long fails (the envelope stops it
+#: where the path would leave it), s.
+JOINT_PATIENCE = 2.0
+#: A joint-space move keeps the fingertips at least this far above the table (the envelope
+#: keeps 5 mm; the prediction by samples gets this margin), m.
+PATH_CLEARANCE = 0.01
+
+
+class MotionPlanner:
+    """Plans assistance motions on ``world`` (a twin of the robot's model: it is moved).
+
+    Args:
+        world: the planner's own kinematic model of the robot and its scene.
+        home: the EE home pose; its IK is :attr:`q_home`, where every stage starts.
+        box: the workspace box (of the hardware profile) the arm's moves stay in.
+
+    Raises:
+        InfeasibleError: the home pose is out of the arm's reach.
+    """
+
+    def __init__(self, world: World, home: Pose, box: Box) -> None:
+        self.world = world
+        self.box = box
+        self.home_rotation = home.rotation
+        self.home_position = home.position
+        self.q_home = home_configuration(world, home.position, home.rotation).q
+        self._seeds = ik_seeds(world, self.q_home)
+        self._checks: dict[tuple[str, bytes, bytes, int], GraspCheck] = {}
+        self._layout: dict[str, ObjectPose] = {}
+        self._table = world.scene.workspace.table_height
+
+    def set_layout(self, layout: Mapping[str, ObjectPose]) -> None:
+        """The objects stand at ``layout`` now (collisions are checked against it; the
+        checks made in another layout are forgotten)."""
+        if dict(layout) == self._layout:
+            return
+        self._layout = dict(layout)
+        self.world.set_layout(layout)
+        self._checks.clear()
+
+    def check(
+        self,
+        name: str,
+        position: ArrayLike,
+        rotation: ArrayLike,
+        symmetry: int,
+        hint: FloatArray | None = None,
+    ) -> GraspCheck:
+        """The feasibility check of the pose ``(position, rotation)`` (any of its
+        ``symmetry`` equivalents) for the object or place ``name`` (contact with it is
+        expected), cached until the layout changes.
+
+        Args:
+            hint: a configuration to try first (e.g. where the arm held the object).
+        """
+        p = np.asarray(position, dtype=np.float64)
+        R = np.asarray(rotation, dtype=np.float64)
+        key = (name, p.tobytes(), R.tobytes(), int(symmetry))
+        found = self._checks.get(key)
+        if found is None:
+            seeds = self._seeds if hint is None else [np.asarray(hint, np.float64), *self._seeds]
+            found = check_grasp(self.world, name, p, R, int(symmetry), self.home_rotation, seeds)
+            if found.feasible:
+                found = self._from_home(found, p)
+            self.world.set_q(self.q_home)
+            self._checks[key] = found
+        return found
+
+    def _from_home(self, check: GraspCheck, position: FloatArray) -> GraspCheck:
+        """``check``, infeasible when no way in passes from the home configuration (where
+        every stage starts): e.g. a link would sweep through an object on the way."""
+        w = self.world
+        w.set_q(self.q_home)
+        start = (w.ee_position(), w.ee_rotation())
+        ceiling = float(self.box.upper[2]) - BOX_MARGIN
+        try:
+            self.approach(
+                check, position, start=start, q=self.q_home, box=self.box,
+                carry_height=carry_height(position, check.rotation, ceiling),
+            )  # fmt: skip
+        except InfeasibleError as err:
+            return replace(check, feasible=False, reason=f"no clear way from home: {err}")
+        return check
+
+    def approach(
+        self,
+        check: GraspCheck,
+        position: ArrayLike,
+        *,
+        start: tuple[FloatArray, FloatArray],
+        q: FloatArray,
+        carry_height: float,
+        box: Box,
+        distance: float = PREGRASP_DISTANCE,
+        labels: tuple[str, str] = ("approach", "reach"),
+        patience: float | None = None,
+    ) -> list[Primitive]:
+        """The way in to ``position`` at the orientation ``check`` reached (see the module
+        docstring): ``rise`` (when below the carry height), ``carry``, ``labels[0]`` (down
+        to the pre-pose, when above it), ``labels[1]`` (in).
+
+        Args:
+            check: the feasibility check of the goal pose (:meth:`check`).
+            position: where the EE goes in to (the grasp, or a point short of it).
+            start: the EE pose now; q: the joint angles now.
+            carry_height: the first height tried for the joint-space move.
+            box: the workspace box the moves stay in.
+            distance: of the pre-pose back along the approach axis, m.
+            labels: phase names of the move down to the pre-pose and of the move in.
+            patience: of every move (see :class:`~legws_daemon.robot.motion.Move`).
+
+        Raises:
+            InfeasibleError: the goal pose failed the feasibility check (its reason), or
+                no way in passes the checks.
+        """
+        if not check.feasible:
+            raise InfeasibleError(f"'{check.name}': {check.reason}")
+        R = check.rotation
+        goal = np.asarray(position, dtype=np.float64)
+        p, R_now = start
+        q = np.asarray(q, dtype=np.float64)
+        ignore = frozenset({check.name})
+        why = "nothing tried"
+        path_why = ""  # the first joint-space move found blocked (what matters most)
+        try:
+            for fraction in APPROACH_FRACTIONS:
+                pre = goal - fraction * distance * R[:, 2]
+                for extra in HIGHER:
+                    z = min(max(float(carry_height), float(pre[2])) + extra, box.upper[2])
+                    z = max(z, float(pre[2]))
+                    rise = np.array([p[0], p[1], max(z, float(p[2]))])
+                    q_start = self._near(rise, R_now, q) if rise[2] > p[2] else q
+                    above = np.array([pre[0], pre[1], z])
+                    ways: list[FloatArray] = []
+                    for way in self._ways(q_start, check.q, above, pre, goal, R, ignore):
+                        if isinstance(way, str):
+                            why = way
+                            continue
+                        blocked = self._blocked(q_start, way, box, ignore)
+                        if blocked is None:
+                            return self._moves(p, R_now, rise, [way], pre, goal, R, labels,
+                                               patience)  # fmt: skip
+                        path_why = path_why or f"the joint-space move to it {blocked}"
+                        ways.append(way)
+                    for way in ways:  # not straight: through a configuration between
+                        via = self._via(q_start, way, R_now, R, box, ignore)
+                        if via is not None:
+                            return self._moves(p, R_now, rise, [via, way], pre, goal, R,
+                                               labels, patience)  # fmt: skip
+        finally:
+            self.world.set_q(self.q_home)
+        raise InfeasibleError(f"no way in to '{check.name}': {path_why or why}")
+
+    def home(
+        self, plan: list[Primitive], start: tuple[FloatArray, FloatArray], box: Box
+    ) -> list[Primitive]:
+        """Back to the home configuration after ``plan`` (which starts at the EE pose
+        ``start``): straight up to the home height (``up``, when below it), then a
+        joint-space move (``home``), whose path :meth:`joint_path` checks when it begins."""
+        position, rotation = start
+        for prim in plan:  # where the plan ends
+            if isinstance(prim, Move):
+                position, rotation = prim.position, prim.rotation
+            elif isinstance(prim, JointMove):
+                self.world.set_q(prim.q)
+                position, rotation = self.world.ee_position(), self.world.ee_rotation()
+                self.world.set_q(self.q_home)
+        home = JointMove("home", self.q_home.copy(), patience=JOINT_PATIENCE)
+        loose = 2 * POSITION_TOLERANCE
+        z = min(max(float(self.home_position[2]), float(position[2])), float(box.upper[2]))
+        if z - float(position[2]) <= loose:
+            return [home]
+        # straight up to the home height first: the joint-space move then starts clear of
+        # the table (and is checked again from where the arm really is when it begins)
+        up = np.array([position[0], position[1], z])
+        return [Move("up", up, rotation, loose), home]
+
+    def joint_path(
+        self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str] = frozenset()
+    ) -> list[FloatArray]:
+        """Configurations to pass on the way ``q0 -> q1`` in joint space: none when the
+        straight line is clear, else one via configuration (see :meth:`_via`).
+
+        Called when a joint-space move begins, from where the arm really is (a Cartesian
+        move before it may end in another configuration than the plan's IK predicted).
+
+        Raises:
+            InfeasibleError: neither the straight line nor one through a via is clear.
+        """
+        q0 = np.asarray(q0, dtype=np.float64)
+        q1 = np.asarray(q1, dtype=np.float64)
+        try:
+            blocked = self._blocked(q0, q1, box, ignore)
+            if blocked is None:
+                return []
+            via = self._via(q0, q1, self._rotation_at(q0), self._rotation_at(q1), box, ignore)
+        finally:
+            self.world.set_q(self.q_home)
+        if via is None:
+            raise InfeasibleError(f"no clear joint-space path: the straight one {blocked}")
+        return [via]
+
+    def _rotation_at(self, q: FloatArray) -> FloatArray:
+        self.world.set_q(q)
+        return self.world.ee_rotation()
+
+    # --- pieces ---------------------------------------------------------------------
+    def _moves(
+        self,
+        p: FloatArray,
+        R_now: FloatArray,
+        rise: FloatArray,
+        joints: list[FloatArray],
+        pre: FloatArray,
+        goal: FloatArray,
+        R: FloatArray,
+        labels: tuple[str, str],
+        patience: float | None,
+    ) -> list[Primitive]:
+        loose = 2 * POSITION_TOLERANCE
+        moves: list[Primitive] = []
+        if rise[2] - float(p[2]) > loose:
+            moves.append(Move("rise", rise, R_now, loose, patience))
+        stall = JOINT_PATIENCE if patience is None else patience
+        moves += [JointMove("carry", q, patience=stall) for q in joints]
+        q_above = joints[-1]
+        self.world.set_q(q_above)
+        if float(np.linalg.norm(self.world.ee_position() - pre)) > loose:
+            moves.append(Move(labels[0], pre, R, loose, patience))
+        floor = float(goal[2]) - POSITION_TOLERANCE
+        moves.append(Move(labels[1], goal, R, POSITION_TOLERANCE, patience, floor))
+        return moves
+
+    def _ways(
+        self,
+        q_start: FloatArray,
+        q_goal: FloatArray,
+        above: FloatArray,
+        pre: FloatArray,
+        goal: FloatArray,
+        R: FloatArray,
+        ignore: frozenset[str],
+    ) -> Iterator[FloatArray | str]:
+        """Configurations above the pre-pose to move to in joint space (or why not): from
+        the arm's own configuration forward (above, pre-pose, goal); from the feasibility
+        check's goal configuration backward (pre-pose, above); forward from a few fixed
+        seeds."""
+        yield self._forward(q_start, above, pre, goal, R, ignore)
+        try:
+            yield self._solve(above, R, self._solve(pre, R, q_goal))
+        except _IKMissError as miss:
+            yield str(miss)
+        for seed in self._seeds[1 : 1 + EXTRA_SEEDS]:
+            yield self._forward(seed, above, pre, goal, R, ignore)
+
+    def _forward(
+        self,
+        seed: FloatArray,
+        above: FloatArray,
+        pre: FloatArray,
+        goal: FloatArray,
+        R: FloatArray,
+        ignore: frozenset[str],
+    ) -> FloatArray | str:
+        """From ``seed``: the configuration above the pre-pose, if the pre-pose and the
+        goal follow from it by IK and the goal's configuration touches nothing but
+        ``ignore``; else why not."""
+        w = self.world
+        try:
+            q_above = self._solve(above, R, seed)
+            q_goal = self._solve(goal, R, self._solve(pre, R, q_above))
+        except _IKMissError as miss:
+            return str(miss)
+        w.set_q(q_goal)
+        hits = w.arm_contacts(ignore=ignore)
+        if hits:
+            return f"at the goal the arm touches {hits[0][1]} ({hits[0][0]})"
+        return q_above
+
+    def _via(
+        self,
+        q0: FloatArray,
+        q1: FloatArray,
+        R0: FloatArray,
+        R1: FloatArray,
+        box: Box,
+        ignore: frozenset[str],
+    ) -> FloatArray | None:
+        """A configuration ``q`` with clear straight joint-space lines ``q0 -> q -> q1``:
+        up at the top of the workspace box above either end (at its orientation), above
+        the middle of the way, the home configuration, or one of the fixed seeds; ``None``
+        when none is clear."""
+        w = self.world
+        top = float(box.upper[2]) - VIA_MARGIN
+        ends = []
+        for q, R in ((q0, R0), (q1, R1)):
+            w.set_q(q)
+            ends.append((w.ee_position(), R, q))
+        w.set_q(0.5 * (q0 + q1))
+        middle = w.ee_position()
+        candidates: list[tuple[FloatArray, FloatArray, FloatArray]] = [
+            (np.array([p[0], p[1], top]), R, q) for p, R, q in ends
+        ]
+        candidates.append((np.array([middle[0], middle[1], top]), R1, 0.5 * (q0 + q1)))
+        for position, R, seed in candidates:
+            q = self._near(position, R, seed)
+            if q is seed:
+                continue  # out of reach
+            if self._clear(q0, q, q1, box, ignore):
+                return q
+        for q in self._seeds:  # the home configuration first, then the fixed seeds
+            if self._clear(q0, q, q1, box, ignore):
+                return q
+        return None
+
+    def _clear(
+        self, q0: FloatArray, q: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str]
+    ) -> bool:
+        """Whether both straight joint-space lines ``q0 -> q -> q1`` are clear."""
+        return (
+            self._blocked(q0, q, box, ignore) is None and self._blocked(q, q1, box, ignore) is None
+        )
+
+    def _blocked(
+        self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str]
+    ) -> str | None:
+        """Why the straight joint-space line ``q0 -> q1`` is not clear, or ``None``.
+
+        What is already so at ``q0`` does not count against the line (the arm may stand in
+        an object's model after teleoperation, or low after a grasp): the line must not
+        bring the fingertips lower, nor the EE further out of the box, than at ``q0``, nor
+        touch anything else.
+        """
+        w = self.world
+        w.set_q(q0)
+        p0 = w.ee_position()
+        floor0 = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
+        allowed = np.maximum(np.maximum(box.lower - p0, p0 - box.upper), 0.0) + 1e-6
+        below0 = max(floor0 + PATH_CLEARANCE - float(p0[2]), 0.0) + 1e-9
+        ignore = ignore | {other for _, other in w.arm_contacts(ignore=ignore)}
+        steps = max(PATH_SAMPLES, int(np.ceil(float(np.max(np.abs(q1 - q0))) / PATH_STEP)) + 1)
+        for s in np.linspace(0.0, 1.0, steps)[1:]:
+            w.set_q(q0 + s * (q1 - q0))
+            p = w.ee_position()
+            floor = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
+            if floor + PATH_CLEARANCE - float(p[2]) > below0:
+                return f"brings the fingertips within {PATH_CLEARANCE * 100:g} cm of the table"
+            if np.any(np.maximum(box.lower - p, p - box.upper) > allowed):
+                return "leaves the workspace box"
+            hits = w.arm_contacts(ignore=ignore)
+            if hits:
+                return f"touches {hits[0][1]} ({hits[0][0]})"
+        return None
+
+    def _near(self, position: FloatArray, rotation: FloatArray, q: FloatArray) -> FloatArray:
+        """IK of a pose from ``q`` (``q`` itself when it does not converge)."""
+        try:
+            return self._solve(position, rotation, q)
+        except _IKMissError:
+            return q
+
+    def _solve(self, position: FloatArray, rotation: FloatArray, seed: FloatArray) -> FloatArray:
+        """IK of a pose from ``seed`` (the world is left anywhere), or :class:`_IKMissError`."""
+        ik = solve_ik(
+            self.world, position, rotation, seed,
+            tol_position=PRE_TOL_POSITION, tol_rotation=PRE_TOL_ROTATION,
+        )  # fmt: skip
+        if not ik.converged:
+            raise _IKMissError(
+                f"IK misses the pose at {np.round(position, 3).tolist()} by "
+                f"{ik.position_error * 100:.1f} cm and {np.degrees(ik.rotation_error):.0f} deg"
+            )
+        return ik.q
+
+
+class _IKMissError(InfeasibleError):
+    """An IK solve that did not converge (the planner tries another way)."""
+
+
+def stand_in_planner(world: World) -> MotionPlanner:
+    """A planner on ``world`` in the workspace box of the ``sim`` hardware profile: the
+    feasibility ``legws eval``, ``legws optimize`` and ``legws plan`` judge layouts by."""
+    from legws_daemon.formats.profile import load_profile_named
+
+    return MotionPlanner(world, world.scene.home, Box.of(load_profile_named("sim").workspace))

@@ -1,0 +1,119 @@
+"""Assistance plans as pure math: on an ideal robot a plan converges, pauses and times out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from legws_daemon.autonomy.assistant import (
+    JOINT_SPEED_FRACTION,
+    PRIMITIVE_TIMEOUT,
+    Assistant,
+)
+from legws_daemon.autonomy.cancel import CancelDetector
+from legws_daemon.autonomy.inputs import Cartesian, Joints
+from legws_daemon.robot.motion import Grip, JointMove, Move
+from legws_daemon.robot.world import JOINT_SPEED_LIMITS
+
+DOWN = np.diag([1.0, -1.0, -1.0])  # approach axis (z) pointing down
+Q0 = np.zeros(7)
+
+
+def run(
+    a: Assistant, p: np.ndarray, q: np.ndarray, limit: int = 2000
+) -> tuple[np.ndarray, np.ndarray, list[str], list[bool]]:
+    """An ideal robot: the EE follows Cartesian commands, the joints joint commands."""
+    phases, grips = [], []
+    for _ in range(limit):
+        step = a.step(q, p, DOWN)
+        if step.grip is not None:
+            grips.append(step.grip)
+        phases.append(step.phase)
+        match step.command:
+            case Cartesian(velocity):
+                assert np.linalg.norm(velocity) <= a.speed + 1e-12
+                p = p + velocity * a.dt
+            case Joints(qdot):
+                assert np.all(np.abs(qdot) <= JOINT_SPEED_FRACTION * JOINT_SPEED_LIMITS + 1e-12)
+                q = q + qdot * a.dt
+        if step.done or step.failed:
+            break
+    return p, q, phases, grips
+
+
+def test_a_plan_runs_its_primitives_in_order_to_the_end() -> None:
+    q_pre = np.array([0.3, -0.5, 0.2, 1.2, -0.4, 0.9, 1.0])
+    grasp = np.array([0.7, 0.1, 0.05])
+    plan = [
+        JointMove("carry", q_pre),
+        Move("reach", grasp, DOWN),
+        Grip("grasp", closed=True),
+        Move("lift", grasp + np.array([0.0, 0.0, 0.1]), DOWN),
+    ]
+    a = Assistant(plan, speed=0.1, dt=0.05, target="cup")
+    end, q, phases, grips = run(a, np.array([0.5, 0.0, 0.3]), Q0.copy())
+    assert a.finished
+    assert grips and all(grips)
+    assert list(dict.fromkeys(phases)) == ["carry", "reach", "grasp", "lift"]
+    np.testing.assert_allclose(q, q_pre, atol=0.002)
+    np.testing.assert_allclose(end, grasp + np.array([0, 0, 0.10]), atol=0.005)
+
+
+def test_a_joint_move_keeps_a_straight_line_in_joint_space() -> None:
+    target = np.array([1.0, -0.5, 0.0, 0.5, 2.0, 0.0, -1.0])
+    a = Assistant([JointMove("j", target)], speed=0.1, dt=0.05)
+    q = Q0.copy()
+    step = a.step(q, np.zeros(3), DOWN)
+    assert isinstance(step.command, Joints)
+    direction = step.command.qdot / np.linalg.norm(step.command.qdot)
+    np.testing.assert_allclose(direction, target / np.linalg.norm(target), atol=1e-12)
+
+
+def test_paused_ticks_do_not_move_or_time_out() -> None:
+    for prim in (Move("m", np.array([1.0, 0, 0]), DOWN), JointMove("j", np.ones(7))):
+        a = Assistant([prim], speed=0.1, dt=0.05)
+        for _ in range(int(2 * PRIMITIVE_TIMEOUT / 0.05)):
+            step = a.step(Q0, np.zeros(3), DOWN, active=False)
+            assert isinstance(step.command, Cartesian)
+            np.testing.assert_array_equal(step.command.velocity, 0.0)
+            assert step.command.hold is None
+            assert step.failed is None
+
+
+def test_a_move_that_cannot_arrive_fails() -> None:
+    a = Assistant([Move("m", np.array([1.0, 0, 0]), DOWN)], speed=0.1, dt=0.05)
+    for _ in range(int(PRIMITIVE_TIMEOUT / 0.05) + 2):
+        step = a.step(Q0, np.zeros(3), DOWN)  # the robot never moves
+        if step.failed:
+            break
+    assert step.failed is not None
+    assert "timed out" in step.failed
+
+
+def test_grip_waits_its_time() -> None:
+    a = Assistant([Grip("g", closed=True, seconds=0.3)], speed=0.1, dt=0.05)
+    steps = [a.step(Q0, np.zeros(3), DOWN) for _ in range(6)]
+    assert [s.done for s in steps] == [False] * 5 + [True]
+    assert all(s.grip is True for s in steps)
+
+
+def test_a_final_approach_carries_its_floor() -> None:
+    a = Assistant([Move("reach", np.array([0.6, 0, 0.01]), DOWN, floor=0.006)], 0.1, 0.05)
+    step = a.step(Q0, np.array([0.6, 0, 0.09]), DOWN)
+    assert isinstance(step.command, Cartesian)
+    assert step.command.floor == 0.006
+    assert step.command.velocity[2] < 0
+
+
+@pytest.mark.parametrize(
+    ("axes", "expected"),
+    [([-0.9, 0, 0], "opposed"), ([0.9, 0, 0], None), ([-0.3, 0, 0], None), ([0, 0.9, 0], None)],
+)
+def test_cancel_detector(axes: list[float], expected: str | None) -> None:
+    d = CancelDetector(dt=0.05)
+    v = np.array([0.1, 0.0, 0.0])
+    out = [d.update(np.array(axes), v, button=False) for _ in range(20)]
+    assert out[-1] == expected
+    if expected:
+        assert out.index(expected) == 7  # 0.4 s at 20 Hz: the eighth tick
+    assert d.update(None, v, button=True) == "button"

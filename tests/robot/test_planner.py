@@ -1,0 +1,88 @@
+"""The motion planner on the real MuJoCo model: its approach reaches every desk grasp from
+home without touching anything but the target, and refuses what is infeasible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from legws_daemon.core.geometry import symmetric_angle
+from legws_daemon.errors import InfeasibleError
+from legws_daemon.robot.kinematics import small_rotation_error, velocity_step
+from legws_daemon.robot.motion import JointMove, Move
+from legws_daemon.robot.planner import MotionPlanner
+from legws_daemon.robot.world import World
+from legws_daemon.safety.envelope import Box
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.scene.scene import ObjectPose
+
+BOX = Box(np.array([0.2, -0.55, 0.0]), np.array([0.95, 0.7, 0.6]))
+
+
+@pytest.fixture(scope="module")
+def planner() -> MotionPlanner:
+    sc = load_scene("desk")
+    p = MotionPlanner(World(sc), sc.home, BOX)
+    p.set_layout(sc.default_layout())
+    return p
+
+
+def execute(w: World, moves: list[JointMove | Move]) -> None:
+    """An ideal executor: joint moves exactly, Cartesian moves by velocity control."""
+    for m in moves:
+        if isinstance(m, JointMove):
+            w.set_q(m.q)
+            continue
+        for _ in range(400):
+            d = m.position - w.ee_position()
+            if np.linalg.norm(d) < 5e-4:
+                break
+            v = 2.0 * d
+            v *= min(1.0, 0.1 / max(float(np.linalg.norm(v)), 1e-12))
+            twist = np.concatenate([v, 2.0 * small_rotation_error(w.ee_rotation(), m.rotation)])
+            velocity_step(w, twist, 0.05)
+
+
+@pytest.mark.parametrize("name", ["white_mug", "black_stapler", "maroon_pen_cup"])
+def test_the_approach_reaches_the_grasp_pose(planner: MotionPlanner, name: str) -> None:
+    sc = planner.world.scene
+    g = sc.goal_set()
+    i = g.index(name)
+    check = planner.check(name, g.positions[i], g.rotations[i], int(g.symmetry[i]))
+    assert check.feasible, check.reason
+    assert planner.check(name, g.positions[i], g.rotations[i], int(g.symmetry[i])) is check
+    w = planner.world.twin()
+    w.set_q(planner.q_home)
+    start = (w.ee_position(), w.ee_rotation())
+    moves = planner.approach(
+        check, g.positions[i], start=start, q=planner.q_home, carry_height=0.2, box=BOX
+    )
+    labels = [m.label for m in moves]
+    assert labels[-3:] == ["carry", "approach", "reach"]
+    # the joint-space move was checked: clear of the table, the box and other objects
+    carry = moves[labels.index("carry")]
+    assert isinstance(carry, JointMove)
+    assert planner._blocked(planner.q_home, carry.q, BOX, frozenset({name})) is None
+    reach = moves[-1]
+    assert isinstance(reach, Move) and reach.floor == pytest.approx(g.positions[i][2] - 0.004)
+    execute(w, [m for m in moves if isinstance(m, JointMove | Move)])
+    assert np.linalg.norm(w.ee_position() - g.positions[i]) < 1e-3
+    assert symmetric_angle(w.ee_rotation(), g.rotations[i], g.symmetry[i]) < 0.02
+    assert w.arm_contacts(ignore=frozenset({name})) == []
+
+
+def test_an_infeasible_grasp_is_refused_with_its_reason(planner: MotionPlanner) -> None:
+    sc = planner.world.scene
+    mug = sc.poses()["white_mug"]
+    blocked = sc.default_layout() | {"black_stapler": ObjectPose(mug.x - 0.13, mug.y, np.pi / 2)}
+    planner.set_layout(blocked)
+    try:
+        g = sc.goal_set(blocked)
+        i = g.index("white_mug")
+        check = planner.check("white_mug", g.positions[i], g.rotations[i], int(g.symmetry[i]))
+        assert not check.feasible
+        with pytest.raises(InfeasibleError, match="white_mug"):
+            planner.approach(check, g.positions[i], start=(g.x0.position, g.x0.rotation),
+                             q=planner.q_home, carry_height=0.2, box=BOX)  # fmt: skip
+    finally:
+        planner.set_layout(sc.default_layout())

@@ -1,0 +1,172 @@
+"""The simulation protocol on the deployed controller, on the real MuJoCo model: every
+feasible pick of every shipped scene's default layout commits (or is confirmed) and
+completes; failures are named; same seed, same numbers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from legws_daemon.cli.main import run
+from legws_daemon.core.params import Params
+from legws_daemon.scene.catalog import load_scene, scene_names
+from legws_daemon.scene.scene import ObjectPose
+from legws_daemon.sim.evaluate import random_layouts, run_eval
+from legws_daemon.sim.protocol import (
+    LIFT_CLEARANCE,
+    TIMEOUT_S,
+    Evaluator,
+    PickResult,
+    metrics,
+    pick_orders,
+)
+from legws_daemon.task.runner import scene_graph
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", scene_names())
+def test_every_feasible_pick_of_every_shipped_scene_commits_and_completes(name: str) -> None:
+    """The daemon's controller, the simulated user, simulated time: one pick of every
+    candidate goal of the scene's default layout."""
+    scene = load_scene(name)
+    ev = Evaluator(scene)
+    checks = ev.check(scene.default_layout())
+    feasible = [n for n in scene.goal_names if checks[n].feasible]
+    assert feasible, "a shipped default layout has a feasible grasp"
+    ev.controller.load(scene, scene.default_layout(), scene_graph(scene, feasible))
+    rng = np.random.default_rng(0)
+    for goal in feasible:
+        pick = ev.pick(goal, rng)
+        assert pick.failure is None, (goal, pick.failure, pick.detail)
+        assert pick.committed == goal or pick.confirmed == goal
+        assert pick.completed, goal
+        assert pick.duration < TIMEOUT_S + 60
+        assert ev.stand_in.held == goal  # carried home in the gripper
+        np.testing.assert_allclose(
+            ev.stand_in.read_state().ee_position, scene.home.position, atol=0.005
+        )
+
+
+def test_a_pick_lifts_the_true_goal_clear_of_the_table() -> None:
+    sc = load_scene("kitchen_prep")
+    ev = Evaluator(sc)
+    layout = {
+        "red_apple": ObjectPose(0.8, 0.35, 0.0),
+        "red_can": ObjectPose(0.8, -0.35, 0.0),
+        "green_bottle": ObjectPose(0.35, 0.3, 0.0),
+    }
+    result = ev.evaluate(layout, seed=0)
+    assert len(result.picks) == 18  # every order of three goals
+    for p in result.picks:
+        # well separated goals: the observer commits to the true goal, the robot picks it
+        assert p.committed == p.true_goal and p.correct
+        assert p.commit_time is not None and 0 < p.commit_time < TIMEOUT_S
+        assert p.completed and p.failure is None
+        assert p.complete_time is not None and p.complete_time > p.commit_time
+    m = metrics(result.picks)
+    assert m["completion_rate"] == 1.0 and m["completion_committed"] == 1.0
+    assert m["failures"] == {}
+    # what "lifted" means, measured on the stand-in after the last pick
+    a = ev.stand_in
+    name = result.picks[-1].true_goal
+    assert a.held == name
+    position, _ = a.kinematics.object_pose(name)
+    assert position[2] - sc.z_center(name) > LIFT_CLEARANCE
+
+
+def test_without_a_commit_the_user_confirms_at_the_grasp() -> None:
+    sc = load_scene("kitchen_prep")
+    ev = Evaluator(sc, Params(p_thresh=0.999999))
+    result = ev.evaluate(sc.default_layout(), seed=1)
+    for p in result.picks:
+        assert p.committed is None and p.commit_time is None
+        assert p.confirmed == p.true_goal and p.correct
+        assert p.completed
+    m = metrics(result.picks)
+    assert m["commit_rate"] == 0.0 and m["confirmed_rate"] == 1.0
+    assert m["t_infer_mean"] is None
+
+
+def test_pick_orders() -> None:
+    rng = np.random.default_rng(0)
+    assert len(pick_orders(["a", "b", "c"], rng)) == 6
+    assert len(set(pick_orders(["a", "b", "c", "d"], rng))) == 24
+    orders = pick_orders([f"g{i}" for i in range(8)], rng)
+    assert len(orders) == 120
+    assert all(sorted(o) == sorted(orders[0]) for o in orders)
+
+
+def test_infeasible_grasps_count_as_failures_with_their_reason() -> None:
+    sc = load_scene("desk")
+    ev = Evaluator(sc)
+    mug = sc.poses()["white_mug"]
+    layout = sc.default_layout() | {"black_stapler": ObjectPose(mug.x - 0.13, mug.y, np.pi / 2)}
+    result = ev.evaluate(layout, seed=0)
+    assert not result.feasibility["white_mug"].feasible
+    mug_picks = [p for p in result.picks if p.true_goal == "white_mug"]
+    assert len(mug_picks) == 6  # one per permutation of three goals
+    for p in mug_picks:
+        assert not p.feasible and not p.correct and not p.completed
+        assert p.failure == "infeasible_grasp"
+        assert p.detail == result.feasibility["white_mug"].reason
+    others = [p for p in result.picks if p.true_goal != "white_mug"]
+    assert all(p.feasible and p.completed for p in others)
+    # the infeasible goal is not offered: the observer infers over the other two
+    assert set(ev.controller.graph.stages["pick"].candidates) == {"black_stapler", "maroon_pen_cup"}
+    m = metrics(result.picks)
+    assert m["infeasible_picks"] == 6
+    assert m["failures"] == {"infeasible_grasp": 6}
+
+
+def test_metrics_name_every_failure() -> None:
+    picks = [
+        PickResult("a", True, "a", 5.0, None, "a", True, 9.0),
+        PickResult("a", True, "b", 4.0, None, "b", False, None, "wrong_commit", "acted on 'b'"),
+        PickResult("b", True, None, None, "b", "b", False, None, "assist_failed", "carry"),
+        PickResult("b", False, failure="infeasible_grasp", detail="out of reach"),
+    ]
+    m = metrics(picks)
+    assert m["accuracy"] == 0.5
+    assert m["commit_rate"] == 0.5
+    assert m["wrong_commit_rate"] == 0.25
+    assert m["confirmed_rate"] == 0.25
+    assert m["completion_rate"] == 0.25
+    assert m["completion_committed"] == pytest.approx(1 / 3)
+    assert m["failures"] == {"infeasible_grasp": 1, "wrong_commit": 1, "assist_failed": 1}
+    assert m["t_infer_mean"] == 4.5
+
+
+def test_short_eval_is_identical_twice_under_one_seed() -> None:
+    sc = load_scene("breakfast_easy")
+    layouts = random_layouts(sc, 3, seed=5)
+    a = run_eval(sc, layouts, 5, workers=2)
+    b = run_eval(sc, layouts, 5, workers=1)
+    assert a["aggregate"] == b["aggregate"]
+    assert a["per_layout"] == b["per_layout"]
+    assert a["aggregate"]["episodes"] == 3 * 2 * 2
+
+
+def test_eval_command_writes_json_and_markdown(tmp_path: Path) -> None:
+    code = run(["eval", "--scene", "breakfast_easy", "--layouts", "random:2", "--seed", "3",
+                "--out", str(tmp_path), "--quiet", "--workers", "1"])  # fmt: skip
+    assert code == 0
+    report = json.loads((tmp_path / "eval.json").read_text())
+    assert report["layouts"] == 2
+    assert set(report["aggregate"]) >= {
+        "accuracy", "t_infer_mean", "t_infer_sd", "commit_rate", "wrong_commit_rate",
+        "no_commit_rate", "confirmed_rate", "completion_rate", "completion_committed",
+        "failures",
+    }  # fmt: skip
+    text = (tmp_path / "eval.md").read_text()
+    assert "| accuracy |" in text and "| completed |" in text and "Failures:" in text
+
+
+def test_eval_rejects_bad_layout_specs(capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(["eval", "--scene", "desk", "--layouts", "random:zero", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "random:N" in err
+    assert run(["eval", "--scene", "nope", "--quiet"]) == 2
