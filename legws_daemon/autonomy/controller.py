@@ -17,13 +17,13 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, assert_never
 
 import numpy as np
 
 from legws_daemon.autonomy.assistant import Assistant
 from legws_daemon.autonomy.cancel import CancelDetector
+from legws_daemon.autonomy.decision import Inference, StageState, certificate_of, live_slack
 from legws_daemon.autonomy.events import (
     AssistFailed,
     Cancel,
@@ -38,16 +38,20 @@ from legws_daemon.autonomy.events import (
     Stop,
     TaskDone,
 )
-from legws_daemon.autonomy.inputs import Cartesian, Command, Joints, OperatorInput, zero
+from legws_daemon.autonomy.inputs import (
+    Cartesian,
+    Command,
+    Joints,
+    OperatorInput,
+    TickRecord,
+    zero,
+)
 from legws_daemon.autonomy.layouts import LayoutBook
 from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
 from legws_daemon.autonomy.recovery import Recovery
-from legws_daemon.core.certificate import certify
-from legws_daemon.core.geometry import FloatArray, Pose
-from legws_daemon.core.goals import MIN_GOAL_DISTANCE, GoalSet
-from legws_daemon.core.observer import IntentObserver
+from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
-from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
+from legws_daemon.errors import HardwareError, InfeasibleError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
@@ -58,63 +62,12 @@ from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.runner import TaskRun, scene_graph
-from legws_daemon.task.targets import Held, Target, goal_set, held_object
+from legws_daemon.task.targets import Held, held_object
 
 #: The assistance target of a reset, which no cancel interrupts.
 RESET_TARGET = "(reset)"
 #: Builds a connected adapter for a scene (the service decides which kind).
 AdapterFactory = Callable[[Scene], Adapter]
-
-
-@dataclass(frozen=True, slots=True)
-class TickRecord:
-    """Everything one tick measured and decided (for status, Rerun and benchmarks)."""
-
-    tick: int
-    mode: Mode
-    state: RobotState | None
-    joystick: FloatArray | None
-    command: FloatArray  # (3,) EE velocity sent (to first order for a joint command), m/s
-    joints: FloatArray | None  # (7,) joint velocity sent by a joint-space move, rad/s
-    posterior: dict[str, float]
-    committed: str | None
-    phase: str | None
-    sample_received: float | None
-    sample_seq: int | None
-    sample_stamp: float | None  # the publisher's clock
-    command_sent: float
-
-
-@dataclass
-class StageState:
-    """The stage being run: its candidate goals' poses and the layout they stand in.
-
-    ``goals_home`` (the goal set seen from home) and ``certificate`` are ``None`` for a
-    stage with a single candidate, which needs no inference. ``observed_certificate`` is
-    the certificate recomputed from object poses a tracker reported (``None`` until then).
-    """
-
-    name: str
-    targets: list[Target]
-    layout: Layout
-    certificate: float | None
-    goals_home: GoalSet | None
-    observed_certificate: float | None = None
-
-    @property
-    def current_certificate(self) -> float | None:
-        """What status reports: the observed certificate once there is one, else the plan's."""
-        return self.certificate if self.observed_certificate is None else self.observed_certificate
-
-    @property
-    def goal_names(self) -> tuple[str, ...]:
-        return tuple(t.name for t in self.targets)
-
-    def target(self, goal: str) -> Target:
-        for t in self.targets:
-            if t.name == goal:
-                return t
-        raise KeyError(goal)
 
 
 class Controller:
@@ -162,14 +115,13 @@ class Controller:
         self.assistant: Assistant | None = None
         self.committed: str | None = None
         self.last_state: RobotState | None = None
-        self.observer: IntentObserver | None = None
+        self.inference = Inference(params, self.dt, scene.home.rotation)
         self._gripper: bool | None = None
         self._held: Held | None = None  # what the gripper closed on, and how
         self._recovering = False  # the running reset began in fault
         self._auto_commit = True
         self.decisions = 0
         self._motion: FloatArray = np.zeros(3)  # the EE velocity sent last tick
-        self._hold: FloatArray = scene.home.rotation
         self.layouts = LayoutBook(layout, plan)
         self.graph = graph if graph is not None else scene_graph(scene)
         self.task = TaskRun(self.graph, scene)
@@ -194,15 +146,10 @@ class Controller:
         candidate, the commit is immediate)."""
         self.decisions += 1
         self._apply_plan()
-        layout = self.layouts.layout
-        targets = self.task.targets(layout) if not self.task.finished else []
-        goals_home = cert = None
-        if len(targets) >= 2:
-            goals_home = goal_set(targets, self.scene.home)
-            cert = certify(goals_home, self.params).objective
-        self.stage = StageState(self.task.label, targets, dict(layout), cert, goals_home)
+        self.stage = StageState.of(self.task, self.layouts.layout, self.scene, self.params)
         self.committed = None
-        self.observer = None
+        self.inference.stop()
+        targets = self.stage.targets
         if self.task.finished:
             self.modes.to(Mode.IDLE)
             self.emit(TaskDone(self.graph.name, tuple(self.task.history)))
@@ -239,17 +186,7 @@ class Controller:
     def _restart_inference(self) -> None:
         """A fresh observer whose start pose is where the EE is now."""
         self.committed = None
-        if self.stage.goals_home is None:
-            self.observer = None
-            return
-        state = self._read_state_safely()
-        goals = self.stage.goals_home
-        if state is not None:
-            x0 = Pose(state.ee_position, state.ee_quaternion)
-            self._hold = state.ee_rotation
-            with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
-                goals = goal_set(self.stage.targets, x0)
-        self.observer = IntentObserver(goals, self.params)
+        self.inference.restart(self.stage, self._read_state_safely())
 
     def restart_task(self) -> None:
         """Start the task again from its first stage where the arm is now, objects back at
@@ -284,26 +221,18 @@ class Controller:
             self.emit(warning)
 
     def _decision_certificate(self, layout: Layout) -> float:
-        targets = self.task.targets(layout)
-        return certify(goal_set(targets, self.scene.home), self.params).objective
+        return certificate_of(self.task, layout, self.scene, self.params)
 
     def posterior(self) -> dict[str, float]:
-        if self.observer is None:
-            return {}
-        names = self.observer.goals.names
-        return dict(zip(names, (float(p) for p in self.observer.posterior), strict=True))
+        return self.inference.posterior()
 
     def live_slack(self) -> float | None:
         """The certificate seen from the current EE pose (how reliably intent can be read
-        from here), or ``None`` (no inference, or the EE sits on a goal)."""
-        state, goals = self.last_state, self.stage.goals_home
-        if state is None or self.mode != Mode.TELEOP or goals is None:
+        from here), or ``None`` (not teleoperating, no inference, or the EE on a goal)."""
+        state = self.last_state
+        if state is None or self.mode != Mode.TELEOP:
             return None
-        x0 = Pose(state.ee_position, state.ee_quaternion)
-        if np.min(np.linalg.norm(goals.positions - x0.position, axis=1)) < 2 * MIN_GOAL_DISTANCE:
-            return None
-        live = GoalSet(goals.names, goals.positions, goals.quaternions, goals.symmetry, x0)
-        return certify(live, self.params).objective
+        return live_slack(self.stage, state, self.params)
 
     # --- the tick -------------------------------------------------------------------------
     def _read_state_safely(self) -> RobotState | None:
@@ -348,28 +277,25 @@ class Controller:
         )
 
     def _teleop(self, state: RobotState, inp: OperatorInput | None) -> Command:
-        obs = self.observer
         confirm = inp is not None and inp.confirm
-        if obs is None:
+        if self.inference.observer is None:
             # a single-candidate stage: it starts by itself, but after a failed attempt
             # only when the user confirms (no retrying for ever on its own)
             if len(self.stage.targets) == 1 and (self._auto_commit or confirm):
                 self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
                 return zero()
         else:
-            post = obs.update(state.ee_position, state.ee_quaternion)
-            if obs.committed is not None:
-                goal = obs.goals.names[obs.committed]
-                self._commit(goal, float(post[obs.committed]), state, confirmed=False)
-                return zero()  # assistance starts next tick from a fresh state
+            commit = self.inference.update(state)
+            if commit is not None:
+                self._commit(*commit, state, confirmed=False)
+                return zero()  # assistance starts from this state
             if confirm:
                 # the user vouches for the most likely goal (e.g. the stick is already there)
-                best = int(np.argmax(post))
-                self._commit(obs.goals.names[best], float(post[best]), state, confirmed=True)
+                self._commit(*self.inference.most_likely(), state, confirmed=True)
                 return zero()
         if inp is None:
             return zero()  # deadman: nothing moves, not even the orientation
-        return Cartesian(self.profile.control.v_max * inp.axes, self._hold)
+        return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
 
     def _context(self, state: RobotState) -> PlanContext:
         held = self._held if self._gripper is not False else None
@@ -380,7 +306,7 @@ class Controller:
         self, goal: str, p: float, state: RobotState, *, confirmed: bool, single: bool = False
     ) -> None:
         t = self.stage.target(goal)
-        seconds = self.observer.ticks * self.dt if self.observer is not None else 0.0
+        seconds = self.inference.seconds
         self.committed = goal
         self.emit(
             Commit(
@@ -576,7 +502,7 @@ class Controller:
         held = self._held if self._gripper is not False else None
         plan = self.recovery.begin(self._context(state), held)
         self._recovering = self.mode == Mode.FAULT
-        self.observer = None
+        self.inference.stop()
         self._start_assist(plan, RESET_TARGET)
         return {"mode": self.mode.value, "plan": [p.label for p in plan]}
 

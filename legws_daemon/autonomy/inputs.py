@@ -3,16 +3,21 @@
 :class:`OperatorInput` is one valid joystick sample as the controller uses it (the daemon's
 inbox makes it from a validated message; ``legws eval`` makes it from the simulated user).
 :class:`Cartesian` and :class:`Joints` are the commands a tick sends through the adapter's
-safety envelope.
+safety envelope; :class:`TickRecord` is everything a tick measured and decided.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from legws_daemon.core.geometry import FloatArray
+
+if TYPE_CHECKING:
+    from legws_daemon.autonomy.modes import Mode
+    from legws_daemon.hardware.base import RobotState
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +58,25 @@ class Joints:
 
 
 Command = Cartesian | Joints
+
+
+@dataclass(frozen=True, slots=True)
+class TickRecord:
+    """Everything one tick measured and decided (for status, Rerun and benchmarks)."""
+
+    tick: int
+    mode: Mode
+    state: RobotState | None
+    joystick: FloatArray | None
+    command: FloatArray  # (3,) EE velocity sent (to first order for a joint command), m/s
+    joints: FloatArray | None  # (7,) joint velocity sent by a joint-space move, rad/s
+    posterior: dict[str, float]
+    committed: str | None
+    phase: str | None
+    sample_received: float | None
+    sample_seq: int | None
+    sample_stamp: float | None  # the publisher's clock
+    command_sent: float
 
 
 def zero() -> Cartesian:

@@ -43,7 +43,7 @@ import numpy as np
 import zenoh
 
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
-from legws_daemon.autonomy.controller import Controller, TickRecord
+from legws_daemon.autonomy.controller import Controller
 from legws_daemon.autonomy.events import (
     Event,
     Fallback,
@@ -55,6 +55,7 @@ from legws_daemon.autonomy.events import (
     TraceFailed,
     jsonable,
 )
+from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params

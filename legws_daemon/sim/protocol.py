@@ -318,8 +318,8 @@ class Evaluator:
             if not completed and self._lifted(goal):
                 completed, complete_time = True, (clock.ticks - start) * clock.dt
         final = committed or confirmed
-        if final is None and c.observer is not None:
-            final = c.observer.goals.names[int(np.argmax(c.observer.posterior))]
+        if final is None and c.inference.observer is not None:
+            final = c.inference.most_likely()[0]
         self.events.clear()
         return PickResult(
             goal, True, committed, commit_time, confirmed, final, completed, complete_time,

@@ -95,9 +95,9 @@ def test_cancel_button_returns_control_and_restarts_inference(rig: Rig) -> None:
     post = list(rig.c.posterior().values())
     assert post == pytest.approx([1 / len(post)] * len(post))
     # inference resumes from where the arm is now
-    assert rig.c.observer is not None
+    assert rig.c.inference.observer is not None
     np.testing.assert_allclose(
-        rig.c.observer.goals.x0.position, rig.adapter.read_state().ee_position
+        rig.c.inference.observer.goals.x0.position, rig.adapter.read_state().ee_position
     )
 
 

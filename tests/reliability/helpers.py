@@ -21,7 +21,8 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from legws_daemon.autonomy.controller import Controller, TickRecord
+from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.inbox import JoystickInbox, Sample
 from legws_daemon.errors import LegwsError

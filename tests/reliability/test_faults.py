@@ -31,8 +31,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from legws_daemon.autonomy.controller import Controller, TickRecord
-from legws_daemon.autonomy.inputs import OperatorInput
+from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.inputs import OperatorInput, TickRecord
 from legws_daemon.core.params import Params
 from legws_daemon.daemon import service as service_module
 from legws_daemon.daemon.service import DaemonConfig, DaemonService

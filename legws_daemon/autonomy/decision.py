@@ -1,0 +1,143 @@
+"""The decision being made: the stage's candidate targets, their certificate, and the
+observer inferring which one the user is going for."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.geometry import FloatArray, Pose
+from legws_daemon.core.goals import MIN_GOAL_DISTANCE, GoalSet
+from legws_daemon.core.observer import IntentObserver
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+from legws_daemon.hardware.base import RobotState
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+from legws_daemon.task.runner import TaskRun
+from legws_daemon.task.targets import Target, goal_set
+
+
+@dataclass
+class StageState:
+    """The stage being run: its candidate goals' poses and the layout they stand in.
+
+    ``goals_home`` (the goal set seen from home) and ``certificate`` are ``None`` for a
+    stage with a single candidate, which needs no inference. ``observed_certificate`` is
+    the certificate recomputed from object poses a tracker reported (``None`` until then).
+    """
+
+    name: str
+    targets: list[Target]
+    layout: Layout
+    certificate: float | None
+    goals_home: GoalSet | None
+    observed_certificate: float | None = None
+
+    @classmethod
+    def of(cls, task: TaskRun, layout: Layout, scene: Scene, params: Params) -> StageState:
+        """The stage(s) ``task`` offers next, in ``layout``, certified from home."""
+        targets = task.targets(layout) if not task.finished else []
+        goals_home = cert = None
+        if len(targets) >= 2:
+            goals_home = goal_set(targets, scene.home)
+            cert = certify(goals_home, params).objective
+        return cls(task.label, targets, dict(layout), cert, goals_home)
+
+    @property
+    def current_certificate(self) -> float | None:
+        """What status reports: the observed certificate once there is one, else the plan's."""
+        return self.certificate if self.observed_certificate is None else self.observed_certificate
+
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.targets)
+
+    def target(self, goal: str) -> Target:
+        for t in self.targets:
+            if t.name == goal:
+                return t
+        raise KeyError(goal)
+
+
+def certificate_of(
+    task: TaskRun, layout: Mapping[str, ObjectPose], scene: Scene, params: Params
+) -> float:
+    """``J`` of the decision ``task`` offers, its targets in ``layout``, seen from home."""
+    return certify(goal_set(task.targets(layout), scene.home), params).objective
+
+
+class Inference:
+    """The observer over a stage's targets, and the orientation teleoperation holds.
+
+    Args:
+        params: observer parameters.
+        dt: the control period, s.
+        hold: the orientation to hold until the first restart (the home orientation).
+    """
+
+    def __init__(self, params: Params, dt: float, hold: FloatArray) -> None:
+        self.params = params
+        self.dt = dt
+        self.observer: IntentObserver | None = None
+        self.hold = hold
+
+    def restart(self, stage: StageState, state: RobotState | None) -> None:
+        """A fresh observer whose start pose is where the EE is now (from home when the
+        state is unknown or the EE sits on a goal); teleoperation holds this orientation."""
+        if stage.goals_home is None:
+            self.observer = None
+            return
+        goals = stage.goals_home
+        if state is not None:
+            self.hold = state.ee_rotation
+            with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
+                goals = goal_set(stage.targets, Pose(state.ee_position, state.ee_quaternion))
+        self.observer = IntentObserver(goals, self.params)
+
+    def stop(self) -> None:
+        self.observer = None
+
+    @property
+    def seconds(self) -> float:
+        """Seconds of inference so far (ticks the observer saw)."""
+        return self.observer.ticks * self.dt if self.observer is not None else 0.0
+
+    def update(self, state: RobotState) -> tuple[str, float] | None:
+        """One tick's EE pose; the goal committed to (posterior >= ``p_thresh``) and its
+        probability, or ``None``."""
+        obs = self.observer
+        assert obs is not None
+        post = obs.update(state.ee_position, state.ee_quaternion)
+        if obs.committed is None:
+            return None
+        return obs.goals.names[obs.committed], float(post[obs.committed])
+
+    def most_likely(self) -> tuple[str, float]:
+        """The argmax goal and its probability (what the confirm button commits to)."""
+        obs = self.observer
+        assert obs is not None
+        best = int(np.argmax(obs.posterior))
+        return obs.goals.names[best], float(obs.posterior[best])
+
+    def posterior(self) -> dict[str, float]:
+        if self.observer is None:
+            return {}
+        names = self.observer.goals.names
+        return dict(zip(names, (float(p) for p in self.observer.posterior), strict=True))
+
+
+def live_slack(stage: StageState, state: RobotState, params: Params) -> float | None:
+    """The certificate seen from the EE pose ``state`` (how reliably intent can be read
+    from there), or ``None`` (no inference, or the EE sits on a goal)."""
+    goals = stage.goals_home
+    if goals is None:
+        return None
+    x0 = Pose(state.ee_position, state.ee_quaternion)
+    if np.min(np.linalg.norm(goals.positions - x0.position, axis=1)) < 2 * MIN_GOAL_DISTANCE:
+        return None
+    live = GoalSet(goals.names, goals.positions, goals.quaternions, goals.symmetry, x0)
+    return certify(live, params).objective
