@@ -264,11 +264,11 @@ class Evaluator:
     def pick(self, goal: str, rng: np.random.Generator) -> PickResult:
         """One pick of ``goal`` from home, as the protocol says (see the module docstring)."""
         c, a, clock = self.controller, self.stand_in, self.clock
+        first = len(self.events)  # a single candidate is committed to by the restart
         a.reset_arm()
         c.restart_task()
         user = SimUser([goal], self.params.sigma, self.params.v_max, rng)
         start = clock.ticks
-        first = len(self.events)
         committed = confirmed = failure = None
         commit_time = complete_time = None
         detail = ""

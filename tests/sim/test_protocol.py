@@ -90,6 +90,20 @@ def test_without_a_commit_the_user_confirms_at_the_grasp() -> None:
     assert m["t_infer_mean"] is None
 
 
+def test_a_single_feasible_candidate_is_taken_at_once_and_scored() -> None:
+    """With one feasible grasp the robot needs no inference: the pick is a commit (without a
+    time), correct, and completed (the restart itself commits: it counts)."""
+    sc = load_scene("breakfast_easy")
+    ev = Evaluator(sc)
+    ev.check(sc.default_layout())
+    ev.controller.load(sc, sc.default_layout(), scene_graph(sc, ["banana"]))
+    pick = ev.pick("banana", np.random.default_rng(0))
+    assert pick.committed == "banana" and pick.commit_time is None
+    assert pick.correct and pick.completed and pick.failure is None
+    m = metrics([pick])
+    assert m["accuracy"] == 1.0 and m["commit_rate"] == 1.0 and m["t_infer_mean"] is None
+
+
 def test_pick_orders() -> None:
     rng = np.random.default_rng(0)
     assert len(pick_orders(["a", "b", "c"], rng)) == 6
