@@ -9,7 +9,8 @@ joint-space move is a proportional controller on the joint angles at up to
 EE's speed too). Each primitive has a timeout; a plan that cannot finish fails and gives
 control back to the user. A move may also be given a *patience*: it then fails as soon as
 it has made no progress for that long (a joint limit or the workspace box holds the arm
-short of it), so that the caller can fall back at once (a reset's put-back falls back to
+short of it), so that the caller can fall back at once (an *optional* move is then skipped
+and the plan goes on) (a reset's put-back falls back to
 a set-down). All of it is pure math on the measured state: the loop sends the command
 through the adapter's safety envelope.
 """
@@ -132,6 +133,8 @@ class Assistant:
         if dist < prim.tolerance and angle < ROTATION_TOLERANCE:
             return self._advance(None)
         if prim.patience is not None and self._stalled((dist, angle), prim.patience):
+            if prim.optional:
+                return self._advance(None)  # it only gave room: go on from here
             return self._stall(prim.label, prim.patience)
         v = POSITION_GAIN * error
         norm = math.sqrt(float(v @ v))

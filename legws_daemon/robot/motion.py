@@ -42,6 +42,8 @@ class Move:
         floor: the lowest EE height this move may reach, m: set on the final approach of
             a grasp, whose target may lie below the envelope's fingertip floor (``None``:
             the envelope's floor).
+        optional: when it makes no progress (its patience) the plan goes on with the next
+            primitive instead of failing (a move that only gives the next one more room).
     """
 
     label: str
@@ -50,6 +52,7 @@ class Move:
     tolerance: float = POSITION_TOLERANCE
     patience: float | None = None
     floor: float | None = None
+    optional: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -22,9 +22,10 @@ touches nothing but the goal's object. Its end configuration is the one nearest 
 own that reaches the pose above, the pre-pose and the goal (touching nothing but the
 target there); else one from the feasibility check's configuration or from fixed seeds; a
 higher carry height, a via configuration and a shorter approach are tried when nothing
-else passes. The way home goes straight up to the home height first. Every joint-space
-move is checked again when it begins, from where the arm really is (:meth:`joint_path`),
-and fails after :data:`JOINT_PATIENCE` without progress.
+else passes, and last the way in from home, after a joint-space move home. The way home
+goes straight up to the home height first. Every joint-space move is checked again when it
+begins, from where the arm really is (:meth:`joint_path`), and fails after
+:data:`JOINT_PATIENCE` without progress.
 
 The planner works on its own twin of the robot's kinematic model (:meth:`World.twin`), so
 planning never moves the robot's model, and it checks collisions against the layout it was
@@ -174,7 +175,9 @@ class MotionPlanner:
     ) -> list[Primitive]:
         """The way in to ``position`` at the orientation ``check`` reached (see the module
         docstring): ``rise`` (when below the carry height), ``carry``, ``labels[0]`` (down
-        to the pre-pose, when above it), ``labels[1]`` (in).
+        to the pre-pose, when above it), ``labels[1]`` (in). When no way passes from where
+        the arm is, it goes ``home`` first (a checked joint-space move) and takes the way in
+        from there, which the feasibility check found.
 
         Args:
             check: the feasibility check of the goal pose (:meth:`check`).
@@ -224,6 +227,23 @@ class MotionPlanner:
                         if via is not None:
                             return self._moves(p, R_now, rise, [via, way], pre, goal, R,
                                                labels, patience)  # fmt: skip
+            if not np.array_equal(q, self.q_home):  # the way in from home, going home first
+                back = self.joint_path(q, self.q_home, box, frozenset({check.name}))
+                w = self.world
+                w.set_q(self.q_home)
+                moves = self.approach(
+                    check, goal, start=(w.ee_position(), w.ee_rotation()), q=self.q_home,
+                    carry_height=carry_height, box=box, distance=distance, labels=labels,
+                    patience=patience,
+                )  # fmt: skip
+                stall = JOINT_PATIENCE if patience is None else patience
+                return [
+                    *(JointMove("home", v, patience=stall) for v in back),
+                    JointMove("home", self.q_home.copy(), patience=stall),
+                    *moves,
+                ]
+        except InfeasibleError:
+            pass
         finally:
             self.world.set_q(self.q_home)
         raise InfeasibleError(f"no way in to '{check.name}': {path_why or why}")
@@ -248,9 +268,10 @@ class MotionPlanner:
         if z - float(position[2]) <= loose:
             return [home]
         # straight up to the home height first: the joint-space move then starts clear of
-        # the table (and is checked again from where the arm really is when it begins)
+        # the table (and is checked again from where the arm really is when it begins); a
+        # rise the arm cannot complete (a wrist at its limit) is cut short, not a failure
         up = np.array([position[0], position[1], z])
-        return [Move("up", up, rotation, loose), home]
+        return [Move("up", up, rotation, loose, JOINT_PATIENCE, optional=True), home]
 
     def joint_path(
         self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str] = frozenset()
