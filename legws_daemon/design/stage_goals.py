@@ -24,7 +24,7 @@ from legws_daemon.design.problem import GoalModel, GoalPoses
 from legws_daemon.errors import LegwsError
 from legws_daemon.robot.reachability import ReachabilityMap
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.task.actions import target
+from legws_daemon.task.actions import action, target
 from legws_daemon.task.decisions import DecisionPoint
 
 
@@ -48,7 +48,7 @@ class TargetGoals(GoalModel):
         actions, stage_of = point.actions, point.stage_of
         index = {n: k for k, n in enumerate(placed)}
         for n in placed:
-            if actions.get(n) in (None, "return"):
+            if n not in actions or not action(actions[n]).follows_layout:
                 raise LegwsError(f"'{n}' is not a candidate of '{point.label}' that can be placed")
         m = len(self.names)
         self._positions = np.zeros((m, 3))
@@ -61,7 +61,9 @@ class TargetGoals(GoalModel):
             self._positions[j], self._rotations[j] = t.position, t.rotation
             self.symmetry[j] = t.symmetry
             if n in index:
-                (self._pick if actions[n] == "pick" else self._lifted).append((j, index[n]))
+                (self._pick if action(actions[n]).takes_object else self._lifted).append(
+                    (j, index[n])
+                )
         moving = {j for j, _ in (*self._pick, *self._lifted)}
         still = [j for j in range(m) if j not in moving]
         self._anchors = self._positions[still, :2].copy()

@@ -60,7 +60,7 @@ from legws_daemon.robot.planner import MotionPlanner, stand_in_planner
 from legws_daemon.robot.reachability import ReachabilityMap, load_or_build
 from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.task.actions import target
+from legws_daemon.task.actions import action, target
 from legws_daemon.task.decisions import DecisionPoint, decision_points
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
@@ -123,8 +123,8 @@ class _Planner:
 def _optimised(graph: TaskGraph, scene: Scene, point: DecisionPoint) -> tuple[str, ...]:
     return tuple(
         c
-        for c, action in point.actions.items()
-        if c in scene.movable and c not in graph.fixed and action != "return"
+        for c, name in point.actions.items()
+        if c in scene.movable and c not in graph.fixed and action(name).follows_layout
     )
 
 

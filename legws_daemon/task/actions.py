@@ -122,6 +122,18 @@ class TaskAction:
     needs_held: ClassVar[bool]
     #: The gripper holds something after it (True), nothing (False), or as before (None).
     holds_after: ClassVar[bool | None]
+    #: Its goal is an object's grasp, and the object is used up once done (a pick: the
+    #: object must be movable, and is not a candidate again).
+    takes_object: ClassVar[bool] = False
+    #: Its candidates may be places of the scene (a place or a feed), not only objects.
+    at_places: ClassVar[bool] = False
+    #: Its goal moves with its candidate's pose in the layout (a layout design can place
+    #: it); a return's goal is where the held object was taken, whatever the layout.
+    follows_layout: ClassVar[bool] = True
+
+    def available(self, goal: str, run: Run) -> bool:
+        """Whether ``goal`` is a candidate of this action in the run's state now."""
+        return not (self.takes_object and goal in run.consumed)
 
     def target(
         self,
@@ -192,6 +204,7 @@ class Pick(TaskAction):
     name = "pick"
     needs_held = False
     holds_after = True
+    takes_object = True
 
     def _object_target(
         self,
@@ -227,6 +240,7 @@ class Place(TaskAction):
     name = "place"
     needs_held = True
     holds_after = False
+    at_places = True
 
     def plan(self, target: Target, ctx: PlanContext) -> list[Primitive]:
         release = Grip("release", closed=False)
@@ -265,6 +279,7 @@ class Feed(TaskAction):
     name = "feed"
     needs_held = True
     holds_after = False
+    at_places = True
 
     def plan(self, target: Target, ctx: PlanContext) -> list[Primitive]:
         planner = ctx.planner
@@ -287,6 +302,10 @@ class Return(TaskAction):
     name = "return"
     needs_held = True
     holds_after = False
+    follows_layout = False
+
+    def available(self, goal: str, run: Run) -> bool:
+        return goal == run.held  # only the object in the gripper goes back
 
     def _object_target(
         self,

@@ -51,11 +51,8 @@ class TaskRun:
         out: list[tuple[str, Stage]] = []
         for s in self.options:
             for c in s.candidates:
-                if s.action == "pick" and c in self.consumed:
-                    continue
-                if s.action == "return" and c != self.held:
-                    continue
-                out.append((c, s))
+                if action(s.action).available(c, self):
+                    out.append((c, s))
         return out
 
     def targets(self, layout: Mapping[str, ObjectPose]) -> list[Target]:

@@ -92,12 +92,12 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
                 )  # fmt: skip
             if c in s.candidates[:j]:
                 raise fail(i, f"candidates[{j}]", f"'{c}' is listed twice")
-            if c in places and s.action not in ("feed", "place"):
+            if c in places and not action(s.action).at_places:
                 raise fail(
                     i, f"candidates[{j}]", f"'{c}' is a place: it can be fed or placed at, "
                     f"not used by '{s.action}'"
                 )  # fmt: skip
-            if s.action == "pick" and c in objects and c not in scene.movable:
+            if action(s.action).takes_object and c in objects and c not in scene.movable:
                 raise fail(
                     i, f"candidates[{j}]", f"'{c}' is fixed in the scene: it cannot be picked"
                 )
@@ -150,7 +150,7 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
             held = held if after is None else after
         if spec.repeat == "until_consumed" and held:
             raise fail(index[path[-1]], "action", "the graph repeats but ends holding an object")
-    if spec.repeat == "until_consumed" and spec.stages[0].action != "pick":
+    if spec.repeat == "until_consumed" and not action(spec.stages[0].action).takes_object:
         raise fail(0, "action", "a repeated graph must start with 'pick' (what it consumes)")
     return graph
 
