@@ -90,6 +90,12 @@ def markdown(rows: dict[str, dict[str, Any]], methods: list[str]) -> str:
     def pct(x: float | None) -> str:
         return "—" if x is None else f"{100 * x:.0f} %"
 
+    def pct1(x: float | None) -> str:
+        return "—" if x is None else f"{100 * x:.1f} %"
+
+    def failures(f: dict[str, int]) -> str:
+        return ", ".join(f"{k} {v}" for k, v in f.items()) or "none"
+
     def t(a: dict[str, Any]) -> str:
         if a["t_infer_mean"] is None:
             return "—"
@@ -101,9 +107,10 @@ def markdown(rows: dict[str, dict[str, Any]], methods: list[str]) -> str:
         "",
         "| tier | M | J opt. (ours) | J opt. (paper) | best J of 10,000 random | T_infer random "
         "| T_infer opt. (ours) | T_infer opt. (paper) | acc. random | acc. opt. (ours) "
-        "| acc. opt. (paper) | commit random | commit opt. | completed random "
-        "| completed opt. |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| acc. opt. (paper) | commit random | commit opt. | confirmed random "
+        "| confirmed opt. | completed random | completed opt. | completed of acted on, random "
+        "| completed of acted on, opt. | failures opt. | picks opt. |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, row in rows.items():
         tier, j_paper, t_paper, acc_paper, *_ = TIERS[name]
@@ -114,7 +121,10 @@ def markdown(rows: dict[str, dict[str, Any]], methods: list[str]) -> str:
             f"| {row['random_best_j_10000']:.2f} | {t(r)} | {t(o)} "
             f"| {t_paper} | {pct(r['accuracy'])} | {pct(o['accuracy'])} "
             f"| {pct(acc_paper)} | {pct(r['commit_rate'])} | {pct(o['commit_rate'])} "
-            f"| {pct(r['completion_rate'])} | {pct(o['completion_rate'])} |"
+            f"| {pct(r['confirmed_rate'])} | {pct(o['confirmed_rate'])} "
+            f"| {pct(r['completion_rate'])} | {pct(o['completion_rate'])} "
+            f"| {pct1(r['completion_committed'])} | {pct1(o['completion_committed'])} "
+            f"| {failures(o['failures'])} | {o['episodes']} |"
         )
     out += [
         "",
@@ -138,6 +148,10 @@ def markdown(rows: dict[str, dict[str, Any]], methods: list[str]) -> str:
             + " | ".join(cells)
             + f" | {s_paper} / {e_paper} / {pct(c_paper)} |"
         )
+    ranks = ", ".join(
+        f"{TIERS[name][0]} {row['cma-me']['verified_rank']}" for name, row in rows.items()
+    )
+    out += ["", f"CMA-ME: rank of the verified elite among the elites by objective: {ranks}."]
     return "\n".join(out) + "\n"
 
 
