@@ -25,6 +25,9 @@ ROTATION_TOLERANCE = 0.05
 JOINT_TOLERANCE = 0.002
 #: Seconds for the gripper to close or open.
 GRIP_SECONDS = 0.3
+#: A joint-space move that makes no progress for this long fails (the envelope stops it
+#: where the path would leave it), s.
+JOINT_PATIENCE = 2.0
 #: Targets of carries and of a reset's moves stay this far inside the workspace box, m.
 BOX_MARGIN = 0.005
 

@@ -48,6 +48,7 @@ from legws_daemon.robot.kinematics import home_configuration, solve_ik
 from legws_daemon.robot.motion import (
     APPROACH_FRACTIONS,
     BOX_MARGIN,
+    JOINT_PATIENCE,
     LIFT_HEIGHT,
     POSITION_TOLERANCE,
     PREGRASP_DISTANCE,
@@ -76,9 +77,6 @@ VIA_MARGIN = 0.05
 PATH_SAMPLES = 12
 #: ... and at most this far apart in every joint, rad.
 PATH_STEP = 0.05
-#: A joint-space move that makes no progress for this long fails (the envelope stops it
-#: where the path would leave it), s.
-JOINT_PATIENCE = 2.0
 #: A joint-space move keeps the fingertips at least this far above the table (the envelope
 #: keeps 5 mm; the prediction by samples gets this margin), m.
 PATH_CLEARANCE = 0.01

@@ -28,6 +28,7 @@ from legws_daemon.core.geometry import FloatArray, quat_to_matrix
 from legws_daemon.errors import InputError
 from legws_daemon.robot.motion import (
     BOX_MARGIN,
+    JOINT_PATIENCE,
     LIFT_HEIGHT,
     POSITION_TOLERANCE,
     PREGRASP_DISTANCE,
@@ -221,10 +222,13 @@ class Pick(TaskAction):
         planner = ctx.planner
         check = planner.check(target.name, target.position, target.rotation, target.symmetry)
         lift = target.position + np.array([0.0, 0.0, LIFT_HEIGHT])
+        lift[2] = min(lift[2], ctx.box.upper[2] - BOX_MARGIN)
         return [
             *planner.approach(check, target.position, **ctx.way_in(target.position, check)),
             Grip("grasp", closed=True),
-            Move("lift", lift, check.rotation),
+            # a lift a wrist limit holds short (a tall box grasped at its side) goes on home
+            # from where it stopped: the way home rises first anyway
+            Move("lift", lift, check.rotation, patience=JOINT_PATIENCE, optional=True),
         ]
 
     def apply(self, run: Run, goal: str, layout: Layout) -> None:
