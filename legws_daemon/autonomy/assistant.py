@@ -9,10 +9,10 @@ joint-space move is a proportional controller on the joint angles at up to
 EE's speed too). Each primitive has a timeout; a plan that cannot finish fails and gives
 control back to the user. A move may also be given a *patience*: it then fails as soon as
 it has made no progress for that long (a joint limit or the workspace box holds the arm
-short of it), so that the caller can fall back at once (an *optional* move is then skipped
-and the plan goes on) (a reset's put-back falls back to
-a set-down). All of it is pure math on the measured state: the loop sends the command
-through the adapter's safety envelope.
+short of it), so that the caller can fall back at once (a reset's put-back falls back to a
+set-down); an *optional* move that stalls is cut short instead and the plan goes on from
+where the arm stopped. All of it is pure math on the measured state: the loop sends the
+command through the adapter's safety envelope.
 """
 
 from __future__ import annotations

@@ -26,7 +26,8 @@ JOINT_TOLERANCE = 0.002
 #: Seconds for the gripper to close or open.
 GRIP_SECONDS = 0.3
 #: A joint-space move that makes no progress for this long fails (the envelope stops it
-#: where the path would leave it), s.
+#: where the path would leave it), and an optional move (a lift, the rise before the way
+#: home) is cut short, s.
 JOINT_PATIENCE = 2.0
 #: Targets of carries and of a reset's moves stay this far inside the workspace box, m.
 BOX_MARGIN = 0.005

@@ -222,7 +222,7 @@ class Pick(TaskAction):
         planner = ctx.planner
         check = planner.check(target.name, target.position, target.rotation, target.symmetry)
         lift = target.position + np.array([0.0, 0.0, LIFT_HEIGHT])
-        lift[2] = min(lift[2], ctx.box.upper[2] - BOX_MARGIN)
+        lift[2] = min(lift[2], ctx.ceiling)
         return [
             *planner.approach(check, target.position, **ctx.way_in(target.position, check)),
             Grip("grasp", closed=True),
