@@ -8,9 +8,18 @@ certificate's unclipped user model and once with the robot's speed clip ``|v| <=
 A certified layout *violates* 1 - alpha when some goal's accuracy at the horizon is below
 1 - alpha; *significantly* when even the Clopper-Pearson 95 % upper bound is below it.
 
+The commit part (method.md §9) does the same for the commit certificate, per goal: on the
+same layouts, every goal whose commit is certified gets N simulated users; a
+commit-certified goal *violates* its promise when fewer than 1 - alpha of them make their
+first commit on it at or before the certified step, *significantly* when even the
+Clopper-Pearson upper bound is below 1 - alpha. The unclipped users are checked against
+section 9's certificate; the speed-clipped users (the robot's) against the same certificate
+computed for the clipped user's motion (``core.commit.clipped_user``: slower, in the robot's
+own time). Written to ``commit_validity.{json,md}`` beside the slack results.
+
 Usage:
     python benchmarks/certificate_validity.py [--layouts 500] [--trials 2000] [--seed 0]
-        [--workers 2] [--out docs/results/certificate_validity.json]
+        [--workers 2] [--part slack|commit|both] [--out docs/results/certificate_validity.json]
 """
 
 from __future__ import annotations
@@ -26,16 +35,17 @@ import numpy as np
 from tqdm import tqdm
 
 from legws_daemon.core.certificate import certify_batch
+from legws_daemon.core.commit import clipped_user, commit_batch, unclipped_user
 from legws_daemon.core.geometry import matrix_to_quat
 from legws_daemon.core.goals import GoalSet
-from legws_daemon.core.montecarlo import monte_carlo
-from legws_daemon.core.params import Params
+from legws_daemon.core.montecarlo import commit_rates, monte_carlo, simulate_commits
+from legws_daemon.core.params import CostForm, Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.workers import worker_context
 
 SCENES = {2: "breakfast_easy", 3: "desk", 5: "meal_assembly", 8: "cluttered"}
-FORMS = ("dragan", "ratio")
+FORMS: tuple[CostForm, ...] = ("dragan", "ratio")
 
 
 def _check(job: tuple[str, np.ndarray, int, int]) -> dict[str, Any]:
@@ -56,6 +66,157 @@ def _check(job: tuple[str, np.ndarray, int, int]) -> dict[str, Any]:
             for form, per_goal in res.items()
         }
     return out
+
+
+def _goals(scene_name: str, poses: np.ndarray) -> GoalSet:
+    sc = load_scene(scene_name)
+    pos, rot, sym = sc.grasp_batch(sc.goal_names, poses[None])
+    return GoalSet(sc.goal_names, pos[0], matrix_to_quat(rot[0]), sym, sc.home)
+
+
+MODELS = ("unclipped", "clipped")
+
+
+def _check_commit(
+    job: tuple[str, np.ndarray, dict[str, dict[str, list[int]]], int, int],
+) -> dict[str, Any]:
+    """Monte Carlo of one layout's first commits: both forms, unclipped and clipped.
+
+    ``steps[model][form][i]`` is goal ``i``'s certified commit step (0: not certified)."""
+    scene_name, poses, steps, trials, seed = job
+    goals = _goals(scene_name, poses)
+    out: dict[str, Any] = {}
+    for model in MODELS:
+        clip = model == "clipped"
+        rng = np.random.default_rng([seed, int(clip)])
+        wanted = sorted({i for f in FORMS for i, s in enumerate(steps[model][f]) if s > 0})
+        rolls = simulate_commits(
+            goals, Params(), trials, rng, clip_speed=clip, costs=FORMS, true_goals=wanted
+        )
+        per_form = {}
+        for form in FORMS:
+            by = [s if s > 0 else None for s in steps[model][form]]
+            rates = commit_rates(rolls[form], by, goals.names)
+            per_form[form] = [
+                {
+                    "rate": r.rate_by_step,
+                    "upper95": r.upper95,
+                    "wrong": r.wrong,
+                    "before_arrival": r.before_arrival,
+                }
+                for r in rates.values()
+            ]
+        out[model] = per_form
+    return out
+
+
+def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, Any]:
+    """The commit certificate's honesty (method.md §9) on the slack part's layouts."""
+    params = Params()
+    users = {"unclipped": unclipped_user(params), "clipped": clipped_user(params)}
+    results: dict[str, Any] = {
+        "layouts_per_m": layouts,
+        "trials_per_goal": trials,
+        "seed": seed,
+        "alpha": params.alpha,
+        "p_thresh": params.p_thresh,
+        "clipped_user": {
+            "speed": users["clipped"].speed,
+            "along": users["clipped"].along,
+            "across": users["clipped"].across,
+        },
+        "per_m": {},
+    }
+    started = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
+        for m, scene_name in SCENES.items():
+            sc = load_scene(scene_name)
+            cons = LayoutConstraints.of(sc, sc.goal_names)
+            poses = cons.sample(layouts, np.random.default_rng([seed, m]))
+            pos, rot, sym = sc.grasp_batch(sc.goal_names, poses)
+            home = sc.home
+            batch = {
+                model: {
+                    form: commit_batch(
+                        home.position, home.rotation, pos, rot, sym, params.with_cost(form), user
+                    )
+                    for form in FORMS
+                }
+                for model, user in users.items()
+            }
+            any_cert = np.zeros((layouts, m), dtype=bool)
+            for model in MODELS:
+                for form in FORMS:
+                    any_cert |= batch[model][form].certified
+            todo = np.flatnonzero(any_cert.any(axis=1))
+            jobs = []
+            for i in todo.tolist():
+                steps = {
+                    model: {
+                        f: np.where(batch[model][f].certified[i], batch[model][f].step[i], 0)
+                        .astype(int)
+                        .tolist()
+                        for f in FORMS
+                    }
+                    for model in MODELS
+                }
+                jobs.append((scene_name, poses[i], steps, trials, seed + i))
+            checks = list(
+                tqdm(
+                    pool.map(_check_commit, jobs, chunksize=2),
+                    total=len(jobs),
+                    desc=f"commit M={m} {scene_name}",
+                    unit="layout",
+                )
+            )
+            by_index = dict(zip(todo.tolist(), checks, strict=True))
+            row: dict[str, Any] = {"scene": scene_name, "layouts": layouts, "goals": layouts * m}
+            for form in FORMS:
+                entry: dict[str, Any] = {}
+                for model in MODELS:
+                    b = batch[model][form]
+                    cert = [(int(i), int(g)) for i, g in zip(*np.nonzero(b.certified), strict=True)]
+                    rs = [by_index[i][model][form][g] for i, g in cert]
+                    ok = 1 - params.alpha
+                    entry[model] = {
+                        "certified_goals": len(cert),
+                        "layouts_all_certified": int(np.sum(b.objective <= 1.0)),
+                        "K_median": float(np.median(b.objective)),
+                        "violating": int(sum(r["rate"] < ok for r in rs)),
+                        "significantly_violating": int(sum(r["upper95"] < ok for r in rs)),
+                        "worst_rate": float(min(r["rate"] for r in rs)) if rs else None,
+                        "median_rate": float(np.median([r["rate"] for r in rs])) if rs else None,
+                        "worst_wrong": float(max(r["wrong"] for r in rs)) if rs else None,
+                    }
+                row[form] = entry
+            results["per_m"][str(m)] = row
+    results["seconds"] = time.perf_counter() - started
+    return results
+
+
+def markdown_commit(results: dict[str, Any]) -> str:
+    head = (
+        "| M | scene | form | user | commit-certified goals | layouts K ≤ 1 | violating 1-α "
+        "| significantly | worst rate | median rate | worst wrong |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
+
+    def num(x: float | None) -> str:
+        return "—" if x is None else f"{x:.3f}"
+
+    rows = []
+    for m, row in results["per_m"].items():
+        for form in FORMS:
+            for model in MODELS:
+                e = row[form][model]
+                cells = [
+                    m, row["scene"], form, model, f"{e['certified_goals']} / {row['goals']}",
+                    f"{e['layouts_all_certified']} / {row['layouts']}", e["violating"],
+                    e["significantly_violating"], num(e["worst_rate"]), num(e["median_rate"]),
+                    num(e["worst_wrong"]),
+                ]  # fmt: skip
+                rows.append("| " + " | ".join(str(x) for x in cells) + " |")
+    return head + "\n".join(rows) + "\n"
 
 
 def run(layouts: int, trials: int, seed: int, workers: int) -> dict[str, Any]:
@@ -100,8 +261,8 @@ def run(layouts: int, trials: int, seed: int, workers: int) -> dict[str, Any]:
                     "J_median": float(np.median(J[form])),
                 }
                 for model in ("unclipped", "clipped"):
-                    accs = [by_index[i][model][form]["min_accuracy"] for i in certified]
-                    uppers = [by_index[i][model][form]["min_upper95"] for i in certified]
+                    accs = [by_index[i][model][form]["min_accuracy"] for i in certified.tolist()]
+                    uppers = [by_index[i][model][form]["min_upper95"] for i in certified.tolist()]
                     entry[model] = {
                         "violating": int(sum(a < 1 - params.alpha for a in accs)),
                         "significantly_violating": int(sum(u < 1 - params.alpha for u in uppers)),
@@ -145,15 +306,22 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--part", choices=("slack", "commit", "both"), default="both")
     ap.add_argument("--out", type=Path, default=Path("docs/results/certificate_validity.json"))
     args = ap.parse_args()
-    results = run(args.layouts, args.trials, args.seed, args.workers)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2) + "\n")
-    table = markdown(results)
-    args.out.with_suffix(".md").write_text(table)
-    print(table)
-    print(f"{results['seconds']:.0f} s; written {args.out} and {args.out.with_suffix('.md')}")
+    parts = []
+    if args.part in ("slack", "both"):
+        parts.append((args.out, run, markdown))
+    if args.part in ("commit", "both"):
+        parts.append((args.out.with_name("commit_validity.json"), run_commit, markdown_commit))
+    for out, runner, table_of in parts:
+        results = runner(args.layouts, args.trials, args.seed, args.workers)
+        out.write_text(json.dumps(results, indent=2) + "\n")
+        table = table_of(results)
+        out.with_suffix(".md").write_text(table)
+        print(table)
+        print(f"{results['seconds']:.0f} s; written {out} and {out.with_suffix('.md')}")
 
 
 if __name__ == "__main__":

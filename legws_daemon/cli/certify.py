@@ -1,4 +1,5 @@
-"""``legws certify``: the trajectory-margin certificate of a goal set or a scene layout."""
+"""``legws certify``: the trajectory-margin certificate of a goal set or a scene layout, and
+with ``--commit`` the commit certificate (method.md §9)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,24 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 
 from legws_daemon.core.certificate import Certificate, certify
+from legws_daemon.core.commit import (
+    CommitCertificate,
+    certify_commit,
+    clipped_user,
+    unclipped_user,
+)
 from legws_daemon.core.goals import GoalSet
-from legws_daemon.core.montecarlo import CONFIDENCE, GoalAccuracy, monte_carlo
+from legws_daemon.core.montecarlo import (
+    CONFIDENCE,
+    GoalAccuracy,
+    GoalCommitRate,
+    commit_rates,
+    monte_carlo,
+    simulate_commits,
+)
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
@@ -39,6 +54,24 @@ def certificate_report(
     if mc is not None:
         out["monte_carlo"] = {name: asdict(acc) for name, acc in mc.items()}
         out["monte_carlo_settings"] = mc_settings
+    return out
+
+
+def commit_report(cert: CommitCertificate, mc: dict[str, GoalCommitRate] | None) -> dict[str, Any]:
+    """The ``commit`` (and ``monte_carlo_commit``) fields of ``legws certify --commit``."""
+    tau_c, tau_w = cert.thresholds
+    out: dict[str, Any] = {
+        "commit": {
+            "objective": cert.objective,
+            "certified": cert.certified,
+            "goals": {name: asdict(g) for name, g in cert.goals.items()},
+            "tau_commit": tau_c,
+            "tau_wrong": tau_w,
+            "quantile": cert.quantile,
+        }
+    }
+    if mc is not None:
+        out["monte_carlo_commit"] = {name: asdict(r) for name, r in mc.items()}
     return out
 
 
@@ -103,7 +136,71 @@ def render_text(report: dict[str, Any], goals: GoalSet) -> str:
                 ["goal", "", "accuracy", "95% interval", f">= {1 - p['alpha']:.2f}"],
             ),
         ]
+    commit = report.get("commit")
+    if commit:
+        lines += ["", *_commit_text(report, goals)]
     return "\n".join(lines)
+
+
+def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
+    c = report["commit"]
+    p = report["params"]
+    rows = []
+    for name in goals.names:
+        g = c["goals"][name]
+        crossing = g["crossing_step"]
+        rows.append(
+            [
+                name,
+                "",
+                f"{g['fraction']:.3f}",
+                "—" if crossing is None else str(crossing),
+                str(g["arrival_steps"]),
+                f"{g['slack_at_arrival']:.3f}",
+                f"{g['wrong_commit_slack']:.3f}",
+                "yes" if g["certified"] else "NO",
+            ]
+        )
+    user = "speed-clipped user" if c["user"]["clipped"] else "unclipped user of §2"
+    lines = [
+        f"Commit certificate (method.md §9, {user}): commit at p >= {p['p_thresh']}, "
+        f"tau_c = {c['tau_commit']:.3f}, tau_w = {c['tau_wrong']:.3f}, z_c = {c['quantile']:.3f}",
+        "",
+        _table(
+            rows,
+            ["goal", "", "kappa", "commit step", "arrival", "c(T_a)", "w", "certified"],
+        ),
+        "",
+        f"commit objective K = {c['objective']:.4f}, {c['certified']} of {goals.m} goals "
+        "commit-certified: "
+        + (
+            f"every goal's first commit is on it by step t_c with probability >= "
+            f"{1 - p['alpha']:.2f}"
+            if c["objective"] <= 1.0
+            else "NOT every goal (K > 1)"
+        ),
+    ]
+    mc = report.get("monte_carlo_commit")
+    if mc:
+        lines += [
+            "",
+            _table(
+                [
+                    [
+                        name,
+                        "",
+                        str(r["by_step"]),
+                        f"{r['rate_by_step']:.4f}",
+                        f"{r['lower95']:.4f}",
+                        f"{r['wrong']:.4f}",
+                        f"{r['before_arrival']:.4f}",
+                    ]
+                    for name, r in mc.items()
+                ],
+                ["goal", "", "by step", "commit rate", "lower 95%", "wrong", "before arrival"],
+            ),
+        ]
+    return lines
 
 
 @click.command("certify")
@@ -127,7 +224,16 @@ def render_text(report: dict[str, Any], goals: GoalSet) -> str:
     "--seed", type=int, default=0, show_default=True, help="Seed of the Monte Carlo check."
 )
 @click.option(
-    "--clip-speed", is_flag=True, help="Monte Carlo with the robot's speed clip |v| <= v_max."
+    "--clip-speed",
+    is_flag=True,
+    help="Monte Carlo with the robot's speed clip |v| <= v_max (with --commit, also the "
+    "commit certificate of that slower user).",
+)
+@click.option(
+    "--commit",
+    "with_commit",
+    is_flag=True,
+    help="Add the commit certificate (method.md §9) and, with --monte-carlo, its check.",
 )
 @click.option(
     "--export-goals",
@@ -143,13 +249,17 @@ def certify_cmd(
     trials: int | None,
     seed: int,
     clip_speed: bool,
+    with_commit: bool,
     export_goals: Path | None,
 ) -> None:
     """Certify GOALS_FILE (a goal-set JSON) or a scene layout (--scene).
 
     Prints every ordered pair's margin, variance, slack and horizon, and the objective J;
     J > 0 certifies that the true goal is the observer's argmax at the horizon with
-    probability at least 1 - alpha for every goal.
+    probability at least 1 - alpha for every goal. With --commit, also the commit
+    certificate: per goal the certified commit step and its fraction of the way, and
+    K = the largest fraction (K <= 1: every goal's first commit is on it by then with
+    probability at least 1 - alpha).
     """
     if (goals_file is None) == (scene is None):
         raise click.UsageError("give either GOALS_FILE or --scene NAME")
@@ -180,6 +290,19 @@ def certify_cmd(
             "confidence": CONFIDENCE,
         }
     report = certificate_report(cert, params, mc, settings, source)
+    if with_commit:
+        # with --clip-speed the commit is certified for the robot's slower, clipped user
+        user = clipped_user(params) if clip_speed else unclipped_user(params)
+        commit = certify_commit(goals, params, user)
+        rates = None
+        if trials is not None:
+            rollouts = simulate_commits(
+                goals, params, trials, np.random.default_rng([seed, 9]), clip_speed=clip_speed
+            )[params.cost]
+            steps = [commit.goals[n].step for n in goals.names]
+            rates = commit_rates(rollouts, steps, goals.names)
+        report |= commit_report(commit, rates)
+        report["commit"]["user"] = asdict(user) | {"clipped": clip_speed}
     if export_goals is not None:
         write_atomic(export_goals, dump_json(goalset_to_data(goals, params)).encode())
     click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))

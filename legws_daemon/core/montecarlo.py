@@ -16,8 +16,9 @@ import numpy as np
 from scipy.special import betaincinv
 
 from legws_daemon.core.certificate import horizon_steps
-from legws_daemon.core.costs import path_costs
-from legws_daemon.core.geometry import FloatArray, IntArray, symmetric_angle
+from legws_daemon.core.commit import arrival_steps, clipped_user
+from legws_daemon.core.costs import path_costs, posterior
+from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import CostForm, Params
 from legws_daemon.core.user_model import clip_unit, deflection, noise
@@ -134,4 +135,152 @@ def monte_carlo(
             lo, hi = clopper_pearson(int(k), trials)
             per_goal[name] = GoalAccuracy(int(k) / trials, lo, hi, int(k), trials)
         out[form] = per_goal
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class CommitRollouts:
+    """First commits of simulated users, per true goal and trial.
+
+    Attributes:
+        step: ``(M, N)`` the step of the first commit (``max_g P >= p_thresh``), ``0`` when
+            none before arrival.
+        goal: ``(M, N)`` the goal committed to, ``-1`` when none.
+        progress: ``(M, N)`` how far along the way to the true goal the user had come by
+            the first commit (the largest projection on the straight way so far), m;
+            ``inf`` when none.
+        arrival_steps: ``(M,)`` ``T_a`` of each true goal (method.md §9).
+        step_length: ``v_max dt``, m.
+    """
+
+    step: IntArray
+    goal: IntArray
+    progress: FloatArray
+    arrival_steps: IntArray
+    step_length: float
+
+
+def simulate_commits(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    rng: np.random.Generator,
+    *,
+    clip_speed: bool = False,
+    costs: Sequence[CostForm] | None = None,
+    true_goals: Sequence[int] | None = None,
+) -> dict[CostForm, CommitRollouts]:
+    """Roll out ``trials`` noisy users per true goal for ``T_a`` steps and record each
+    observer's first commit, for each cost form on the same trajectories. With
+    ``clip_speed`` the users are the robot's (speed clipped to ``v_max``) and ``T_a`` is
+    that slower motion's (:func:`~legws_daemon.core.commit.clipped_user`). ``true_goals``
+    limits the rollouts to those true goals (the other rows stay without a commit)."""
+    if trials < 1:
+        raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
+    forms: Sequence[CostForm] = costs if costs is not None else (params.cost,)
+    p0 = goals.x0.position
+    rows = np.arange(goals.m) if true_goals is None else np.asarray(true_goals, dtype=np.int64)
+    m = len(rows)
+    target = goals.positions[rows, None, :]
+    # the clipped user is slower: it arrives after the clipped motion's T_a
+    speed = clipped_user(params).speed if clip_speed else 1.0
+    t_a_all = arrival_steps(np.linalg.norm(goals.positions - p0, axis=1), params, speed)
+    t_a = t_a_all[rows]
+    rot = params.rotation_weight * symmetric_angle(
+        goals.x0.rotation, goals.rotations, goals.symmetry
+    )
+    d0 = np.linalg.norm(goals.positions - p0, axis=1) + rot
+    way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
+    x = np.broadcast_to(p0, (m, trials, 3)).copy()
+    length = np.zeros((m, trials))
+    furthest = np.zeros((m, trials))
+    first_step = {f: np.zeros((m, trials), dtype=np.int64) for f in forms}
+    first_goal = {f: np.full((m, trials), -1, dtype=np.int64) for f in forms}
+    first_progress = {f: np.full((m, trials), np.inf) for f in forms}
+    for t in range(1, int(t_a.max(initial=0)) + 1):
+        active = (t <= t_a)[:, None]  # (M, 1)
+        u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
+        if clip_speed:
+            u = clip_unit(u)
+        dx = params.v_max * params.dt * u
+        x += np.where(active[..., None], dx, 0.0)
+        length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+        furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
+        diff = x[:, :, None, :] - goals.positions[None, None, :, :]
+        dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
+        for form in forms:
+            post = posterior(path_costs(length, dist_now, d0, form), params.beta)
+            best = np.argmax(post, axis=-1)
+            hit = (np.max(post, axis=-1) >= params.p_thresh) & active & (first_goal[form] < 0)
+            first_step[form] = np.where(hit, t, first_step[form])
+            first_goal[form] = np.where(hit, best, first_goal[form])
+            first_progress[form] = np.where(hit, furthest, first_progress[form])
+    step = params.v_max * params.dt
+    out: dict[CostForm, CommitRollouts] = {}
+    for f in forms:
+        steps = np.zeros((goals.m, trials), dtype=np.int64)
+        chosen = np.full((goals.m, trials), -1, dtype=np.int64)
+        progress = np.full((goals.m, trials), np.inf)
+        steps[rows], chosen[rows], progress[rows] = first_step[f], first_goal[f], first_progress[f]
+        out[f] = CommitRollouts(steps, chosen, progress, t_a_all, step)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class GoalCommitRate:
+    """Monte Carlo of one true goal's first commit (interfaces.md ``monte_carlo_commit``).
+
+    Attributes:
+        rate_by_step: fraction whose first commit is on the true goal at or before
+            ``by_step`` (the certified commit step, or ``T_a`` when the goal has none).
+        lower95, upper95: its Clopper-Pearson interval.
+        rate_by_progress: fraction whose first commit is on the true goal before they
+            first came further along the way than ``by_step`` nominal steps (``by_step v_max
+            dt``): the promise in distance rather than time, which is what a slower
+            (speed-clipped) user gets.
+        progress_upper95: the Clopper-Pearson upper bound of ``rate_by_progress``.
+        wrong: fraction whose first commit (before arrival) is on another goal.
+        before_arrival: fraction whose first commit is on the true goal before arrival.
+        by_step: the step ``rate_by_step`` is counted at.
+        trials: simulated users.
+    """
+
+    rate_by_step: float
+    lower95: float
+    upper95: float
+    rate_by_progress: float
+    progress_upper95: float
+    wrong: float
+    before_arrival: float
+    by_step: int
+    trials: int
+
+
+def commit_rates(
+    rollouts: CommitRollouts, by_step: Sequence[int | None], names: Sequence[str]
+) -> dict[str, GoalCommitRate]:
+    """Per-goal commit statistics; ``by_step[i]`` is goal ``i``'s certified step (``None``:
+    count up to arrival)."""
+    out: dict[str, GoalCommitRate] = {}
+    trials = rollouts.step.shape[1]
+    for i, name in enumerate(names):
+        step = by_step[i]
+        limit = int(rollouts.arrival_steps[i]) if step is None else int(step)
+        on_true = rollouts.goal[i] == i
+        timely = int(np.sum(on_true & (rollouts.step[i] <= limit)))
+        lo, hi = clopper_pearson(timely, trials)
+        early = int(
+            np.sum(on_true & (rollouts.progress[i] <= limit * rollouts.step_length + 1e-12))
+        )
+        out[name] = GoalCommitRate(
+            rate_by_step=timely / trials,
+            lower95=lo,
+            upper95=hi,
+            rate_by_progress=early / trials,
+            progress_upper95=clopper_pearson(early, trials)[1],
+            wrong=float(np.mean((rollouts.goal[i] >= 0) & ~on_true)),
+            before_arrival=float(np.mean(on_true)),
+            by_step=limit,
+            trials=trials,
+        )
     return out

@@ -1,0 +1,359 @@
+"""The commit certificate (method.md section 9), batched over layouts.
+
+Section 4's slack certifies the observer's *argmax* at three quarters of the way; a person
+is helped only when the observer **commits** (posterior ``>= p_thresh``) before they
+arrive. For each true goal ``i`` this module follows the nominal of section 4 step by step
+up to arrival, ``T_a = floor(|p_i - p0| / (v_max dt))``:
+
+* at step ``t`` the nominal is ``pbar_t = p0 + t v_max dt u_i``, ``L_t = t v_max dt``, with
+  margins ``m_ij(t) = beta (C_j - C_i)``, sensitivities ``a_ij(t)`` and variances
+  ``v_ij(t) = beta^2 |a_ij(t)|^2 t sigma^2 dt^2`` exactly as in section 4;
+* commit slack ``c(t) = min_j [m_ij(t) - z_c sqrt(v_ij(t))] - tau_c`` with
+  ``tau_c = ln((M-1) p / (1-p))`` and ``z_c = Phi^-1(1 - alpha / (2 (M-1)))``: when every
+  margin exceeds ``tau_c`` the posterior of ``i`` is at least ``p``;
+* the certified commit step ``t_c`` is the first ``t`` with ``c(t) >= 0``; its fraction of
+  the way ``kappa = t_hat / T_a`` interpolates the zero crossing (``c(0) = -tau_c``);
+* wrong-commit slack ``w = min_{t <= t_end} min_j [m_ij(t) + tau_w - z_w sqrt(v_ij(t))]``
+  with ``tau_w = ln(p / (1-p))`` and ``z_w = Phi^-1(1 - alpha / (2 (M-1) t_end))`` (union
+  bound over steps and alternatives), ``t_end = t_c`` or ``T_a``;
+* the goal is *commit-certified* when ``t_c`` exists and ``w >= 0``: then
+  ``P(the first commit is on i and comes at or before t_c) >= 1 - alpha`` under the model
+  of section 2. Otherwise ``kappa = 1 + max(0, -c(T_a)) + max(0, -w)``;
+* the layout objective is ``K = max_i kappa_i``: ``K <= 1`` certifies every goal, smaller
+  is earlier.
+
+The robot clips the commanded speed to ``v_max`` (method.md §2), which the section's model
+does not: a clipped noisy user advances only ~0.67 ``v_max`` toward the goal per step, with
+less lateral noise per metre. :class:`UserMotion` carries the per-step moments of the
+deflection along the way and across it; :func:`clipped_user` computes them for the robot's
+clip, and the same computation then certifies the commit in the robot's own time
+(``legws certify --commit --clip-speed``). The default is section 9's unclipped user
+exactly (mean 1, standard deviation ``sigma / v_max`` on every axis).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.special import ndtri
+
+from legws_daemon.core.certificate import MAX_HORIZON_STEPS
+from legws_daemon.core.costs import path_costs
+from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+
+#: Elements of the largest intermediate array ``(B, M, T, M)`` built at once; batches are
+#: split to stay below it (~32 MB of float64 each).
+CHUNK_ELEMENTS = 4_000_000
+#: A nominal point this close to a goal coincides with it (its distance term has no
+#: gradient), m.
+_COINCIDENT = 1e-12
+
+
+@dataclass(frozen=True, slots=True)
+class UserMotion:
+    """Per-step moments of the user's deflection ``u`` relative to the unit way ``e`` to the
+    goal (in units of ``v_max``).
+
+    Attributes:
+        speed: ``E[u . e]``, the mean advance per step.
+        along: standard deviation of ``u . e``.
+        across: standard deviation of ``u`` on each axis across the way.
+    """
+
+    speed: float
+    along: float
+    across: float
+
+
+def unclipped_user(params: Params) -> UserMotion:
+    """Section 2's model as the certificate takes it: ``u = e + eps / v_max``."""
+    s = params.sigma / params.v_max
+    return UserMotion(1.0, s, s)
+
+
+#: Gauss-Hermite nodes per axis of the clipped user's moments (three axes).
+_QUADRATURE_NODES = 96
+
+
+@lru_cache(maxsize=64)
+def _clipped_moments(noise: float) -> tuple[float, float, float]:
+    x, w = np.polynomial.hermite_e.hermegauss(_QUADRATURE_NODES)  # weight exp(-x^2 / 2)
+    w = w / w.sum()
+    a = 1.0 + noise * x[:, None, None]  # along the way
+    b = noise * x[None, :, None]
+    c = noise * x[None, None, :]
+    weight = w[:, None, None] * w[None, :, None] * w[None, None, :]
+    scale = 1.0 / np.maximum(np.sqrt(a * a + b * b + c * c), 1.0)
+    mean = float(np.sum(weight * a * scale))
+    along = float(np.sum(weight * (a * scale) ** 2)) - mean**2
+    across = float(np.sum(weight * (b * scale) ** 2))
+    return mean, math.sqrt(max(along, 0.0)), math.sqrt(across)
+
+
+def clipped_user(params: Params) -> UserMotion:
+    """The moments of the robot's user: ``u = clip(e + eps / v_max)`` to norm 1 (method.md
+    §2), by deterministic Gauss-Hermite quadrature (accurate to ~1e-4)."""
+    mean, along, across = _clipped_moments(round(params.sigma / params.v_max, 12))
+    return UserMotion(mean, along, across)
+
+
+@dataclass(frozen=True, slots=True)
+class CommitBatch:
+    """Commit certificate of B layouts with M goals each.
+
+    Attributes:
+        fraction: ``(B, M)`` ``kappa`` per true goal (``<= 1`` when commit-certified).
+        step: ``(B, M)`` the first step ``t_c`` with ``c(t) >= 0``; ``-1`` when none.
+        arrival_steps: ``(B, M)`` ``T_a``.
+        slack_at_arrival: ``(B, M)`` ``c(T_a)``.
+        wrong_commit_slack: ``(B, M)`` ``w``.
+        certified: ``(B, M)`` the goal's commit is certified.
+        objective: ``(B,)`` ``K = max_i kappa_i``.
+        count: ``(B,)`` commit-certified goals.
+        thresholds: ``(tau_c, tau_w)``.
+        quantile: ``z_c``.
+    """
+
+    fraction: FloatArray
+    step: IntArray
+    arrival_steps: IntArray
+    slack_at_arrival: FloatArray
+    wrong_commit_slack: FloatArray
+    certified: NDArray[np.bool_]
+    objective: FloatArray
+    count: IntArray
+    thresholds: tuple[float, float]
+    quantile: float
+
+
+def thresholds(m: int, p_thresh: float) -> tuple[float, float]:
+    """``(tau_c, tau_w)``: every margin above ``tau_c`` gives ``P(g*) >= p``; a wrong commit
+    on ``g`` needs its margin at or below ``-tau_w``."""
+    odds = p_thresh / (1.0 - p_thresh)
+    return math.log((m - 1) * odds), math.log(odds)
+
+
+def arrival_steps(distance: ArrayLike, params: Params, speed: float = 1.0) -> IntArray:
+    """``T_a = floor(|p_g* - p0| / (speed v_max dt))`` (1e-9 guard, at least one step).
+
+    Raises:
+        InputError: when a horizon exceeds :data:`MAX_HORIZON_STEPS`.
+    """
+    d = np.asarray(distance, dtype=np.float64)
+    raw = d / (speed * params.v_max * params.dt)
+    if not np.all(raw <= MAX_HORIZON_STEPS):
+        raise InputError(
+            f"a goal {float(np.max(d)):.3g} m away needs {float(np.max(raw)):.3g} steps of "
+            f"{params.v_max * params.dt:.3g} m; at most {MAX_HORIZON_STEPS} are accepted"
+        )
+    # 7.999999999 steps of noise is 8 steps
+    return np.asarray(np.maximum(np.floor(raw + 1e-9), 1).astype(np.int64), dtype=np.int64)
+
+
+def commit_batch(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+    user: UserMotion | None = None,
+) -> CommitBatch:
+    """Commit certificate of B layouts at once (arguments as
+    :func:`~legws_daemon.core.certificate.certify_batch`; ``user``: the user's motion,
+    default section 9's unclipped model)."""
+    user = user or unclipped_user(params)
+    p0 = np.asarray(p0, dtype=np.float64)
+    pg = np.asarray(goal_positions, dtype=np.float64)
+    Rg = np.asarray(goal_rotations, dtype=np.float64)
+    if pg.ndim != 3 or pg.shape[-1] != 3 or pg.shape[1] < 2:
+        raise InputError(f"expected goal positions of shape (B, M>=2, 3), got {pg.shape}")
+    if Rg.shape != (*pg.shape[:2], 3, 3):
+        raise InputError(f"expected goal rotations of shape {(*pg.shape[:2], 3, 3)}")
+    b, m = pg.shape[:2]
+    sym = np.broadcast_to(np.asarray(symmetry), (b, m))
+    rot_term = params.rotation_weight * symmetric_angle(R0, Rg, sym)  # (B, M)
+    trans0 = np.linalg.norm(pg - p0, axis=-1)
+    t_a = arrival_steps(trans0, params, user.speed)
+    tau_c, tau_w = thresholds(m, params.p_thresh)
+    z_c = float(ndtri(1.0 - params.alpha / (2 * (m - 1))))
+
+    parts: list[tuple[FloatArray, ...]] = []
+    t_max = int(t_a.max()) if b else 1
+    chunk = max(1, CHUNK_ELEMENTS // (m * m * t_max))
+    for s in range(0, b, chunk):
+        sl = slice(s, s + chunk)
+        parts.append(
+            _chunk(p0, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, tau_c, tau_w, z_c)
+        )
+    if parts:
+        fraction, step, c_arrival, w = (np.concatenate(x) for x in zip(*parts, strict=True))
+    else:
+        fraction = c_arrival = w = np.zeros((0, m))
+        step = np.zeros((0, m))
+    step_i = np.asarray(step, dtype=np.int64)
+    certified = (step_i > 0) & (w >= 0.0)
+    return CommitBatch(
+        fraction=fraction,
+        step=step_i,
+        arrival_steps=t_a,
+        slack_at_arrival=c_arrival,
+        wrong_commit_slack=w,
+        certified=np.asarray(certified),
+        objective=np.asarray(fraction.max(axis=1) if b else np.zeros(0), dtype=np.float64),
+        count=np.asarray(certified.sum(axis=1), dtype=np.int64),
+        thresholds=(tau_c, tau_w),
+        quantile=z_c,
+    )
+
+
+def _chunk(
+    p0: FloatArray,
+    pg: FloatArray,
+    rot_term: FloatArray,
+    trans0: FloatArray,
+    t_a: IntArray,
+    params: Params,
+    user: UserMotion,
+    tau_c: float,
+    tau_w: float,
+    z_c: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts, each ``(b, M)``."""
+    b, m = pg.shape[:2]
+    step_len = user.speed * params.v_max * params.dt
+    n_t = int(t_a.max())
+    t = np.arange(1, n_t + 1, dtype=np.float64)  # (T,)
+    s = (t * step_len)[None, None, :, None]  # (1, 1, T, 1) distance travelled
+    dist_start = trans0 + rot_term  # (b, M)
+    eye = np.eye(m, dtype=bool)
+    # Distances from the nominal pbar_t = p0 + s u_i to every goal j, from scalars alone:
+    # |pbar_t - p_j|^2 = |p0 - p_j|^2 + 2 s (p0 - p_j).u_i + s^2 (no (b, i, T, j, 3) arrays).
+    u = safe_unit(pg - p0)  # (b, i, 3)
+    e = np.einsum("bik,bjk->bij", u, p0 - pg)[:, :, None, :]  # (b, i, 1, j)
+    q = (trans0**2)[:, None, None, :]
+    along = (trans0[:, :, None, None] - s) * eye[None, :, None, :]  # |pbar_t - p_i|, exact
+    trans_now = np.where(
+        eye[None, :, None, :], along, np.sqrt(np.maximum(q + 2 * s * e + s * s, 0))
+    )
+    dist_now = trans_now + rot_term[:, None, None, :]
+    length = np.broadcast_to(t * step_len, (b, m, n_t))
+    costs = path_costs(length, dist_now, dist_start[:, None, None, :], params.cost)
+    c_true = np.diagonal(costs, axis1=1, axis2=3).transpose(0, 2, 1)  # (b, i, T)
+    margin = params.beta * (costs - c_true[..., None])  # (b, i, T, j)
+
+    # |a_ij|^2 = |unit_j / S_j - unit_i / S_i|^2 with unit_g = (pbar - p_g) / |pbar - p_g|
+    # (zero where the point coincides) and unit_i = -u_i before arrival.
+    if params.cost == "dragan":
+        scale = np.broadcast_to(np.mean(dist_start, axis=1)[:, None], (b, m))
+    else:
+        scale = dist_start
+    on_j = trans_now > _COINCIDENT
+    on_i = np.diagonal(on_j, axis1=1, axis2=3).transpose(0, 2, 1)[..., None]  # (b, i, T, 1)
+    s_j = scale[:, None, None, :]
+    s_i = scale[:, :, None, None]
+    dot = -(e + s) / np.where(on_j, trans_now, 1.0)  # unit_j . unit_i
+    a2 = on_j / s_j**2 + on_i / s_i**2 - 2 * np.where(on_j & on_i, dot, 0.0) / (s_i * s_j)
+    # a . u_i (unit_j . u_i = (e + s) / |pbar - p_j|, unit_i . u_i = -1): the noise along
+    # the way and across it may differ (the clipped user); equal, this is t sigma^2 dt^2 |a|^2
+    a_u = np.where(on_j, (e + s) / np.where(on_j, trans_now, 1.0), 0.0) / s_j + on_i / s_i
+    per_step = (params.v_max * params.dt) ** 2
+    spread = user.across**2 * a2 + (user.along**2 - user.across**2) * a_u**2
+    var = params.beta**2 * per_step * t[None, None, :, None] * np.maximum(spread, 0.0)
+    sd = np.sqrt(np.maximum(var, 0.0))
+
+    valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
+    others = ~eye[None, :, None, :]  # (1, i, 1, j)
+    c = np.where(others, margin - z_c * sd, np.inf).min(axis=-1) - tau_c  # (b, i, T)
+    c = np.where(valid, c, -np.inf)
+    reached = c >= 0.0
+    has = reached.any(axis=-1)
+    first = np.argmax(reached, axis=-1)  # index of t_c - 1
+    t_c = np.where(has, first + 1, -1)
+    idx = np.clip(first, 0, n_t - 1)[..., None]
+    c_at = np.take_along_axis(c, idx, axis=-1)[..., 0]
+    c_before = np.where(
+        first > 0, np.take_along_axis(c, np.maximum(idx - 1, 0), -1)[..., 0], -tau_c
+    )
+    crossing = first + (-c_before) / np.maximum(c_at - c_before, 1e-300)  # t_hat
+    c_arrival = np.take_along_axis(c, (t_a - 1)[..., None], axis=-1)[..., 0]
+
+    t_end = np.where(has, t_c, t_a)  # (b, i)
+    z_w = ndtri(1.0 - params.alpha / (2 * (m - 1) * t_end))  # (b, i)
+    wrong = np.where(others, margin + tau_w - z_w[:, :, None, None] * sd, np.inf).min(axis=-1)
+    in_window = t[None, None, :] <= t_end[:, :, None]
+    w = np.where(in_window, wrong, np.inf).min(axis=-1)
+
+    certified = has & (w >= 0.0)
+    kappa = np.where(
+        certified,
+        crossing / t_a,
+        1.0 + np.maximum(0.0, -c_arrival) + np.maximum(0.0, -w),
+    )
+    return kappa, t_c.astype(np.float64), c_arrival, w
+
+
+@dataclass(frozen=True, slots=True)
+class GoalCommit:
+    """Commit certificate of one true goal (interfaces.md ``commit.goals``)."""
+
+    fraction: float
+    step: int | None  # t_c when the goal's commit is certified, else None
+    arrival_steps: int
+    slack_at_arrival: float
+    wrong_commit_slack: float
+    certified: bool
+    crossing_step: int | None  # first step with c(t) >= 0 (even when w < 0), else None
+
+
+@dataclass(frozen=True, slots=True)
+class CommitCertificate:
+    """Commit certificate of one goal set."""
+
+    objective: float
+    certified: int
+    goals: dict[str, GoalCommit]
+    thresholds: tuple[float, float]
+    quantile: float
+
+
+def certify_commit(
+    goals: GoalSet, params: Params, user: UserMotion | None = None
+) -> CommitCertificate:
+    """Commit certificate of one goal set: ``K``, certified goals and each goal's terms."""
+    batch = commit_batch(
+        goals.x0.position,
+        goals.x0.rotation,
+        goals.positions[None],
+        goals.rotations[None],
+        goals.symmetry,
+        params,
+        user,
+    )
+    per_goal = {}
+    for i, name in enumerate(goals.names):
+        cert = bool(batch.certified[0, i])
+        t_c = int(batch.step[0, i])
+        per_goal[name] = GoalCommit(
+            fraction=float(batch.fraction[0, i]),
+            step=t_c if cert else None,
+            arrival_steps=int(batch.arrival_steps[0, i]),
+            slack_at_arrival=float(batch.slack_at_arrival[0, i]),
+            wrong_commit_slack=float(batch.wrong_commit_slack[0, i]),
+            certified=cert,
+            crossing_step=t_c if t_c > 0 else None,
+        )
+    return CommitCertificate(
+        objective=float(batch.objective[0]),
+        certified=int(batch.count[0]),
+        goals=per_goal,
+        thresholds=batch.thresholds,
+        quantile=batch.quantile,
+    )
