@@ -1,4 +1,4 @@
-"""``legws eval``: the paper's simulation protocol on random or given layouts."""
+"""``legws eval``: the paper's simulation protocol on random, given or optimised layouts."""
 
 from __future__ import annotations
 
@@ -14,10 +14,12 @@ from legws_daemon.scene.scene import Layout
 
 
 def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[str]]:
-    """``random:N`` or layout files; returns ``("random", [N])`` or ``("files", paths)``."""
+    """``random:N``, layout files, or optimisation run folders; returns ``("random", [N])``,
+    ``("files", paths)`` or ``("runs", folders)`` (every item a directory: folders and
+    files do not mix)."""
     items = [part for spec in specs for part in spec.split(",") if part]
     if not items:
-        raise InputError("expected random:N or layout files", field="--layouts")
+        raise InputError("expected random:N, layout files or run folders", field="--layouts")
     if items[0].startswith("random:"):
         if len(items) > 1:
             raise InputError("random:N cannot be mixed with files", field="--layouts")
@@ -27,6 +29,15 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
                 f"expected random:N with 1 <= N <= 10000, got {items[0]!r}", field="--layouts"
             )
         return "random", [count]
+    folders = [Path(i).is_dir() for i in items]
+    if all(folders):
+        return "runs", items
+    if any(folders):
+        raise InputError(
+            "run folders and layout files cannot be mixed, got the folder "
+            f"{items[folders.index(True)]!r}",
+            field="--layouts",
+        )
     return "files", items
 
 
@@ -38,7 +49,8 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
     multiple=True,
     default=("random:30",),
     show_default=True,
-    help="random:N, or layout JSON files (repeat the option or separate with commas).",
+    help="random:N, layout JSON files, or `legws optimize` run folders (their verified "
+    "elites, see --top-k); repeat the option or separate with commas.",
 )
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False))
@@ -46,6 +58,21 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
     "--workers", type=click.IntRange(1, 64), default=min(2, os.cpu_count() or 1), show_default=True
 )
 @click.option("--cost", type=click.Choice(COST_FORMS), default="dragan", show_default=True)
+@click.option(
+    "--episodes-per-goal",
+    type=click.IntRange(1, 10_000),
+    default=None,
+    help="N picks per candidate goal per layout (each from home, objects reset) instead of "
+    "the paper's pick orders (all permutations, 120 sampled for M >= 5).",
+)
+@click.option(
+    "--top-k",
+    "top_k",
+    type=click.IntRange(min=1),
+    default=None,
+    help="With run folders in --layouts: evaluate each run's K best verified elites "
+    "(RUN/elites.json; K = 1 also reads best_layout.json). Default 1.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def eval_cmd(
     scene_name: str,
@@ -54,11 +81,15 @@ def eval_cmd(
     out_dir: Path | None,
     workers: int,
     cost: CostForm,
+    episodes_per_goal: int | None,
+    top_k: int | None,
     quiet: bool,
 ) -> None:
-    """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates.
+    """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates,
+    and the person's metrics (method.md §9) with 95 % bootstrap intervals over layouts
+    (and over runs when several run folders are given).
 
-    Writes DIR/eval.json and DIR/eval.md with --out; prints the Markdown table.
+    Writes DIR/eval.json and DIR/eval.md with --out; prints the Markdown tables.
     """
     from tqdm import tqdm
 
@@ -66,21 +97,29 @@ def eval_cmd(
     from legws_daemon.scene.catalog import load_scene
     from legws_daemon.scene.constraints import require_feasible
     from legws_daemon.scene.layout_file import load_layout
-    from legws_daemon.sim.evaluate import markdown, random_layouts, run_eval
+    from legws_daemon.sim.evaluate import Elite, load_elites, markdown, random_layouts, run_eval
 
     scene = load_scene(scene_name)
     kind, items = parse_layouts(layout_specs, scene.name)
+    if top_k is not None and kind != "runs":
+        raise InputError("needs optimisation run folders in --layouts", field="--top-k")
     layouts: list[Layout]
+    elites: list[Elite] | None = None
     if kind == "random":
         layouts = random_layouts(scene, int(items[0]), seed)
-    else:
+    elif kind == "files":
         layouts = [require_feasible(scene, load_layout(Path(i), scene), i) for i in items]
+    else:
+        loaded = [pair for i in items for pair in load_elites(Path(i), scene, top_k or 1)]
+        layouts = [layout for layout, _ in loaded]
+        elites = [elite for _, elite in loaded]
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     with tqdm(total=len(layouts), desc=f"eval {scene.name}", unit="layout", disable=quiet) as bar:
         report = run_eval(
-            scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update
-        )
+            scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update,
+            episodes_per_goal=episodes_per_goal, elites=elites,
+        )  # fmt: skip
     text = markdown(report)
     if out_dir is not None:
         write_atomic(

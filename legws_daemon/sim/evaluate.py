@@ -1,27 +1,54 @@
 """``legws eval``: the protocol over many layouts, on a process pool, with a report.
 
 Each layout's episodes are seeded from ``(seed, layout index)``, so the numbers do not
-depend on how layouts are spread over the workers: same seed, same result.
+depend on how layouts are spread over the workers: same seed, same result. The report holds
+the paper's metrics and the person's (method.md §9) with 95 % bootstrap intervals over
+layouts and, for optimised layouts from several runs (seeds), over runs.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
+from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
+from legws_daemon.formats.validation import Finite, read_json, validate
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.scene.constraints import LayoutConstraints
-from legws_daemon.scene.layout_file import layout_to_data
+from legws_daemon.scene.constraints import LayoutConstraints, require_feasible
+from legws_daemon.scene.layout_file import layout_from_data, layout_to_data, load_layout
 from legws_daemon.scene.scene import Layout, Scene
-from legws_daemon.sim.protocol import Evaluator, PickResult, metrics
+from legws_daemon.sim.protocol import Evaluator, PickResult, km_sample, metrics
+from legws_daemon.sim.statistics import (
+    LEVEL,
+    RESAMPLES,
+    km_counts,
+    km_median_counts,
+    percentile_interval,
+    resample_counts,
+)
 from legws_daemon.workers import worker_context
 
 _worker: Evaluator | None = None
+
+#: Bootstrap interval keys: the person's metrics and the paper's (method.md §9).
+INTERVAL_KEYS = (
+    "commit_true_rate",
+    "commit_rate_min_goal",
+    "wrong_commit_rate",
+    "accuracy",
+    "t_infer_mean",
+    "t_infer_km_median",
+)
 
 
 def _init_worker(scene_source: str, params: Params) -> None:
@@ -29,10 +56,13 @@ def _init_worker(scene_source: str, params: Params) -> None:
     _worker = Evaluator(load_scene(scene_source), params)
 
 
-def _evaluate(job: tuple[int, Layout, int]) -> tuple[int, dict[str, Any], list[PickResult]]:
-    index, layout, seed = job
+Job = tuple[int, Layout, int, int | None]
+
+
+def _evaluate(job: Job) -> tuple[int, dict[str, Any], list[PickResult]]:
+    index, layout, seed, episodes_per_goal = job
     assert _worker is not None
-    ev = _worker.evaluate(layout, [seed, index])
+    ev = _worker.evaluate(layout, [seed, index], episodes_per_goal)
     infeasible = {n: c.reason for n, c in ev.feasibility.items() if not c.feasible}
     return index, {"infeasible": infeasible}, ev.picks
 
@@ -44,6 +74,176 @@ def random_layouts(scene: Scene, n: int, seed: int) -> list[Layout]:
     return [cons.to_layout(row) for row in poses]
 
 
+# --- optimised layouts: the verified elites of `legws optimize` run folders ---------------
+
+
+@dataclass(frozen=True, slots=True)
+class Elite:
+    """Where an evaluated layout comes from.
+
+    Attributes:
+        run: the optimisation run folder.
+        rank: its rank among the run's elites (``elites.json``'s ``rank``; for
+            ``best_layout.json``, ``summary.json``'s ``verified_rank``, else ``None``).
+        position: 1 for the run's best verified elite, 2 for the next, ...
+        objective: its objective as the run reported it, or ``None``.
+    """
+
+    run: str
+    rank: int | None
+    position: int
+    objective: float | None
+
+
+class _EliteEntry(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+
+    rank: Annotated[int, Strict(), Field(ge=0)]
+    layout: dict[str, Any]
+    objective: Finite | None = None
+    verified: StrictBool
+
+
+class _ElitesFile(RootModel[list[_EliteEntry]]):
+    pass
+
+
+def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite]]:
+    """The ``k`` best verified elites of an optimisation run folder, best first.
+
+    Reads ``RUN_DIR/elites.json`` (a list, best first, of ``{"rank", "layout",
+    "objective", "verified"}``); without it, ``k = 1`` takes ``best_layout.json`` (the run's
+    best verified elite). Every layout must satisfy the scene's constraints. Errors
+    (missing files, fewer than ``k`` verified elites, a bad layout) are one-line
+    :class:`InputError` naming the file.
+    """
+    if k < 1:
+        raise InputError(f"expected K >= 1, got {k}", field="--top-k")
+    path = run_dir / "elites.json"
+    if path.is_file():
+        entries = validate(_ElitesFile, read_json(path), str(path)).root
+        verified = [(i, e) for i, e in enumerate(entries) if e.verified]
+        if len(verified) < k:
+            raise InputError(
+                f"{len(verified)} verified elites, --top-k asks for {k}", source=str(path)
+            )
+        out = []
+        for position, (i, e) in enumerate(verified[:k], start=1):
+            source = f"{path}: [{i}].layout"
+            layout = require_feasible(scene, layout_from_data(e.layout, scene, source), source)
+            out.append((layout, Elite(str(run_dir), e.rank, position, e.objective)))
+        return out
+    best = run_dir / "best_layout.json"
+    if k > 1 or not best.is_file():
+        raise InputError(
+            f"no elites.json (needed for --top-k {k})"
+            if k > 1
+            else "not an optimisation run folder (neither elites.json nor best_layout.json)",
+            source=str(run_dir),
+        )
+    layout = require_feasible(scene, load_layout(best, scene), str(best))
+    rank: int | None = None
+    objective: float | None = None
+    summary_path = run_dir / "summary.json"
+    if summary_path.is_file():
+        summary = read_json(summary_path)
+        if isinstance(summary, dict):
+            r, o = summary.get("verified_rank"), summary.get("objective")
+            rank = r if isinstance(r, int) and not isinstance(r, bool) else None
+            objective = float(o) if isinstance(o, int | float) and math.isfinite(o) else None
+    return [(layout, Elite(str(run_dir), rank, 1, objective))]
+
+
+# --- bootstrap over groups of layouts ------------------------------------------------------
+
+
+class GroupStats:
+    """Per-group sums of the picks that :data:`INTERVAL_KEYS` are computed from, so that a
+    bootstrap resample (how often each group is drawn) gives each statistic of the pooled
+    picks of the drawn groups by a matrix product (what :func:`metrics` gives on them)."""
+
+    def __init__(self, groups: Sequence[Sequence[PickResult]]) -> None:
+        goals = sorted({p.true_goal for picks in groups for p in picks})
+        col = {g: j for j, g in enumerate(goals)}
+        shape = (len(groups), len(goals))
+        self.n = np.zeros(len(groups))
+        self.true = np.zeros(len(groups))
+        self.wrong = np.zeros(len(groups))
+        self.correct = np.zeros(len(groups))
+        self.t_sum = np.zeros(len(groups))
+        self.t_count = np.zeros(len(groups))
+        self.goal_hits = np.zeros(shape)
+        self.goal_total = np.zeros(shape)
+        for g, picks in enumerate(groups):
+            for p in picks:
+                self.n[g] += 1
+                self.true[g] += p.commit_true
+                self.wrong[g] += p.committed is not None and p.committed != p.true_goal
+                self.correct[g] += p.correct
+                if p.commit_time is not None:
+                    self.t_sum[g] += p.commit_time
+                    self.t_count[g] += 1
+                self.goal_total[g, col[p.true_goal]] += 1
+                self.goal_hits[g, col[p.true_goal]] += p.commit_true
+        samples = [km_sample(picks) for picks in groups]
+        self.km = km_counts(samples)
+        self.km_subjects = np.array([len(times) for times, _ in samples], dtype=np.float64)
+
+    def __len__(self) -> int:
+        return self.n.size
+
+    def statistics(self, counts: FloatArray) -> dict[str, FloatArray]:
+        """Each key of :data:`INTERVAL_KEYS` for every row of ``counts`` (``(B, G)``: how
+        often each group is drawn); ``nan`` where undefined (no pick, no timed commit, no
+        pick with inference), ``inf`` for a Kaplan–Meier median never reached."""
+
+        def ratio(num: FloatArray, den: FloatArray) -> FloatArray:
+            top, bottom = counts @ num, counts @ den
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out: FloatArray = np.where(
+                    bottom > 0, top / np.where(bottom > 0, bottom, 1), np.nan
+                )
+            return out
+
+        per_goal = ratio(self.goal_hits, self.goal_total)
+        has = ~np.isnan(per_goal)
+        min_goal = np.where(
+            has.any(axis=-1), np.min(np.where(has, per_goal, np.inf), axis=-1), np.nan
+        )
+        u, d, r = self.km
+        return {
+            "commit_true_rate": ratio(self.true, self.n),
+            "commit_rate_min_goal": min_goal,
+            "wrong_commit_rate": ratio(self.wrong, self.n),
+            "accuracy": ratio(self.correct, self.n),
+            "t_infer_mean": ratio(self.t_sum, self.t_count),
+            "t_infer_km_median": np.where(
+                counts @ self.km_subjects > 0, km_median_counts(u, counts @ d, counts @ r), np.nan
+            ),
+        }
+
+    def intervals(
+        self, seed: Sequence[int], n: int = RESAMPLES, level: float = LEVEL
+    ) -> dict[str, list[float | None] | None]:
+        """95 % (``level``) percentile bootstrap intervals of every key, the same ``n``
+        resamples for all (seeded by ``seed``). JSON-ready: ``None`` for an interval that
+        is undefined (fewer than two groups, or undefined in every resample), and for an
+        infinite bound (a Kaplan–Meier median not reached in that many resamples)."""
+        if len(self) < 2:
+            return dict.fromkeys(INTERVAL_KEYS)
+        # what bootstrap_ci_counts does, with one set of resamples for every key
+        stats = self.statistics(resample_counts(len(self), np.random.default_rng(list(seed)), n))
+        out: dict[str, list[float | None] | None] = {}
+        for key in INTERVAL_KEYS:
+            ci = percentile_interval(stats[key], level)
+            out[key] = None if ci is None else [_finite(ci[0]), _finite(ci[1])]
+        return out
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
 def run_eval(
     scene: Scene,
     layouts: Sequence[Layout],
@@ -52,11 +252,38 @@ def run_eval(
     params: Params | None = None,
     workers: int = 2,
     progress: Callable[[int], object] | None = None,
+    episodes_per_goal: int | None = None,
+    elites: Sequence[Elite] | None = None,
+    resamples: int = RESAMPLES,
 ) -> dict[str, Any]:
-    """Evaluate ``layouts``; returns the report (JSON-ready)."""
+    """Evaluate ``layouts``; returns the report (JSON-ready).
+
+    Args:
+        scene, layouts, seed: what to evaluate; layout ``i``'s picks are seeded by
+            ``(seed, i)``.
+        params: observer and user-model parameters.
+        workers: processes (1: in this process).
+        progress: called with 1 after each layout.
+        episodes_per_goal: N picks per candidate goal per layout instead of the paper's
+            pick orders (all permutations, 120 sampled for M >= 5).
+        elites: per layout, the optimisation run and elite it comes from
+            (:func:`load_elites`); adds ``by_elite`` (per position among the runs' verified
+            elites) and, with two runs or more, intervals over runs.
+        resamples: bootstrap resamples of the intervals.
+
+    The report's ``aggregate`` holds :func:`metrics` over the pooled picks and
+    ``intervals``: percentile bootstrap intervals (level 95 %) of :data:`INTERVAL_KEYS`
+    resampling layouts (``intervals.layouts``) and, with two runs or more, runs
+    (``intervals.runs``: a run's layouts are drawn together), each statistic recomputed
+    over the pooled picks of the drawn groups; seeded by ``seed``.
+    """
     params = params or Params()
+    if elites is not None and len(elites) != len(layouts):
+        raise InputError(f"{len(elites)} elites for {len(layouts)} layouts")
     started = time.perf_counter()
-    jobs = [(i, dict(layout), seed) for i, layout in enumerate(layouts)]
+    jobs: list[Job] = [
+        (i, dict(layout), seed, episodes_per_goal) for i, layout in enumerate(layouts)
+    ]
     results: dict[int, tuple[dict[str, Any], list[PickResult]]] = {}
     if workers <= 1:
         _init_worker(scene.source, params)
@@ -82,22 +309,49 @@ def run_eval(
     for i, layout in enumerate(layouts):
         extra, picks = results[i]
         all_picks += picks
-        per_layout.append({"index": i, "layout": layout_to_data(layout), **extra, **metrics(picks)})
+        source: dict[str, Any] = {}
+        if elites is not None:
+            e = elites[i]
+            source = {"run": e.run, "elite_rank": e.rank, "elite_position": e.position,
+                      "elite_objective": e.objective}  # fmt: skip
+        per_layout.append(
+            {"index": i, "layout": layout_to_data(layout), **source, **extra, **metrics(picks)}
+        )
     accs = [row["accuracy"] for row in per_layout]
     episodes = sum(p.feasible for p in all_picks)
     simulated = sum(p.duration for p in all_picks)
+    by_layout = [results[i][1] for i in range(len(layouts))]
+    intervals: dict[str, Any] = {
+        "level": LEVEL,
+        "resamples": resamples,
+        "layouts": {
+            "groups": len(layouts),
+            **GroupStats(by_layout).intervals([seed, 0xB007, 0], resamples),
+        },
+    }
+    runs = list(dict.fromkeys(e.run for e in elites)) if elites is not None else []
+    if len(runs) > 1:
+        assert elites is not None
+        by_run = [[p for i, e in enumerate(elites) if e.run == run for p in by_layout[i]]
+                  for run in runs]  # fmt: skip
+        intervals["runs"] = {
+            "groups": len(runs),
+            **GroupStats(by_run).intervals([seed, 0xB007, 1], resamples),
+        }
     aggregate = {
         **metrics(all_picks),
-        "accuracy_layout_mean": float(np.mean(accs)),
+        "accuracy_layout_mean": float(np.mean(accs)) if accs else None,
         "accuracy_layout_sd": float(np.std(accs, ddof=1)) if len(accs) > 1 else 0.0,
         "layouts_all_feasible": sum(not row["infeasible"] for row in per_layout),
+        "intervals": intervals,
     }
-    return {
+    report: dict[str, Any] = {
         "scene": scene.name,
         "tier": scene.spec.tier,
         "m": len(scene.goal_names),
         "layouts": len(layouts),
         "seed": seed,
+        "episodes_per_goal": episodes_per_goal,
         "params": params.as_dict(),
         "aggregate": aggregate,
         "timing": {
@@ -109,6 +363,18 @@ def run_eval(
         },
         "per_layout": per_layout,
     }
+    if elites is not None:
+        report["runs"] = runs
+        positions = sorted({e.position for e in elites})
+
+        def at(k: int) -> list[PickResult]:
+            return [p for i, e in enumerate(elites) if e.position == k for p in by_layout[i]]
+
+        report["by_elite"] = [
+            {"position": k, "layouts": sum(e.position == k for e in elites), **metrics(at(k))}
+            for k in positions
+        ]
+    return report
 
 
 def _pct(x: float | None) -> str:
@@ -119,17 +385,66 @@ def _sec(x: float | None) -> str:
     return "—" if x is None else f"{x:.1f}"
 
 
+def _rate(x: float | None) -> str:
+    return "—" if x is None else f"{x:.0f}"
+
+
+def _bound(x: float | None, pct: bool) -> str:
+    if x is None:
+        return "∞"
+    return f"{100 * x:.1f}" if pct else f"{x:.1f}"
+
+
+def _with_ci(value: str, ci: list[float | None] | None, pct: bool) -> str:
+    """``value [low, high]`` (``∞``: a bound beyond the longest time observed)."""
+    if ci is None:
+        return value
+    return f"{value} [{_bound(ci[0], pct)}, {_bound(ci[1], pct)}]"
+
+
+def _km(m: dict[str, Any]) -> str:
+    """The Kaplan–Meier median, or ``> longest time`` when it is never reached."""
+    if m["t_infer_km_median"] is not None:
+        return _sec(m["t_infer_km_median"])
+    if m["t_infer_km_max_time"] is None:
+        return "—"
+    return f"> {_sec(m['t_infer_km_max_time'])}"
+
+
+def _person_row(label: str, m: dict[str, Any], ci: dict[str, Any] | None) -> str:
+    c = ci or {}
+    return (
+        f"| {label} | {_with_ci(_pct(m['commit_true_rate']), c.get('commit_true_rate'), True)} "
+        f"| {_with_ci(_pct(m['commit_rate_min_goal']), c.get('commit_rate_min_goal'), True)} "
+        f"| {_with_ci(_pct(m['wrong_commit_rate']), c.get('wrong_commit_rate'), True)} "
+        f"| {_with_ci(_pct(m['accuracy']), c.get('accuracy'), True)} "
+        f"| {_with_ci(_sec(m['t_infer_mean']), c.get('t_infer_mean'), False)} "
+        f"| {_with_ci(_km(m), c.get('t_infer_km_median'), False)} "
+        f"| {m['t_infer_km_picks']} ({m['t_infer_km_events']}) |"
+    )
+
+
+PERSON_HEADER = (
+    "| {what} | commit on the true goal | min over goals | wrong commit | accuracy "
+    "| T_infer mean (s) | T_infer KM median (s) | KM picks (events) |"
+)
+
+
 def markdown(report: dict[str, Any]) -> str:
-    """The report as Markdown: the aggregate row, the failures, then one row per layout."""
+    """The report as Markdown: the aggregate row, the person's metrics with their
+    intervals (and per elite position), the failures, then one row per layout."""
     a = report["aggregate"]
     t_infer = (
         f"{_sec(a['t_infer_mean'])} ± {_sec(a['t_infer_sd'])}"
         if a["t_infer_mean"] is not None
         else "—"
     )
+    n_goal = report.get("episodes_per_goal")
+    picks = "all pick orders" if n_goal is None else f"{n_goal} picks per goal"
+    iv = a["intervals"]
     lines = [
         f"## {report['scene']} ({report['tier'] or 'demo'}, M = {report['m']}): "
-        f"{report['layouts']} layouts, seed {report['seed']}",
+        f"{report['layouts']} layouts, {picks}, seed {report['seed']}",
         "",
         "| accuracy | accuracy, feasible picks | T_infer (s) | commit | wrong commit | no commit "
         "| confirmed | completed | completed, acted on | infeasible picks | picks | picks/s |",
@@ -139,20 +454,49 @@ def markdown(report: dict[str, Any]) -> str:
         f"| {_pct(a['no_commit_rate'])} | {_pct(a['confirmed_rate'])} "
         f"| {_pct(a['completion_rate'])} | {_pct(a['completion_committed'])} "
         f"| {a['infeasible_picks']} | {a['episodes']} "
-        f"| {report['timing']['episodes_per_second']:.0f} |",
+        f"| {_rate(report['timing']['episodes_per_second'])} |",
+        "",
+        f"As the person sees them (method.md §9), with {100 * iv['level']:.0f} % intervals "
+        f"(percentile bootstrap, {iv['resamples']} resamples of the groups; none with one "
+        "group):",
+        "",
+        PERSON_HEADER.format(what="intervals over"),
+        "|---|---|---|---|---|---|---|---|",
+        _person_row(f"layouts ({iv['layouts']['groups']})", a, iv["layouts"]),
+    ]
+    if "runs" in iv:
+        lines.append(_person_row(f"runs ({iv['runs']['groups']})", a, iv["runs"]))
+    by_goal = ", ".join(f"{g} {_pct(r)}" for g, r in a["commit_rate_by_goal"].items())
+    lines += [
+        "",
+        f"Commit on the true goal per goal: {by_goal or '—'}; single-candidate commits "
+        f"(no inference) {_pct(a['single_commit_rate'])} of the picks.",
+    ]
+    if "by_elite" in report:
+        lines += [
+            "",
+            f"Per elite (1: each run's best verified; {len(report['runs'])} runs):",
+            "",
+            PERSON_HEADER.format(what="elite"),
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        lines += [_person_row(str(row["position"]), row, None) for row in report["by_elite"]]
+    source = "by_elite" in report
+    lines += [
         "",
         "Failures: " + (", ".join(f"{k} {v}" for k, v in a["failures"].items()) or "none") + ".",
         "",
-        "| layout | accuracy | T_infer (s) | commit | wrong | no commit | completed "
-        "| infeasible grasps | other failures |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| layout | " + ("run, elite | " if source else "") + "accuracy | T_infer (s) "
+        "| commit | wrong | no commit | completed | infeasible grasps | other failures |",
+        "|---|---|---|---|---|---|---|---|---|" + ("---|" if source else ""),
     ]
     for row in report["per_layout"]:
         bad = ", ".join(f"{n} ({r})" for n, r in row["infeasible"].items()) or "—"
         other = {k: v for k, v in row["failures"].items() if k != "infeasible_grasp"}
         others = ", ".join(f"{k} {v}" for k, v in other.items()) or "—"
+        where = f"{Path(row['run']).name}, {row['elite_position']} | " if source else ""
         lines.append(
-            f"| {row['index']} | {_pct(row['accuracy'])} | {_sec(row['t_infer_mean'])} "
+            f"| {row['index']} | {where}{_pct(row['accuracy'])} | {_sec(row['t_infer_mean'])} "
             f"| {_pct(row['commit_rate'])} | {_pct(row['wrong_commit_rate'])} "
             f"| {_pct(row['no_commit_rate'])} | {_pct(row['completion_rate'])} | {bad} "
             f"| {others} |"
@@ -160,4 +504,12 @@ def markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["markdown", "random_layouts", "run_eval"]
+__all__ = [
+    "INTERVAL_KEYS",
+    "Elite",
+    "GroupStats",
+    "load_elites",
+    "markdown",
+    "random_layouts",
+    "run_eval",
+]

@@ -10,8 +10,9 @@ sim-user``). The protocol's definitions are kept:
 - per layout every candidate's grasp is checked for IK reachability and collisions (the
   motion planner's feasibility check, whose IK solution the assistance then uses); an
   infeasible grasp leaves the candidate set, but every pick that wants it is a failure;
-- pick orders are all permutations of the goals (at most :data:`MAX_ORDERS` sampled);
-  every pick starts with the arm at home, the objects at the layout and inference reset;
+- pick orders are all permutations of the goals (at most :data:`MAX_ORDERS` sampled), or,
+  on request, N rounds of one random order each (N picks per goal); every pick starts with
+  the arm at home, the objects at the layout and inference reset;
 - the user steers toward the true goal's grasp position; the observer commits at
   ``p >= p_thresh``; a user who reaches the grasp position (within
   :data:`~legws_daemon.joystick.sim_user.ARRIVED`) before any commit presses *confirm*
@@ -22,6 +23,10 @@ Beyond the paper, the whole pick runs: after the commit the controller's assista
 and executes the approach, closes the gripper and lifts the object, then goes home. A pick
 is *completed* when the true goal's object is in the gripper with its lowest point at least
 :data:`LIFT_CLEARANCE` above the table; every pick that is not gets a named failure.
+
+:func:`metrics` gives the paper's metrics, the whole pick's, and the person's of method.md
+§9 (commit on the true goal per goal, wrong commits, the Kaplan–Meier median time to a
+correct commit: :func:`km_sample`).
 """
 
 from __future__ import annotations
@@ -41,12 +46,14 @@ from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.core.params import Params
+from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser, UserView
 from legws_daemon.robot.feasibility import GraspCheck
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.sim.statistics import km_median
 from legws_daemon.task.runner import scene_graph
 
 #: Most pick orders per layout (the paper samples 120 for M >= 5).
@@ -97,7 +104,11 @@ class PickResult:
         completed: the true goal's object was lifted clear of the table.
         complete_time: seconds from motion onset to completion.
         failure: one of :data:`FAILURES`, or ``None``; detail: what exactly.
-        duration: simulated seconds.
+        duration: simulated seconds (the whole pick, assistance and the way home included).
+        decision_time: seconds of inference from motion onset to the first commit (inferred,
+            confirmed, or a single candidate's: 0), else to the end of the user's steering
+            (the :data:`TIMEOUT_S` limit, or a fault); the clock of ``commit_time``.
+            ``None`` without an episode.
     """
 
     true_goal: str
@@ -111,11 +122,23 @@ class PickResult:
     failure: str | None = None
     detail: str = ""
     duration: float = 0.0
+    decision_time: float | None = None
 
     @property
     def correct(self) -> bool:
         """Argmax accuracy of the paper: the final inferred goal is the true goal."""
         return self.final_goal == self.true_goal
+
+    @property
+    def single(self) -> bool:
+        """The controller committed to the only feasible candidate, without inference."""
+        return self.committed is not None and self.commit_time is None
+
+    @property
+    def commit_true(self) -> bool:
+        """The controller committed to the true goal before the user arrived (an inferred
+        commit, which always comes before arrival, or a single candidate's at once)."""
+        return self.committed == self.true_goal
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,14 +154,71 @@ def _mean(xs: Sequence[float]) -> float | None:
     return float(np.mean(xs)) if xs else None
 
 
+def km_sample(picks: Sequence[PickResult]) -> tuple[list[float], list[bool]]:
+    """The time to a commit on the true goal, as the person sees it, for Kaplan–Meier:
+    ``(times, observed)``, one entry per pick with inference.
+
+    - subjects: the picks that ran (an infeasible grasp has no episode) with more than one
+      candidate (a single candidate is taken at once, without inference: not timed, as in
+      ``t_infer_mean``);
+    - event: an inferred commit (``p >= p_thresh``) on the true goal, at ``commit_time``;
+    - censored at the pick's end of steering (``decision_time``; ``duration`` when not
+      recorded): no commit, i.e. the user arrived and confirmed, the :data:`TIMEOUT_S`
+      limit, or a fault;
+    - censored at :data:`TIMEOUT_S`: a wrong commit. The person never gets the right commit
+      in that pick, so it stays at risk for the whole episode window (counted against the
+      median) rather than leaving the risk set early.
+    """
+    times: list[float] = []
+    observed: list[bool] = []
+    for p in picks:
+        if not p.feasible or p.single:
+            continue
+        if p.committed is not None and p.committed != p.true_goal:
+            times.append(TIMEOUT_S)
+            observed.append(False)
+        elif p.commit_true and p.commit_time is not None:
+            times.append(p.commit_time)
+            observed.append(True)
+        else:
+            end = p.decision_time if p.decision_time is not None else p.duration
+            times.append(end)
+            observed.append(False)
+    return times, observed
+
+
+def commit_by_goal(picks: Sequence[PickResult]) -> dict[str, float]:
+    """Per true goal (sorted by name), the fraction of its picks (infeasible ones
+    included) with a commit on it before arrival (:attr:`PickResult.commit_true`)."""
+    hits: Counter[str] = Counter()
+    total: Counter[str] = Counter()
+    for p in picks:
+        total[p.true_goal] += 1
+        hits[p.true_goal] += p.commit_true
+    return {g: hits[g] / total[g] for g in sorted(total)}
+
+
 def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
-    """The paper's metrics and the whole pick's.
+    """The paper's metrics, the whole pick's, and the person's (method.md §9).
 
     ``accuracy`` counts a pick whose grasp is infeasible as a failure (the protocol);
     ``accuracy_feasible`` is over the picks that ran. ``commit_rate`` counts the observer's
-    commits (single candidates included), ``confirmed_rate`` the user's confirmations;
-    ``completion_rate`` is over all picks, ``completion_committed`` over the feasible picks
-    the controller acted on (committed or confirmed).
+    commits (single candidates and wrong ones included), ``confirmed_rate`` the user's
+    confirmations; ``completion_rate`` is over all picks, ``completion_committed`` over the
+    feasible picks the controller acted on (committed or confirmed).
+
+    As the person sees them (every rate over all picks, infeasible ones included):
+    ``commit_true_rate``, the picks with a commit on the true goal before arrival (an
+    inferred commit, which always precedes arrival since arriving without one means
+    confirming, or a single candidate's immediate commit); ``single_commit_rate``, the
+    latter alone (subtract it for inferred commits only); ``commit_rate_by_goal`` the same
+    per true goal and ``commit_rate_min_goal`` its minimum over the goals with picks;
+    ``wrong_commit_rate``, commits on another goal. ``t_infer_mean`` is the paper's mean
+    over the timed commits (wrong ones included); ``t_infer_km_median`` the Kaplan–Meier
+    median time to a commit on the true goal (events and censoring: :func:`km_sample`),
+    ``None`` when the survival never falls to one half (the median is beyond
+    ``t_infer_km_max_time``) or there is no pick with inference; ``t_infer_km_picks`` and
+    ``t_infer_km_events`` count its subjects and events.
     """
     n = len(picks)
     ran = [p for p in picks if p.feasible]
@@ -148,6 +228,8 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
     acted = [p for p in ran if p.committed is not None or p.confirmed is not None]
     done = [p.complete_time for p in picks if p.complete_time is not None]
     failures = Counter(p.failure for p in picks if p.failure is not None)
+    by_goal = commit_by_goal(picks)
+    km_times, km_observed = km_sample(picks)
     return {
         "episodes": n,
         "accuracy": sum(p.correct for p in picks) / n if n else None,
@@ -163,6 +245,14 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
         "t_complete_mean": _mean(done),
         "infeasible_picks": sum(not p.feasible for p in picks),
         "failures": {k: failures[k] for k in FAILURES if failures[k]},
+        "commit_true_rate": sum(p.commit_true for p in picks) / n if n else None,
+        "single_commit_rate": sum(p.single for p in picks) / n if n else None,
+        "commit_rate_by_goal": by_goal,
+        "commit_rate_min_goal": min(by_goal.values()) if by_goal else None,
+        "t_infer_km_median": km_median(km_times, km_observed),
+        "t_infer_km_picks": len(km_times),
+        "t_infer_km_events": sum(km_observed),
+        "t_infer_km_max_time": max(km_times) if km_times else None,
     }
 
 
@@ -233,15 +323,30 @@ class Evaluator:
             for t in c.stage.targets
         }
 
-    def evaluate(self, layout: Layout, seed: int | Sequence[int]) -> LayoutEvaluation:
-        """Every pick order of ``layout``; seeded, so the same seed gives the same picks."""
+    def evaluate(
+        self, layout: Layout, seed: int | Sequence[int], episodes_per_goal: int | None = None
+    ) -> LayoutEvaluation:
+        """Every pick order of ``layout`` (:func:`pick_orders`), or with
+        ``episodes_per_goal`` N rounds each picking every goal once in a random order (N
+        picks per goal); seeded, so the same seed gives the same picks. Every pick starts
+        from home with the objects at the layout and inference reset."""
         rng = np.random.default_rng(seed)
         checks = self.check(layout)
         feasible = [n for n in self.scene.goal_names if checks[n].feasible]
         c = self.controller
         c.load(self.scene, layout, scene_graph(self.scene, feasible))
         picks: list[PickResult] = []
-        for order in pick_orders(list(self.scene.goal_names), rng):
+        names = list(self.scene.goal_names)
+        if episodes_per_goal is None:
+            orders = pick_orders(names, rng)
+        else:
+            if episodes_per_goal < 1:
+                raise InputError(f"episodes_per_goal must be >= 1, got {episodes_per_goal}")
+            orders = [
+                tuple(names[i] for i in rng.permutation(len(names)))
+                for _ in range(episodes_per_goal)
+            ]
+        for order in orders:
             for name in order:
                 if name in feasible:
                     picks.append(self.pick(name, rng))
@@ -270,7 +375,7 @@ class Evaluator:
         user = SimUser([goal], self.params.sigma, self.params.v_max, rng)
         start = clock.ticks
         committed = confirmed = failure = None
-        commit_time = complete_time = None
+        commit_time = complete_time = decision_time = None
         detail = ""
         completed = False
         targets: dict[str, np.ndarray] = {}
@@ -297,6 +402,8 @@ class Evaluator:
             for event in self.events[first:]:
                 match event:
                     case Commit():
+                        if decision_time is None:
+                            decision_time = event.seconds
                         if event.confirmed:
                             confirmed = event.goal
                         else:
@@ -321,7 +428,10 @@ class Evaluator:
         if final is None and c.inference.observer is not None:
             final = c.inference.most_likely()[0]
         self.events.clear()
+        duration = (clock.ticks - start) * clock.dt
+        if decision_time is None:  # no commit: the user steered until the pick ended
+            decision_time = duration
         return PickResult(
             goal, True, committed, commit_time, confirmed, final, completed, complete_time,
-            failure, detail, (clock.ticks - start) * clock.dt,
+            failure, detail, duration, decision_time,
         )  # fmt: skip
