@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from legws_daemon.design import METHODS
+from legws_daemon.design import METHODS, OBJECTIVES
 
 
 @click.command("optimize")
@@ -21,6 +21,11 @@ from legws_daemon.design import METHODS
 @click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
               help="With --all: local worker processes (without --dask).")  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
+@click.option(
+    "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
+    show_default=True,
+    help="Maximise the slack J (method.md §4) or certify early commits: minimise K (§9).",
+)  # fmt: skip
 @click.option("--iterations", type=click.IntRange(1, 1_000_000), default=1000, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--movable", help="Comma-separated objects to place; all others stay fixed.")
@@ -37,6 +42,7 @@ def optimize_cmd(
     dask_address: str | None,
     workers: int,
     method: str,
+    objective_kind: str,
     iterations: int,
     seed: int,
     movable: str | None,
@@ -46,9 +52,10 @@ def optimize_cmd(
 ) -> None:
     """Optimise a scene's layout (method.md §5) and verify the best elite in simulation.
 
-    Writes summary.json, best_layout.json, goals.json, archive.csv, archive.png and
-    best_layout.png to the run folder; `legws certify RUN/goals.json` reproduces the
-    objective. With --all, runs scenes × seeds on a process pool or a Dask cluster.
+    Writes summary.json, best_layout.json, goals.json, elites.json, archive.csv,
+    archive.png and best_layout.png to the run folder; `legws certify RUN/goals.json
+    --commit` reproduces objective and commit_objective. With --all, runs scenes × seeds on
+    a process pool or a Dask cluster.
     """
     from tqdm import tqdm
 
@@ -59,7 +66,7 @@ def optimize_cmd(
     names_given = [n.strip() for spec in scene_names for n in spec.split(",") if n.strip()]
     if run_all_scenes:
         _run_all(names_given or all_names(), seeds, seed, dask_address, workers, method,
-                 iterations, movable, out_dir, quiet)  # fmt: skip
+                 objective_kind, iterations, movable, out_dir, quiet)  # fmt: skip
         return
     if seeds or dask_address:
         raise click.UsageError("--seeds and --dask go with --all")
@@ -75,13 +82,17 @@ def optimize_cmd(
         def progress(it: int, best: float, coverage: float) -> None:
             bar.update(1)
             if it % 20 == 0 or it == iterations:
-                bar.set_postfix(best_J=f"{best:.3f}", coverage=f"{coverage:.0%}")
+                shown = {"best_J": best} if objective_kind == "slack" else {"best_K": -best}
+                bar.set_postfix(
+                    {k: f"{v:.3f}" for k, v in shown.items()}, coverage=f"{coverage:.0%}"
+                )
 
         summary = optimize(
             scene, out, method=method, iterations=iterations, seed=seed, movable=names,
-            use_cache=not no_cache, progress=progress,
+            objective=objective_kind, use_cache=not no_cache, progress=progress,
         )  # fmt: skip
-    keys = ("objective", "coverage", "elites", "evaluations", "seconds", "cached")
+    keys = ("objective", "commit_objective", "commit_certified", "coverage", "elites",
+            "evaluations", "seconds", "cached")  # fmt: skip
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
 
 
@@ -92,6 +103,7 @@ def _run_all(
     dask_address: str | None,
     workers: int,
     method: str,
+    objective_kind: str,
     iterations: int,
     movable: str | None,
     out_dir: Path | None,
@@ -114,7 +126,9 @@ def _run_all(
     root = out_dir or Path("out") / "optimize"
     scenes = [load_scene(n) for n in names]  # validate every name before starting
     jobs = [
-        Job(sc.source, s, str(root / sc.name / f"seed{s}"), method, iterations, None)
+        Job(
+            sc.source, s, str(root / sc.name / f"seed{s}"), method, iterations, None, objective_kind
+        )
         for sc in scenes
         for s in seed_list
     ]
@@ -122,7 +136,8 @@ def _run_all(
         results = run_all(
             jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
         )
-    keys = ("scene", "seed", "objective", "coverage", "elites", "seconds", "cached", "out")
+    keys = ("scene", "seed", "objective", "commit_objective", "commit_certified", "coverage",
+            "elites", "seconds", "cached", "out")  # fmt: skip
     table = [{k: r[k] for k in keys} for r in results]
     root.mkdir(parents=True, exist_ok=True)
     (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")

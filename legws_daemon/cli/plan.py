@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from legws_daemon.design import METHODS
+from legws_daemon.design import METHODS, OBJECTIVES
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
 
@@ -17,7 +17,7 @@ def _j(value: float | None) -> str:
 
 
 def plan_rows(plan: Plan) -> list[list[str]]:
-    """One table row per decision: label, candidates, optimised, J, feasible, image."""
+    """One table row per decision: label, candidates, optimised, J, K, feasible, image."""
     rows = []
     for d in plan.decisions:
         if not d.inference:
@@ -32,6 +32,9 @@ def plan_rows(plan: Plan) -> list[list[str]]:
                 ", ".join(d.candidates),
                 ", ".join(d.optimised) or "-",
                 j,
+                "-"
+                if d.commit_objective is None
+                else f"{d.commit_objective:.3f} ({d.commit_certified}/{len(d.candidates)})",
                 "yes" if d.feasible else "NO",
                 d.image or "-",
             ]
@@ -41,7 +44,8 @@ def plan_rows(plan: Plan) -> list[list[str]]:
 
 def render_table(plan: Plan) -> str:
     """The plan as text: a header line, the table, and the notes of infeasible decisions."""
-    header = ["decision", "candidates", "optimised", "J start -> planned", "feasible", "image"]
+    header = ["decision", "candidates", "optimised", "J start -> planned",
+              "K (commit-certified)", "feasible", "image"]  # fmt: skip
     rows = plan_rows(plan)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
 
@@ -52,8 +56,9 @@ def render_table(plan: Plan) -> str:
     where = f" in {plan.directory}" if plan.directory is not None else ""
     source = "from the cache" if plan.cached else f"{plan.seconds:.1f} s"
     lines = [
-        f"plan of '{plan.taskgraph}' (scene {plan.scene}; {s['method']}, {s['iterations']} "
-        f"iterations, seed {s['seed']}; {source}){where}",
+        f"plan of '{plan.taskgraph}' (scene {plan.scene}; {s['method']} for "
+        f"{s.get('objective', 'slack')}, {s['iterations']} iterations, seed {s['seed']}; "
+        f"{source}){where}",
         "",
         line(header),
         line(["-" * w for w in widths]),
@@ -75,6 +80,11 @@ def render_table(plan: Plan) -> str:
 )  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
 @click.option(
+    "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
+    show_default=True,
+    help="Per decision: maximise the slack J or certify early commits (minimise K, §9).",
+)  # fmt: skip
+@click.option(
     "--iterations", type=click.IntRange(1, 1_000_000), default=DEFAULT_ITERATIONS,
     show_default=True, help="Search iterations per optimised decision.",
 )  # fmt: skip
@@ -86,6 +96,7 @@ def plan_cmd(
     taskgraph: str,
     out_dir: Path | None,
     method: str,
+    objective_kind: str,
     iterations: int,
     seed: int,
     no_cache: bool,
@@ -97,9 +108,11 @@ def plan_cmd(
     A decision point is what a run offers at once: the start stage, then each stage's
     successors (several = a choice, labelled a|b). For each, the candidates that are movable
     objects (not fixed by the graph) are placed to maximise the certificate J of the
-    decision's targets from the EE home; every other object keeps its pose from the decision
-    before. Single-candidate decisions need no inference. Writes plan.json and a top-view
-    PNG per decision; results are cached by the graph file, the scene file and the settings.
+    decision's targets from the EE home (--objective commit: to minimise the commit
+    objective K, the latest certified commit as a fraction of the way); every other object
+    keeps its pose from the decision before. Single-candidate decisions need no inference.
+    Writes plan.json and a top-view PNG per decision; results are cached by the graph
+    file, the scene file and the settings.
     """
     from legws_daemon.design.stage_plan import plan_taskgraph
     from legws_daemon.task.plan_file import plan_to_data
@@ -109,8 +122,8 @@ def plan_cmd(
     if out_dir is None and no_cache:
         out_dir = Path("out") / "plan" / graph.name
     plan = plan_taskgraph(
-        graph, scene, method=method, iterations=iterations, seed=seed, progress=not quiet,
-        use_cache=not no_cache, out_dir=out_dir,
+        graph, scene, method=method, iterations=iterations, seed=seed, objective=objective_kind,
+        progress=not quiet, use_cache=not no_cache, out_dir=out_dir,
     )  # fmt: skip
     if as_json:
         data: dict[str, Any] = plan_to_data(plan)

@@ -5,3 +5,7 @@ from typing import Literal, get_args
 #: Search methods of ``legws optimize`` (kept here, light, for the CLI's option parsing).
 Method = Literal["cma-me", "map-elites", "cma-mae"]
 METHODS: tuple[str, ...] = get_args(Method)
+#: What the search maximises: the slack certificate J (method.md §4) or, for early commits,
+#: minus the commit objective K (method.md §9).
+Objective = Literal["slack", "commit"]
+OBJECTIVES: tuple[str, ...] = get_args(Objective)

@@ -29,6 +29,7 @@ class Job:
     method: str
     iterations: int
     movable: tuple[str, ...] | None
+    objective: str = "slack"
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -43,6 +44,7 @@ def run_job(job: Job) -> dict[str, Any]:
         iterations=job.iterations,
         seed=job.seed,
         movable=job.movable,
+        objective=job.objective,
     )
     return {**summary, "seed": job.seed, "out": job.out_dir}
 

@@ -2,9 +2,13 @@
 
 Outputs in the run folder (interfaces.md): ``summary.json`` (``objective``, ``coverage``,
 ``elites``, ``evaluations``, ``seconds`` and more), ``best_layout.json``, ``goals.json``
-(certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate),
-``archive.csv``, ``archive.png`` (heatmap of J over the grid) and ``best_layout.png``.
-Results are cached by a hash of the scene file and the settings.
+(certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate; and
+``commit_objective``/``commit_certified`` are its commit certificate, method.md §9),
+``elites.json`` (the elites checked in full, best first, with ``verified``: what ``legws
+eval --top-k`` evaluates), ``archive.csv``, ``archive.png`` (heatmap of the searched score
+over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``) or
+minus the commit objective K (``objective="commit"``). Results are cached by a hash of the
+scene file and the settings.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import GRID, SearchResult, search
@@ -37,13 +42,17 @@ from legws_daemon.robot.planner import FEASIBILITY, MotionPlanner, stand_in_plan
 from legws_daemon.robot.reachability import load_or_build
 from legws_daemon.robot.world import World
 from legws_daemon.scene.layout_file import dump_json, layout_to_data
-from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.scene.scene import Scene
 
 #: Elites tried, best first, before giving up on finding one that passes the full check.
 MAX_VERIFIED = 60
+#: Verified elites kept in ``elites.json`` (the top-k of ``legws eval``).
+KEEP_VERIFIED = 5
 #: Densest packing of equal discs in the plane (hexagonal).
 _PACKING = math.pi / (2 * math.sqrt(3))
-FILES = ("summary.json", "best_layout.json", "goals.json", "archive.csv", "archive.png")
+FILES = (
+    "summary.json", "best_layout.json", "goals.json", "elites.json", "archive.csv", "archive.png"
+)  # fmt: skip
 
 
 def check_capacity(problem: LayoutProblem) -> None:
@@ -80,25 +89,50 @@ def cache_dir() -> Path:
 
 
 def verify(
-    problem: LayoutProblem, result: SearchResult, planner: MotionPlanner
-) -> tuple[Layout, int]:
-    """The best elite that satisfies every constraint and whose grasps all pass the motion
-    planner's full check (IK, collisions, a straight approach, a clear way from home: what
-    ``legws eval`` counts as feasible); returns it and its rank among the elites."""
+    problem: LayoutProblem, result: SearchResult, planner: MotionPlanner, keep: int = 1
+) -> list[dict[str, Any]]:
+    """Check elites best first until ``keep`` satisfy every constraint and have all grasps
+    pass the motion planner's full check (IK, collisions, a straight approach, a clear way
+    from home: what ``legws eval`` counts as feasible), or :data:`MAX_VERIFIED` were tried.
+
+    Returns every elite checked, best first: ``rank`` (among the elites), ``layout``,
+    ``objective`` (the searched score minus penalties), ``verified`` and, when not,
+    ``reason``. At least one is verified.
+
+    Raises:
+        InfeasibleError: when none of the elites tried passes.
+    """
     scene = problem.scene
+    checked: list[dict[str, Any]] = []
+    passed = 0
     for rank, elite in enumerate(result.elites[:MAX_VERIFIED]):
         layout = problem.layout(elite.solution)
         poses = scene.poses(layout)
-        if problem.constraints.problems(poses):
-            continue
-        planner.set_layout(poses)
-        goals = scene.goal_set(layout, goals=problem.names)
-        rotations = goals.rotations
-        if all(
-            planner.check(n, goals.positions[i], rotations[i], int(goals.symmetry[i])).feasible
-            for i, n in enumerate(goals.names)
-        ):
-            return layout, rank
+        entry: dict[str, Any] = {
+            "rank": rank,
+            "layout": layout_to_data(layout),
+            "objective": elite.objective,
+        }
+        problems = problem.constraints.problems(poses)
+        if problems:
+            entry |= {"verified": False, "reason": problems[0]}
+        else:
+            planner.set_layout(poses)
+            goals = scene.goal_set(layout, goals=problem.names)
+            rotations = goals.rotations
+            reason = None
+            for i, n in enumerate(goals.names):
+                c = planner.check(n, goals.positions[i], rotations[i], int(goals.symmetry[i]))
+                if not c.feasible:
+                    reason = f"{n}: {c.reason}"
+                    break
+            entry |= {"verified": reason is None} | ({"reason": reason} if reason else {})
+        checked.append(entry)
+        passed += entry["verified"]
+        if passed >= keep:
+            return checked
+    if passed:
+        return checked
     raise InfeasibleError(
         f"none of the best {min(MAX_VERIFIED, len(result.elites))} elites passed the full "
         "IK, collision and approach check; run more iterations or relax the scene"
@@ -106,13 +140,16 @@ def verify(
 
 
 def heatmap_png(result: SearchResult) -> bytes:
-    """The archive as a 20 × 20 heatmap of J (feasible elites; grey: empty or infeasible)."""
+    """The archive as a 20 × 20 heatmap of the searched score, J or -K (feasible elites;
+    grey: empty or infeasible)."""
     from PIL import Image
 
     grid = np.full(GRID[0] * GRID[1], np.nan)
     for row in result.table:
         if row["feasible_screen"]:
-            grid[row["cell"]] = row["certificate"]
+            grid[row["cell"]] = (
+                -row["commit_objective"] if "commit_objective" in row else row["certificate"]
+            )
     grid = grid.reshape(GRID)
     finite = grid[np.isfinite(grid)]
     lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
@@ -136,15 +173,17 @@ def optimize(
     iterations: int = 1000,
     seed: int = 0,
     movable: Sequence[str] | None = None,
+    objective: str = "slack",
     use_cache: bool = True,
     render: bool = True,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> dict[str, Any]:
     """Optimise a scene's layout and write the run folder; returns the summary."""
-    problem = LayoutProblem(scene, movable, Params())
+    problem = LayoutProblem(scene, movable, Params(), objective=objective)
     check_capacity(problem)
     settings = {
         "scene": scene.name,
+        "objective_kind": objective,
         "method": method,
         "iterations": iterations,
         "seed": seed,
@@ -164,16 +203,23 @@ def optimize(
     q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
     problem.screen = load_or_build(world, q_home)
     result = search(problem, method, iterations, seed, progress)
-    layout, rank = verify(problem, result, stand_in_planner(world))
+    checked = verify(problem, result, stand_in_planner(world), KEEP_VERIFIED)
+    best = next(e for e in checked if e["verified"])
+    layout, rank = problem.layout(result.elites[best["rank"]].solution), best["rank"]
     goals = scene.goal_set(layout, goals=problem.names)
     write_atomic(out_dir / "best_layout.json", dump_json(layout_to_data(layout)).encode())
     write_atomic(out_dir / "goals.json", dump_json(goalset_to_data(goals, problem.params)).encode())
     # the reported objective is the certificate of the written goal set, so that
     # `legws certify goals.json` reproduces it to the last digit
     written, params = load_goalset(out_dir / "goals.json")
-    objective = certify(written, params).objective
+    slack = certify(written, params).objective
+    commit = certify_commit(written, params)
+    write_atomic(out_dir / "elites.json", (json.dumps(checked, indent=2) + "\n").encode())
     summary = {
-        "objective": objective,
+        "objective": slack,
+        "commit_objective": commit.objective,
+        "commit_certified": commit.certified,
+        "goals": len(written.names),
         "coverage": result.coverage,
         "elites": len(result.elites),
         "evaluations": result.evaluations,
@@ -181,6 +227,7 @@ def optimize(
         "feasible_coverage": result.feasible_coverage,
         "qd_score": result.qd_score,
         "verified_rank": rank,
+        "verified_ranks": [e["rank"] for e in checked if e["verified"]],
         "measure_ranges": result.ranges,
         "key": key,
         "cached": False,

@@ -8,8 +8,11 @@ Goals: the grasps of the placed objects by default (:class:`GraspGoals`); a
 :class:`GoalModel` generalises them to other goal poses (e.g. a task stage's place or dip
 targets) and to goals that stay put (certified, not in the decision vector).
 
-Objective: the certificate ``J`` of the goals minus additive penalties, so an infeasible
-layout always loses to a feasible one:
+Objective: a score of the goals minus additive penalties, so an infeasible layout always
+loses to a feasible one. The score is the slack certificate ``J`` (``objective="slack"``,
+method.md §4, the default) or minus the commit objective ``K`` (``objective="commit"``,
+method.md §9: the latest certified commit as a fraction of the way; smaller is earlier and
+``K <= 1`` certifies every goal's commit). The penalties:
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);
@@ -30,8 +33,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.certificate import certify_batch
+from legws_daemon.core.commit import commit_batch
 from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
+from legws_daemon.design import OBJECTIVES
 from legws_daemon.errors import InputError
 from legws_daemon.robot.reachability import ReachabilityMap
 from legws_daemon.scene.constraints import LayoutConstraints
@@ -49,11 +54,17 @@ INFEASIBLE_OFFSET = 10.0
 class Evaluation:
     """Evaluation of a batch of ``B`` layouts."""
 
-    objective: FloatArray  # (B,) J minus penalties
+    objective: FloatArray  # (B,) score minus penalties
     certificate: FloatArray  # (B,) J alone
     violation: FloatArray  # (B,) metres of constraint violation
     unreachable: FloatArray  # (B,) grasps screened out
     measures: FloatArray  # (B, 2)
+    commit: FloatArray | None = None  # (B,) K, with objective="commit"
+
+    @property
+    def score(self) -> FloatArray:
+        """What the search maximises before penalties: J, or -K."""
+        return self.certificate if self.commit is None else -self.commit
 
     @property
     def feasible(self) -> np.ndarray:
@@ -120,6 +131,7 @@ class LayoutProblem:
         goals: the certified goals (default: the grasps of the movable objects, which
             must then be at least 2).
         base: poses of the objects that stay put (default: the scene file's).
+        objective: ``"slack"`` (maximise J) or ``"commit"`` (minimise K).
     """
 
     def __init__(
@@ -131,7 +143,14 @@ class LayoutProblem:
         *,
         goals: GoalModel | None = None,
         base: Mapping[str, ObjectPose] | None = None,
+        objective: str = "slack",
     ) -> None:
+        if objective not in OBJECTIVES:
+            raise InputError(
+                f"unknown objective {objective!r}; known: {', '.join(OBJECTIVES)}",
+                field="--objective",
+            )
+        self.objective = objective
         names = tuple(movable) if movable is not None else scene.goal_names
         if goals is None and len(names) < 2:
             raise InputError(
@@ -199,9 +218,10 @@ class LayoutProblem:
         sc = self.scene
         g = self.goals.poses(poses)
         home = sc.home
-        J = certify_batch(
-            home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params
-        ).objective
+        args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
+        J = certify_batch(*args).objective
+        K = commit_batch(*args).objective if self.objective == "commit" else None
+        score = J if K is None else -K
         violation = self.constraints.violation(poses)
         if self.screen is not None:
             unreachable = self.goals.unreachable(self.screen, poses)
@@ -209,12 +229,12 @@ class LayoutProblem:
             unreachable = np.zeros(len(poses))
         infeasible = (violation > 0) | (unreachable > 0)
         objective = (
-            J
+            score
             - CONSTRAINT_WEIGHT * violation
             - UNREACHABLE_PENALTY * unreachable
             - INFEASIBLE_OFFSET * infeasible
         )
-        return Evaluation(objective, J, violation, unreachable, self.measures(poses))
+        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K)
 
     def layout(self, solution: ArrayLike) -> Layout:
         """One normalised solution as a :data:`Layout` of the movable objects."""

@@ -58,7 +58,7 @@ class SearchResult:
     iterations: int
     seconds: float
     ranges: list[tuple[float, float]]
-    table: list[dict[str, Any]]  # one row per elite: cell, measures, objective, J, feasible
+    table: list[dict[str, Any]]  # one row per elite: cell, measures, objective, J, (K,) feasible
 
 
 def _scheduler(
@@ -127,7 +127,8 @@ def search(
     seed: int = 0,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> SearchResult:
-    """Run the search; ``progress(iteration, best_J, coverage)`` is called every iteration."""
+    """Run the search; ``progress(iteration, best, coverage)`` is called every iteration with
+    the best feasible score so far (J, or -K with the commit objective)."""
     if method not in METHODS:
         raise InputError(
             f"unknown method '{method}'; known: {', '.join(METHODS)}", field="--method"
@@ -144,9 +145,9 @@ def search(
         ev = problem.evaluate(x)
         scheduler.tell(ev.objective, ev.measures)
         evaluations += len(x)
-        feasible_j = ev.certificate[ev.feasible]
-        if len(feasible_j):
-            best = max(best, float(feasible_j.max()))
+        feasible_score = ev.score[ev.feasible]
+        if len(feasible_score):
+            best = max(best, float(feasible_score.max()))
         if progress is not None:
             progress(it, best, float(archive.stats.coverage))
     data = archive.data()
@@ -160,16 +161,17 @@ def search(
     table = []
     if final is not None:
         for i in range(len(solutions)):
-            table.append(
-                {
-                    "cell": int(data["index"][order][i]),
-                    "mean_pairwise_distance": float(final.measures[i, 0]),
-                    "centroid_offset": float(final.measures[i, 1]),
-                    "objective": float(final.objective[i]),
-                    "certificate": float(final.certificate[i]),
-                    "feasible_screen": bool(final.feasible[i]),
-                }
-            )
+            row = {
+                "cell": int(data["index"][order][i]),
+                "mean_pairwise_distance": float(final.measures[i, 0]),
+                "centroid_offset": float(final.measures[i, 1]),
+                "objective": float(final.objective[i]),
+                "certificate": float(final.certificate[i]),
+                "feasible_screen": bool(final.feasible[i]),
+            }
+            if final.commit is not None:
+                row["commit_objective"] = float(final.commit[i])
+            table.append(row)
     cells = GRID[0] * GRID[1]
     feasible_cells = int(final.feasible.sum()) if final is not None else 0
     return SearchResult(

@@ -33,14 +33,16 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import CommitCertificate, certify_commit
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
-from legws_daemon.design import METHODS
+from legws_daemon.design import METHODS, OBJECTIVES
 from legws_daemon.design.optimize import check_capacity
 from legws_daemon.design.plan_cache import (
     PLAN_FILE,
@@ -84,6 +86,7 @@ class _Planner:
     iterations: int
     seed: int
     progress: bool
+    objective: str
     world: World
     q_home: FloatArray
     _screen: ReachabilityMap | None = None
@@ -104,6 +107,16 @@ class _Planner:
     def certificate(self, point: DecisionPoint, layout: Layout) -> float:
         goals = goal_set(self.targets(point, layout), self.scene.home)
         return certify(goals, self.params).objective
+
+    def commit(self, point: DecisionPoint, layout: Layout) -> CommitCertificate:
+        goals = goal_set(self.targets(point, layout), self.scene.home)
+        return certify_commit(goals, self.params)
+
+    def score(self, point: DecisionPoint, layout: Layout) -> float:
+        """What the search maximises: J, or -K with the commit objective."""
+        if self.objective == "commit":
+            return -self.commit(point, layout).objective
+        return self.certificate(point, layout)
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
         """``None`` when every target passes the motion planner's check (IK, collisions, a
@@ -155,18 +168,27 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
             else "certified, not optimised: no candidate is a movable object to place"
         )
         j = p.certificate(point, base) if point.inference else None
+        k = p.commit(point, base) if point.inference else None
         return replace(
             shell,
             certificate=j,
             certificate_start=j,
+            commit_objective=k.objective if k else None,
+            commit_certified=k.certified if k else None,
             feasible=start_problem is None,
             note=note if start_problem is None else f"{note}; {start_problem}",
         )
     j_start = p.certificate(point, base)
-    layout, problem = _search(p, index, point, base, names, j_start, start_problem is None)
+    k_start = p.commit(point, base)
+    score_start = j_start if p.objective == "slack" else -k_start.objective
+    layout, problem = _search(p, index, point, base, names, score_start, start_problem is None)
     j = p.certificate(point, layout)
+    k = p.commit(point, layout)
     if problem is None:
-        note = f"optimised {', '.join(names)}: J {j_start:.3f} -> {j:.3f}"
+        note = (
+            f"optimised {', '.join(names)}: J {j_start:.3f} -> {j:.3f}, "
+            f"K {k_start.objective:.3f} -> {k.objective:.3f}"
+        )
     else:
         note = f"no layout passed the full check: {problem}"
     return replace(
@@ -175,6 +197,8 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
         layout=layout,
         certificate=j,
         certificate_start=j_start,
+        commit_objective=k.objective,
+        commit_certified=k.certified,
         feasible=problem is None,
         note=note,
     )
@@ -186,18 +210,21 @@ def _search(
     point: DecisionPoint,
     base: Layout,
     names: tuple[str, ...],
-    j_start: float,
+    score_start: float,
     start_ok: bool,
 ) -> tuple[Layout, str | None]:
     """The chosen layout of every movable object and ``None``, or the fallback and why."""
     goals = TargetGoals(p.scene, point, names, base)
-    problem = LayoutProblem(p.scene, names, p.params, p.screen, goals=goals, base=base)
+    problem = LayoutProblem(
+        p.scene, names, p.params, p.screen, goals=goals, base=base, objective=p.objective
+    )
     check_capacity(problem)
     result = _run_search(p, problem, point.label, p.seed + index)
     fallback: Layout | None = None
     first_problem: str | None = None
     for elite, row in list(zip(result.elites, result.table, strict=True))[:MAX_VERIFIED]:
-        if start_ok and row["certificate"] <= j_start:
+        score = -row["commit_objective"] if p.objective == "commit" else row["certificate"]
+        if start_ok and score <= score_start:
             continue  # cannot beat the start, which passes
         layout = {**base, **problem.layout(elite.solution)}
         if problem.constraints.problems(p.scene.poses(layout)):
@@ -262,6 +289,7 @@ def plan_taskgraph(
     method: str = "cma-me",
     iterations: int = DEFAULT_ITERATIONS,
     seed: int = 0,
+    objective: str = "slack",
     params: Params | None = None,
     progress: bool = False,
     use_cache: bool = True,
@@ -274,6 +302,7 @@ def plan_taskgraph(
         graph: the task graph (its ``source`` file is part of the cache key).
         scene: its scene.
         method, iterations, seed: the search's settings (per optimised decision).
+        objective: ``slack`` (maximise J) or ``commit`` (minimise K, method.md §9).
         params: model parameters of the certificate (default: the method's).
         progress: a progress bar per search on stderr.
         use_cache: load the plan from the cache when there, and store it there.
@@ -291,14 +320,21 @@ def plan_taskgraph(
         )
     if iterations < 1:
         raise InputError(f"expected at least 1 iteration, got {iterations}", field="--iterations")
+    if objective not in OBJECTIVES:
+        raise InputError(
+            f"unknown objective '{objective}'; known: {', '.join(OBJECTIVES)}",
+            field="--objective",
+        )
     params = params or Params()
-    settings = {
+    settings: dict[str, Any] = {
         "method": method,
         "iterations": iterations,
         "seed": seed,
         "params": params.as_dict(),
         "version": __version__,
     }
+    if objective != "slack":  # absent means slack: plans made before the option keep their key
+        settings["objective"] = objective
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
     cached = load_cached(folder) if use_cache else None
@@ -315,6 +351,7 @@ def plan_taskgraph(
         iterations,
         seed,
         progress,
+        objective,
         world,
         np.asarray(q_home, dtype=np.float64),
     )

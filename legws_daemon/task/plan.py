@@ -47,6 +47,10 @@ class PlannedDecision:
         image: file name of the top-view picture next to ``plan.json`` (``None``: not
             rendered).
         note: what was done, or why the layout is not feasible.
+        commit_objective: ``K`` of the candidates' targets in ``layout`` (method.md §9;
+            ``None`` without inference).
+        commit_certified: how many of them are commit-certified (``None`` without
+            inference).
     """
 
     label: str
@@ -61,6 +65,8 @@ class PlannedDecision:
     feasible: bool
     image: str | None
     note: str = ""
+    commit_objective: float | None = None
+    commit_certified: int | None = None
 
 
 @dataclass(frozen=True)

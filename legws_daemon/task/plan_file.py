@@ -13,10 +13,14 @@ Written by ``legws plan`` (:func:`legws_daemon.design.stage_plan.plan_taskgraph`
         "inference": true, "optimised": [],
         "layout": {"strawberry": {"x": 0.7, "y": 0.1, "yaw": 0.0}, ...},
         "certificate": 1.23, "certificate_start": 1.23, "feasible": true,
-        "image": "dip+feed.png", "note": "certified, not optimised: ..."}]}
+        "image": "dip+feed.png", "note": "certified, not optimised: ...",
+        "commit_objective": 0.8, "commit_certified": 3}]}
 
 ``layout`` holds every movable object of the scene; ``certificate`` and
 ``certificate_start`` are ``null`` exactly when ``inference`` is false (one candidate).
+``commit_objective`` (K, method.md §9) and ``commit_certified`` are optional (plans written
+before them have neither) and ``null`` without inference; ``settings.objective`` says
+what the search maximised (``slack``: J, ``commit``: -K; absent means ``slack``).
 Errors name the file and the field, e.g. ``plan.json: decisions[1].layout.grape.x: ...``.
 """
 
@@ -68,6 +72,8 @@ class DecisionSchema(_Model):
     feasible: StrictBool
     image: Annotated[str, Field(pattern=r"^[a-z0-9_+]+\.png$")] | None
     note: str = ""
+    commit_objective: Finite | None = None
+    commit_certified: Annotated[int, Field(ge=0, strict=True)] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> DecisionSchema:
@@ -88,6 +94,12 @@ class DecisionSchema(_Model):
             if (getattr(self, name) is None) == self.inference:
                 want = "a number" if self.inference else "null (no inference)"
                 raise field_error((name,), f"expected {want}")
+        if not self.inference and (
+            self.commit_objective is not None or self.commit_certified is not None
+        ):
+            raise field_error(("commit_objective",), "expected null (no inference)")
+        if self.commit_certified is not None and self.commit_certified > len(self.candidates):
+            raise field_error(("commit_certified",), "expected at most one per candidate")
         if self.image is not None and self.image != image_name(self.label):
             raise field_error(("image",), f"expected '{image_name(self.label)}' or null")
         return self
@@ -135,6 +147,8 @@ def plan_to_data(plan: Plan) -> dict[str, Any]:
                 "feasible": d.feasible,
                 "image": d.image,
                 "note": d.note,
+                "commit_objective": d.commit_objective,
+                "commit_certified": d.commit_certified,
             }
             for d in plan.decisions
         ],
@@ -165,6 +179,8 @@ def plan_from_data(data: Any, source: str, scene: Scene | None = None) -> Plan:
             feasible=d.feasible,
             image=d.image,
             note=d.note,
+            commit_objective=d.commit_objective,
+            commit_certified=d.commit_certified,
         )
         for d in doc.decisions
     )

@@ -33,7 +33,9 @@ def test_table_files_and_cache(cli: Cli, tmp_path: Path) -> None:
     first = cli(*args, "--out", out)
     assert first.code == 0, first.err
     lines = first.out.splitlines()
-    assert lines[0].startswith("plan of 'feeding' (scene feeding; cma-me, 5 iterations, seed 0;")
+    assert lines[0].startswith(
+        "plan of 'feeding' (scene feeding; cma-me for slack, 5 iterations, seed 0;"
+    )
     assert f"in {out}" in lines[0]
     rows = {ln.split()[0]: ln for ln in lines[4:] if ln.strip()}
     assert set(rows) == {"choose_food", "dip|feed", "feed"}

@@ -42,14 +42,19 @@ def test_all_on_a_dask_cluster_over_loopback(tmp_path: Path) -> None:
         assert address.startswith("tcp://127.0.0.1:")
         root = tmp_path / "runs"
         args = ["optimize", "--all", "--scene", "breakfast_easy", "--seeds", "2",
-                "--iterations", "8", "--out", str(root), "--quiet", "--dask", address]  # fmt: skip
+                "--iterations", "8", "--out", str(root), "--quiet", "--dask", address,
+                "--objective", "commit"]  # fmt: skip
         assert run(args) == 0
     summary = json.loads((root / "breakfast_easy" / "seed2" / "summary.json").read_text())
     local = tmp_path / "local"
     assert run(["optimize", "--scene", "breakfast_easy", "--seed", "2", "--iterations", "8",
-                "--out", str(local), "--quiet", "--no-cache"]) == 0  # fmt: skip
-    # the cluster ran the same computation: same seed, same result
-    assert json.loads((local / "summary.json").read_text())["objective"] == summary["objective"]
+                "--out", str(local), "--quiet", "--no-cache",
+                "--objective", "commit"]) == 0  # fmt: skip
+    # the cluster ran the same computation (the commit objective): same seed, same result
+    mine = json.loads((local / "summary.json").read_text())
+    assert summary["objective_kind"] == mine["objective_kind"] == "commit"
+    assert mine["objective"] == summary["objective"]
+    assert mine["commit_objective"] == summary["commit_objective"]
 
 
 @pytest.mark.slow  # Dask gives up connecting after its 10 s timeout

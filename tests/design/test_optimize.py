@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from legws_daemon.cli.main import run
+from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import METHODS, search
+from legws_daemon.errors import InputError
 from legws_daemon.robot.feasibility import check_grasps
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.world import World
@@ -97,6 +99,7 @@ def test_every_method_fills_the_archive(method: str) -> None:
         (["--scene", "desk", "--movable", "white_mug,teapot"], "teapot"),
         (["--scene", "desk", "--movable", "white_mug,tape_dispenser"], "fixed"),
         (["--scene", "desk", "--method", "random"], "cma-me"),
+        (["--scene", "desk", "--objective", "speed"], "slack"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(
@@ -106,3 +109,65 @@ def test_bad_input_exits_2_with_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert needle in err
+
+
+def test_commit_objective_designs_for_early_commits(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--objective commit` minimises K; summary.json reports K of the written goals.json
+    (reproduced by `legws certify --commit` to the last digit); elites.json lists the
+    elites checked in full, best first, the best verified one being best_layout.json."""
+    summary = optimize(tmp_path, "--scene", "desk", "--iterations", "40", "--seed", "2",
+                       "--objective", "commit")  # fmt: skip
+    out = tmp_path / "run"
+    assert summary["objective_kind"] == "commit"
+    capsys.readouterr()
+    assert run(["certify", str(out / "goals.json"), "--json", "--commit"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["commit"]["objective"] == summary["commit_objective"]
+    assert report["commit"]["certified"] == summary["commit_certified"]
+    assert report["objective"] == summary["objective"]  # J is still the contract's objective
+    elites = json.loads((out / "elites.json").read_text())
+    ranks = [e["rank"] for e in elites]
+    assert ranks == sorted(ranks) and ranks[0] == 0
+    verified = [e for e in elites if e["verified"]]
+    assert [e["rank"] for e in verified] == summary["verified_ranks"]
+    assert verified[0]["rank"] == summary["verified_rank"]
+    sc = load_scene("desk")
+    best = load_layout(out / "best_layout.json", sc)
+    assert {n: [p.x, p.y, p.yaw] for n, p in best.items()} == {
+        n: [p["x"], p["y"], p["yaw"]] for n, p in verified[0]["layout"].items()
+    }
+    # the objective searched is -K minus penalties: the best verified elite's is -K
+    assert verified[0]["objective"] == pytest.approx(-summary["commit_objective"], abs=1e-9)
+    for e in elites:
+        assert e["verified"] or e["reason"]
+    # the searched score went the right way: K beats the desk's shipped layout
+    from legws_daemon.core.commit import certify_commit
+    from legws_daemon.core.params import Params
+
+    shipped = certify_commit(sc.goal_set(sc.default_layout()), Params()).objective
+    assert summary["commit_objective"] < shipped
+
+
+def test_problem_scores_minus_k_with_the_commit_objective() -> None:
+    from legws_daemon.core.commit import commit_batch
+    from legws_daemon.design.problem import INFEASIBLE_OFFSET
+
+    sc = load_scene("desk")
+    slack = LayoutProblem(sc)
+    commit = LayoutProblem(sc, objective="commit")
+    rng = np.random.default_rng(0)
+    x = rng.uniform(size=(12, slack.dim))
+    a, b = slack.evaluate(x), commit.evaluate(x)
+    np.testing.assert_array_equal(a.certificate, b.certificate)
+    assert a.commit is None and b.commit is not None
+    pos, rot, sym = sc.grasp_batch(slack.names, slack.decode(x))
+    k = commit_batch(sc.home.position, sc.home.rotation, pos, rot, sym, Params()).objective
+    np.testing.assert_allclose(b.commit, k)
+    np.testing.assert_allclose(b.score, -k)
+    # the same penalties: objective = score - penalties
+    np.testing.assert_allclose(a.certificate - a.objective, b.score - b.objective)
+    assert np.all((b.score - b.objective >= INFEASIBLE_OFFSET) | b.feasible)
+    with pytest.raises(InputError, match="objective"):
+        LayoutProblem(sc, objective="fast")

@@ -12,6 +12,7 @@ import pytest
 from PIL import Image
 
 from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.params import Params
 from legws_daemon.design import stage_plan
 from legws_daemon.design.problem import LayoutProblem
@@ -157,6 +158,31 @@ def test_certificates_improve_and_single_candidates_need_no_inference(
             assert d.certificate == d.certificate_start
 
 
+def test_commit_objective_per_decision(plans: dict[str, Plan]) -> None:
+    """With --objective commit every optimised decision lowers K (the latest certified
+    commit); plan.json records K and the certified count for every inference decision,
+    for either objective."""
+    graph, sc = load("tea")
+    plan = plan_taskgraph(graph, sc, iterations=ITERATIONS, use_cache=False, render=False,
+                          objective="commit")  # fmt: skip
+    assert plan.settings["objective"] == "commit"
+    assert "objective" not in plans["tea"].settings  # slack plans keep their cache key
+    for point, d in zip(decision_points(graph), plan.decisions, strict=True):
+        if not d.inference:
+            assert d.commit_objective is None and d.commit_certified is None
+            continue
+        ts = [target(sc, d.layout, point.stage_of[c], a, c) for c, a in point.actions.items()]
+        k = certify_commit(goal_set(ts, sc.home), Params())
+        assert d.commit_objective == pytest.approx(k.objective)
+        assert d.commit_certified == k.certified
+        assert d.feasible, d.note
+        if d.optimised:
+            start = plans["tea"].decision(d.label)
+            assert start.commit_objective is not None
+            assert "K " in d.note
+            assert d.commit_objective <= 1.0  # every tea choice gets certified commits
+
+
 def test_what_is_optimised_where(plans: dict[str, Plan]) -> None:
     feeding = plans["feeding"]
     assert feeding.decision("choose_food").optimised == ("strawberry", "grape", "brownie")
@@ -284,6 +310,8 @@ def test_bad_settings_are_input_errors() -> None:
         plan_taskgraph(graph, sc, method="random")
     with pytest.raises(InputError, match="at least 1 iteration"):
         plan_taskgraph(graph, sc, iterations=0)
+    with pytest.raises(InputError, match="known: slack, commit"):
+        plan_taskgraph(graph, sc, objective="fast")
     plan = Plan("g", "s", "0" * 20, {}, ())
     with pytest.raises(InputError, match="no decision 'x'"):
         plan.decision("x")

@@ -31,7 +31,8 @@ def feeding_plan() -> Plan:
         settings={"method": "cma-me", "iterations": 10, "seed": 0, "version": "0.1.0"},
         decisions=(
             PlannedDecision("choose_food", ("choose_food",), food, dict.fromkeys(food, "pick"),
-                            True, food, moved, 2.5, 0.3, True, "choose_food.png", "optimised"),
+                            True, food, moved, 2.5, 0.3, True, "choose_food.png", "optimised",
+                            0.72, 3),
             PlannedDecision("dip|feed", ("dip", "feed"),
                             ("chocolate_bowl", "sprinkles_bowl", "mouth"),
                             {"chocolate_bowl": "dip", "sprinkles_bowl": "dip", "mouth": "feed"},
@@ -73,6 +74,15 @@ def test_look_ups() -> None:
         plan.layout_for("serve")
 
 
+def test_plans_without_the_commit_fields_still_load(tmp_path: Path) -> None:
+    data = plan_to_data(feeding_plan())
+    for d in data["decisions"]:
+        del d["commit_objective"], d["commit_certified"]
+    loaded = load_plan(write(tmp_path, data))
+    assert all(d.commit_objective is None for d in loaded.decisions)
+    assert feeding_plan().decisions[0].commit_objective == 0.72
+
+
 def _set(data: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
     for key in path[:-1]:
         data = data[key]
@@ -102,6 +112,12 @@ def _set(data: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
         (("decisions", 0, "colour"), "red", "decisions[0].colour", "Extra inputs"),
         (("decisions",), [], "decisions", "at least 1"),
         (("key",), "not hex", "key", "pattern"),
+        (("decisions", 2, "commit_objective"), 0.5, "decisions[2].commit_objective",
+         "null (no inference)"),
+        (("decisions", 0, "commit_certified"), 4, "decisions[0].commit_certified",
+         "at most one per candidate"),
+        (("decisions", 0, "commit_certified"), -1, "decisions[0].commit_certified",
+         "greater than or equal"),
     ],
 )  # fmt: skip
 def test_malformed_plan_names_file_and_field(
