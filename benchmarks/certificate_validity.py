@@ -15,7 +15,8 @@ first commit on it at or before the certified step, *significantly* when even th
 Clopper-Pearson upper bound is below 1 - alpha. The unclipped users are checked against
 section 9's certificate; the speed-clipped users (the robot's) against the same certificate
 computed for the clipped user's motion (``core.commit.clipped_user``: slower, in the robot's
-own time). Written to ``commit_validity.{json,md}`` beside the slack results.
+own time). Both forms of the commit slack are checked: section 9's ``min`` and the exact
+``sum`` (``core.commit``). Written to ``commit_validity.{json,md}`` beside the slack results.
 
 Usage:
     python benchmarks/certificate_validity.py [--layouts 500] [--trials 2000] [--seed 0]
@@ -25,6 +26,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -35,7 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.commit import clipped_user, commit_batch, unclipped_user
+from legws_daemon.core.commit import COMMIT_FORMS, clipped_user, commit_batch, unclipped_user
 from legws_daemon.core.geometry import matrix_to_quat
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.montecarlo import commit_rates, monte_carlo, simulate_commits
@@ -77,35 +79,42 @@ def _goals(scene_name: str, poses: np.ndarray) -> GoalSet:
 MODELS = ("unclipped", "clipped")
 
 
-def _check_commit(
-    job: tuple[str, np.ndarray, dict[str, dict[str, list[int]]], int, int],
-) -> dict[str, Any]:
-    """Monte Carlo of one layout's first commits: both forms, unclipped and clipped.
+Steps = dict[str, dict[str, dict[str, list[int]]]]  # model -> cost form -> commit form
 
-    ``steps[model][form][i]`` is goal ``i``'s certified commit step (0: not certified)."""
+
+def _check_commit(job: tuple[str, np.ndarray, Steps, int, int]) -> dict[str, Any]:
+    """Monte Carlo of one layout's first commits: both cost forms, unclipped and clipped.
+
+    ``steps[model][cost][commit_form][i]`` is goal ``i``'s certified commit step (0: not
+    certified)."""
     scene_name, poses, steps, trials, seed = job
     goals = _goals(scene_name, poses)
     out: dict[str, Any] = {}
     for model in MODELS:
         clip = model == "clipped"
         rng = np.random.default_rng([seed, int(clip)])
-        wanted = sorted({i for f in FORMS for i, s in enumerate(steps[model][f]) if s > 0})
+        wanted = sorted(
+            {i for f in FORMS for cf in COMMIT_FORMS for i, s in enumerate(steps[model][f][cf])
+             if s > 0}
+        )  # fmt: skip
         rolls = simulate_commits(
             goals, Params(), trials, rng, clip_speed=clip, costs=FORMS, true_goals=wanted
         )
-        per_form = {}
+        per_form: dict[str, Any] = {}
         for form in FORMS:
-            by = [s if s > 0 else None for s in steps[model][form]]
-            rates = commit_rates(rolls[form], by, goals.names)
-            per_form[form] = [
-                {
-                    "rate": r.rate_by_step,
-                    "upper95": r.upper95,
-                    "wrong": r.wrong,
-                    "before_arrival": r.before_arrival,
-                }
-                for r in rates.values()
-            ]
+            per_form[form] = {}
+            for cf in COMMIT_FORMS:
+                by = [s if s > 0 else None for s in steps[model][form][cf]]
+                rates = commit_rates(rolls[form], by, goals.names)
+                per_form[form][cf] = [
+                    {
+                        "rate": r.rate_by_step,
+                        "upper95": r.upper95,
+                        "wrong": r.wrong,
+                        "before_arrival": r.before_arrival,
+                    }
+                    for r in rates.values()
+                ]
         out[model] = per_form
     return out
 
@@ -135,11 +144,13 @@ def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, 
             poses = cons.sample(layouts, np.random.default_rng([seed, m]))
             pos, rot, sym = sc.grasp_batch(sc.goal_names, poses)
             home = sc.home
+            args = (home.position, home.rotation, pos, rot, sym)
             batch = {
                 model: {
-                    form: commit_batch(
-                        home.position, home.rotation, pos, rot, sym, params.with_cost(form), user
-                    )
+                    form: {
+                        cf: commit_batch(*args, params.with_cost(form), user, cf)
+                        for cf in COMMIT_FORMS
+                    }
                     for form in FORMS
                 }
                 for model, user in users.items()
@@ -147,15 +158,17 @@ def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, 
             any_cert = np.zeros((layouts, m), dtype=bool)
             for model in MODELS:
                 for form in FORMS:
-                    any_cert |= batch[model][form].certified
+                    for cf in COMMIT_FORMS:
+                        any_cert |= batch[model][form][cf].certified
             todo = np.flatnonzero(any_cert.any(axis=1))
             jobs = []
             for i in todo.tolist():
-                steps = {
+                steps: Steps = {
                     model: {
-                        f: np.where(batch[model][f].certified[i], batch[model][f].step[i], 0)
-                        .astype(int)
-                        .tolist()
+                        f: {
+                            cf: np.where(bt.certified[i], bt.step[i], 0).astype(int).tolist()
+                            for cf, bt in batch[model][f].items()
+                        }
                         for f in FORMS
                     }
                     for model in MODELS
@@ -173,12 +186,12 @@ def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, 
             row: dict[str, Any] = {"scene": scene_name, "layouts": layouts, "goals": layouts * m}
             for form in FORMS:
                 entry: dict[str, Any] = {}
-                for model in MODELS:
-                    b = batch[model][form]
+                for model, cf in itertools.product(MODELS, COMMIT_FORMS):
+                    b = batch[model][form][cf]
                     cert = [(int(i), int(g)) for i, g in zip(*np.nonzero(b.certified), strict=True)]
-                    rs = [by_index[i][model][form][g] for i, g in cert]
+                    rs = [by_index[i][model][form][cf][g] for i, g in cert]
                     ok = 1 - params.alpha
-                    entry[model] = {
+                    entry[f"{model}/{cf}"] = {
                         "certified_goals": len(cert),
                         "layouts_all_certified": int(np.sum(b.objective <= 1.0)),
                         "K_median": float(np.median(b.objective)),
@@ -196,9 +209,9 @@ def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, 
 
 def markdown_commit(results: dict[str, Any]) -> str:
     head = (
-        "| M | scene | form | user | commit-certified goals | layouts K ≤ 1 | violating 1-α "
-        "| significantly | worst rate | median rate | worst wrong |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "| M | scene | cost form | user | commit slack | commit-certified goals | layouts K ≤ 1 "
+        "| violating 1-α | significantly | worst rate | median rate | worst wrong |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
 
     def num(x: float | None) -> str:
@@ -207,10 +220,10 @@ def markdown_commit(results: dict[str, Any]) -> str:
     rows = []
     for m, row in results["per_m"].items():
         for form in FORMS:
-            for model in MODELS:
-                e = row[form][model]
+            for model, cf in itertools.product(MODELS, COMMIT_FORMS):
+                e = row[form][f"{model}/{cf}"]
                 cells = [
-                    m, row["scene"], form, model, f"{e['certified_goals']} / {row['goals']}",
+                    m, row["scene"], form, model, cf, f"{e['certified_goals']} / {row['goals']}",
                     f"{e['layouts_all_certified']} / {row['layouts']}", e["violating"],
                     e["significantly_violating"], num(e["worst_rate"]), num(e["median_rate"]),
                     num(e["worst_wrong"]),

@@ -13,6 +13,7 @@ import numpy as np
 
 from legws_daemon.core.certificate import Certificate, certify
 from legws_daemon.core.commit import (
+    COMMIT_FORMS,
     CommitCertificate,
     certify_commit,
     clipped_user,
@@ -162,8 +163,9 @@ def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
             ]
         )
     user = "speed-clipped user" if c["user"]["clipped"] else "unclipped user of §2"
+    form = "exact-sum form" if c["form"] == "sum" else "even split"
     lines = [
-        f"Commit certificate (method.md §9, {user}): commit at p >= {p['p_thresh']}, "
+        f"Commit certificate (method.md §9, {user}, {form}): commit at p >= {p['p_thresh']}, "
         f"tau_c = {c['tau_commit']:.3f}, tau_w = {c['tau_wrong']:.3f}, z_c = {c['quantile']:.3f}",
         "",
         _table(
@@ -236,6 +238,14 @@ def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
     help="Add the commit certificate (method.md §9) and, with --monte-carlo, its check.",
 )
 @click.option(
+    "--commit-form",
+    type=click.Choice(COMMIT_FORMS),
+    default="min",
+    show_default=True,
+    help="With --commit: the commit slack of method.md §9 (min: the budget split evenly over "
+    "the alternatives) or its exact-sum form (tighter, same promise).",
+)
+@click.option(
     "--export-goals",
     type=click.Path(path_type=Path, dir_okay=False),
     help="Write the certified goal set as a goal-set file.",
@@ -250,6 +260,7 @@ def certify_cmd(
     seed: int,
     clip_speed: bool,
     with_commit: bool,
+    commit_form: str,
     export_goals: Path | None,
 ) -> None:
     """Certify GOALS_FILE (a goal-set JSON) or a scene layout (--scene).
@@ -293,7 +304,7 @@ def certify_cmd(
     if with_commit:
         # with --clip-speed the commit is certified for the robot's slower, clipped user
         user = clipped_user(params) if clip_speed else unclipped_user(params)
-        commit = certify_commit(goals, params, user)
+        commit = certify_commit(goals, params, user, commit_form)
         rates = None
         if trials is not None:
             rollouts = simulate_commits(
@@ -303,6 +314,7 @@ def certify_cmd(
             rates = commit_rates(rollouts, steps, goals.names)
         report |= commit_report(commit, rates)
         report["commit"]["user"] = asdict(user) | {"clipped": clip_speed}
+        report["commit"]["form"] = commit_form
     if export_goals is not None:
         write_atomic(export_goals, dump_json(goalset_to_data(goals, params)).encode())
     click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from legws_daemon.core.commit import COMMIT_FORMS
 from legws_daemon.design import METHODS, OBJECTIVES
 
 
@@ -26,6 +27,10 @@ from legws_daemon.design import METHODS, OBJECTIVES
     show_default=True,
     help="Maximise the slack J (method.md §4) or certify early commits: minimise K (§9).",
 )  # fmt: skip
+@click.option(
+    "--commit-form", type=click.Choice(COMMIT_FORMS), default="sum", show_default=True,
+    help="With --objective commit: K of the exact-sum commit slack or of §9's even split.",
+)  # fmt: skip
 @click.option("--iterations", type=click.IntRange(1, 1_000_000), default=1000, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--movable", help="Comma-separated objects to place; all others stay fixed.")
@@ -43,6 +48,7 @@ def optimize_cmd(
     workers: int,
     method: str,
     objective_kind: str,
+    commit_form: str,
     iterations: int,
     seed: int,
     movable: str | None,
@@ -66,7 +72,7 @@ def optimize_cmd(
     names_given = [n.strip() for spec in scene_names for n in spec.split(",") if n.strip()]
     if run_all_scenes:
         _run_all(names_given or all_names(), seeds, seed, dask_address, workers, method,
-                 objective_kind, iterations, movable, out_dir, quiet)  # fmt: skip
+                 objective_kind, commit_form, iterations, movable, out_dir, quiet)  # fmt: skip
         return
     if seeds or dask_address:
         raise click.UsageError("--seeds and --dask go with --all")
@@ -89,7 +95,8 @@ def optimize_cmd(
 
         summary = optimize(
             scene, out, method=method, iterations=iterations, seed=seed, movable=names,
-            objective=objective_kind, use_cache=not no_cache, progress=progress,
+            objective=objective_kind, commit_form=commit_form, use_cache=not no_cache,
+            progress=progress,
         )  # fmt: skip
     keys = ("objective", "commit_objective", "commit_certified", "coverage", "elites",
             "evaluations", "seconds", "cached")  # fmt: skip
@@ -104,6 +111,7 @@ def _run_all(
     workers: int,
     method: str,
     objective_kind: str,
+    commit_form: str,
     iterations: int,
     movable: str | None,
     out_dir: Path | None,
@@ -127,7 +135,14 @@ def _run_all(
     scenes = [load_scene(n) for n in names]  # validate every name before starting
     jobs = [
         Job(
-            sc.source, s, str(root / sc.name / f"seed{s}"), method, iterations, None, objective_kind
+            sc.source,
+            s,
+            str(root / sc.name / f"seed{s}"),
+            method,
+            iterations,
+            None,
+            objective_kind,
+            commit_form,
         )
         for sc in scenes
         for s in seed_list

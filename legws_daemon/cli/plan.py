@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from legws_daemon.core.commit import COMMIT_FORMS
 from legws_daemon.design import METHODS, OBJECTIVES
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
@@ -85,6 +86,10 @@ def render_table(plan: Plan) -> str:
     help="Per decision: maximise the slack J or certify early commits (minimise K, §9).",
 )  # fmt: skip
 @click.option(
+    "--commit-form", type=click.Choice(COMMIT_FORMS), default="sum", show_default=True,
+    help="With --objective commit: K of the exact-sum commit slack or of §9's even split.",
+)  # fmt: skip
+@click.option(
     "--iterations", type=click.IntRange(1, 1_000_000), default=DEFAULT_ITERATIONS,
     show_default=True, help="Search iterations per optimised decision.",
 )  # fmt: skip
@@ -97,6 +102,7 @@ def plan_cmd(
     out_dir: Path | None,
     method: str,
     objective_kind: str,
+    commit_form: str,
     iterations: int,
     seed: int,
     no_cache: bool,
@@ -123,6 +129,7 @@ def plan_cmd(
         out_dir = Path("out") / "plan" / graph.name
     plan = plan_taskgraph(
         graph, scene, method=method, iterations=iterations, seed=seed, objective=objective_kind,
+        commit_form=commit_form,
         progress=not quiet, use_cache=not no_cache, out_dir=out_dir,
     )  # fmt: skip
     if as_json:

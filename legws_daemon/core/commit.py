@@ -22,6 +22,16 @@ up to arrival, ``T_a = floor(|p_i - p0| / (v_max dt))``:
 * the layout objective is ``K = max_i kappa_i``: ``K <= 1`` certifies every goal, smaller
   is earlier.
 
+Two forms of the commit slack share everything else. ``"min"`` is section 9's (the floor):
+each alternative must clear ``tau_c``, i.e. the budget ``(1-p)/p`` is split evenly over the
+``M-1`` alternatives. ``"sum"`` treats the sum exactly: with the same per-alternative lower
+bounds ``l_ij = m_ij - z_c sqrt(v_ij)`` (all hold at once with probability
+``>= 1 - alpha/2``), ``P(g*) >= p`` as soon as ``sum_j exp(-l_ij) <= (1-p)/p``, so
+``c(t) = ln((1-p)/p) - ln sum_j exp(-l_ij(t))``. It is never below the ``min`` form's
+(equal when every alternative is equally close), starts at the same ``c(0) = -tau_c`` and
+keeps the same promise under the same union bound; an alternative that is far away no
+longer costs the close ones their share of the budget.
+
 The robot clips the commanded speed to ``v_max`` (method.md §2), which the section's model
 does not: a clipped noisy user advances only ~0.67 ``v_max`` toward the goal per step, with
 less lateral noise per metre. :class:`UserMotion` carries the per-step moments of the
@@ -39,7 +49,7 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import ndtri
+from scipy.special import logsumexp, ndtri
 
 from legws_daemon.core.certificate import MAX_HORIZON_STEPS
 from legws_daemon.core.costs import path_costs
@@ -47,6 +57,9 @@ from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetri
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+
+#: Forms of the commit slack: section 9's even split of the budget, or the exact sum.
+COMMIT_FORMS = ("min", "sum")
 
 #: Elements of the largest intermediate array ``(B, M, T, M)`` built at once; batches are
 #: split to stay below it (~32 MB of float64 each).
@@ -165,11 +178,18 @@ def commit_batch(
     symmetry: ArrayLike,
     params: Params,
     user: UserMotion | None = None,
+    form: str = "min",
 ) -> CommitBatch:
     """Commit certificate of B layouts at once (arguments as
     :func:`~legws_daemon.core.certificate.certify_batch`; ``user``: the user's motion,
-    default section 9's unclipped model)."""
+    default section 9's unclipped model; ``form``: the commit slack's, ``"min"`` of section
+    9 or the exact ``"sum"``)."""
     user = user or unclipped_user(params)
+    if form not in COMMIT_FORMS:
+        raise InputError(
+            f"unknown commit form {form!r}; known: {', '.join(COMMIT_FORMS)}",
+            field="--commit-form",
+        )
     p0 = np.asarray(p0, dtype=np.float64)
     pg = np.asarray(goal_positions, dtype=np.float64)
     Rg = np.asarray(goal_rotations, dtype=np.float64)
@@ -191,7 +211,19 @@ def commit_batch(
     for s in range(0, b, chunk):
         sl = slice(s, s + chunk)
         parts.append(
-            _chunk(p0, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, tau_c, tau_w, z_c)
+            _chunk(
+                p0,
+                pg[sl],
+                rot_term[sl],
+                trans0[sl],
+                t_a[sl],
+                params,
+                user,
+                form,
+                tau_c,
+                tau_w,
+                z_c,
+            )
         )
     if parts:
         fraction, step, c_arrival, w = (np.concatenate(x) for x in zip(*parts, strict=True))
@@ -222,6 +254,7 @@ def _chunk(
     t_a: IntArray,
     params: Params,
     user: UserMotion,
+    form: str,
     tau_c: float,
     tau_w: float,
     z_c: float,
@@ -271,7 +304,9 @@ def _chunk(
 
     valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
     others = ~eye[None, :, None, :]  # (1, i, 1, j)
-    c = np.where(others, margin - z_c * sd, np.inf).min(axis=-1) - tau_c  # (b, i, T)
+    lower = np.where(others, margin - z_c * sd, np.inf)  # (b, i, T, j)
+    # "sum": ln((1-p)/p) - ln sum_j exp(-l_j); exp(-inf) of the true goal adds nothing
+    c = lower.min(axis=-1) - tau_c if form == "min" else -tau_w - logsumexp(-lower, axis=-1)
     c = np.where(valid, c, -np.inf)
     reached = c >= 0.0
     has = reached.any(axis=-1)
@@ -325,7 +360,7 @@ class CommitCertificate:
 
 
 def certify_commit(
-    goals: GoalSet, params: Params, user: UserMotion | None = None
+    goals: GoalSet, params: Params, user: UserMotion | None = None, form: str = "min"
 ) -> CommitCertificate:
     """Commit certificate of one goal set: ``K``, certified goals and each goal's terms."""
     batch = commit_batch(
@@ -336,6 +371,7 @@ def certify_commit(
         goals.symmetry,
         params,
         user,
+        form,
     )
     per_goal = {}
     for i, name in enumerate(goals.names):

@@ -30,6 +30,7 @@ class Job:
     iterations: int
     movable: tuple[str, ...] | None
     objective: str = "slack"
+    commit_form: str = "sum"
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -45,6 +46,7 @@ def run_job(job: Job) -> dict[str, Any]:
         seed=job.seed,
         movable=job.movable,
         objective=job.objective,
+        commit_form=job.commit_form,
     )
     return {**summary, "seed": job.seed, "out": job.out_dir}
 

@@ -174,12 +174,13 @@ def optimize(
     seed: int = 0,
     movable: Sequence[str] | None = None,
     objective: str = "slack",
+    commit_form: str = "sum",
     use_cache: bool = True,
     render: bool = True,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> dict[str, Any]:
     """Optimise a scene's layout and write the run folder; returns the summary."""
-    problem = LayoutProblem(scene, movable, Params(), objective=objective)
+    problem = LayoutProblem(scene, movable, Params(), objective=objective, commit_form=commit_form)
     check_capacity(problem)
     settings = {
         "scene": scene.name,
@@ -190,6 +191,8 @@ def optimize(
         "movable": list(problem.names),
         "params": problem.params.as_dict(),
     }
+    if objective == "commit":  # what the search minimised: K of this form
+        settings["commit_form"] = commit_form
     key = settings_key(scene, settings)
     cached = cache_dir() / key
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -213,12 +216,15 @@ def optimize(
     # `legws certify goals.json` reproduces it to the last digit
     written, params = load_goalset(out_dir / "goals.json")
     slack = certify(written, params).objective
-    commit = certify_commit(written, params)
+    commit = certify_commit(written, params)  # method.md §9 as `legws certify --commit`
+    commit_sum = certify_commit(written, params, form="sum")
     write_atomic(out_dir / "elites.json", (json.dumps(checked, indent=2) + "\n").encode())
     summary = {
         "objective": slack,
         "commit_objective": commit.objective,
         "commit_certified": commit.certified,
+        "commit_objective_sum": commit_sum.objective,
+        "commit_certified_sum": commit_sum.certified,
         "goals": len(written.names),
         "coverage": result.coverage,
         "elites": len(result.elites),

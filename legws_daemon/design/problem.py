@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.commit import commit_batch
+from legws_daemon.core.commit import COMMIT_FORMS, commit_batch
 from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
 from legws_daemon.design import OBJECTIVES
@@ -132,6 +132,8 @@ class LayoutProblem:
             must then be at least 2).
         base: poses of the objects that stay put (default: the scene file's).
         objective: ``"slack"`` (maximise J) or ``"commit"`` (minimise K).
+        commit_form: the commit slack's form for ``"commit"`` (``core.commit``): the exact
+            ``"sum"`` (default: the tightest honest one) or section 9's ``"min"``.
     """
 
     def __init__(
@@ -144,7 +146,14 @@ class LayoutProblem:
         goals: GoalModel | None = None,
         base: Mapping[str, ObjectPose] | None = None,
         objective: str = "slack",
+        commit_form: str = "sum",
     ) -> None:
+        if commit_form not in COMMIT_FORMS:
+            raise InputError(
+                f"unknown commit form {commit_form!r}; known: {', '.join(COMMIT_FORMS)}",
+                field="--commit-form",
+            )
+        self.commit_form = commit_form
         if objective not in OBJECTIVES:
             raise InputError(
                 f"unknown objective {objective!r}; known: {', '.join(OBJECTIVES)}",
@@ -220,7 +229,9 @@ class LayoutProblem:
         home = sc.home
         args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
         J = certify_batch(*args).objective
-        K = commit_batch(*args).objective if self.objective == "commit" else None
+        K = None
+        if self.objective == "commit":
+            K = commit_batch(*args, form=self.commit_form).objective
         score = J if K is None else -K
         violation = self.constraints.violation(poses)
         if self.screen is not None:

@@ -87,6 +87,7 @@ class _Planner:
     seed: int
     progress: bool
     objective: str
+    commit_form: str
     world: World
     q_home: FloatArray
     _screen: ReachabilityMap | None = None
@@ -108,14 +109,14 @@ class _Planner:
         goals = goal_set(self.targets(point, layout), self.scene.home)
         return certify(goals, self.params).objective
 
-    def commit(self, point: DecisionPoint, layout: Layout) -> CommitCertificate:
+    def commit(self, point: DecisionPoint, layout: Layout, form: str = "min") -> CommitCertificate:
         goals = goal_set(self.targets(point, layout), self.scene.home)
-        return certify_commit(goals, self.params)
+        return certify_commit(goals, self.params, form=form)
 
     def score(self, point: DecisionPoint, layout: Layout) -> float:
-        """What the search maximises: J, or -K with the commit objective."""
+        """What the search maximises: J, or -K (of the design's commit form)."""
         if self.objective == "commit":
-            return -self.commit(point, layout).objective
+            return -self.commit(point, layout, self.commit_form).objective
         return self.certificate(point, layout)
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
@@ -180,7 +181,7 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
         )
     j_start = p.certificate(point, base)
     k_start = p.commit(point, base)
-    score_start = j_start if p.objective == "slack" else -k_start.objective
+    score_start = p.score(point, base)
     layout, problem = _search(p, index, point, base, names, score_start, start_problem is None)
     j = p.certificate(point, layout)
     k = p.commit(point, layout)
@@ -216,8 +217,9 @@ def _search(
     """The chosen layout of every movable object and ``None``, or the fallback and why."""
     goals = TargetGoals(p.scene, point, names, base)
     problem = LayoutProblem(
-        p.scene, names, p.params, p.screen, goals=goals, base=base, objective=p.objective
-    )
+        p.scene, names, p.params, p.screen, goals=goals, base=base, objective=p.objective,
+        commit_form=p.commit_form,
+    )  # fmt: skip
     check_capacity(problem)
     result = _run_search(p, problem, point.label, p.seed + index)
     fallback: Layout | None = None
@@ -290,6 +292,7 @@ def plan_taskgraph(
     iterations: int = DEFAULT_ITERATIONS,
     seed: int = 0,
     objective: str = "slack",
+    commit_form: str = "sum",
     params: Params | None = None,
     progress: bool = False,
     use_cache: bool = True,
@@ -303,6 +306,8 @@ def plan_taskgraph(
         scene: its scene.
         method, iterations, seed: the search's settings (per optimised decision).
         objective: ``slack`` (maximise J) or ``commit`` (minimise K, method.md §9).
+        commit_form: with ``commit``, the commit slack's form (``core.commit``); plan.json
+            records section 9's K (``min``) either way.
         params: model parameters of the certificate (default: the method's).
         progress: a progress bar per search on stderr.
         use_cache: load the plan from the cache when there, and store it there.
@@ -335,6 +340,7 @@ def plan_taskgraph(
     }
     if objective != "slack":  # absent means slack: plans made before the option keep their key
         settings["objective"] = objective
+        settings["commit_form"] = commit_form
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
     cached = load_cached(folder) if use_cache else None
@@ -352,6 +358,7 @@ def plan_taskgraph(
         seed,
         progress,
         objective,
+        commit_form,
         world,
         np.asarray(q_home, dtype=np.float64),
     )

@@ -98,3 +98,14 @@ def test_clip_speed_certifies_the_robots_slower_user(cli: Cli) -> None:
         assert g["arrival_steps"] > plain["commit"]["goals"][name]["arrival_steps"]
         r = clipped["monte_carlo_commit"][name]
         assert r["by_step"] == (g["step"] if g["certified"] else g["arrival_steps"])
+
+
+def test_commit_form_sum(cli: Cli, goals_file: Path) -> None:
+    even = commit_json(cli, goals_file)
+    exact = commit_json(cli, goals_file, "--commit-form", "sum")
+    assert even["commit"]["form"] == "min" and exact["commit"]["form"] == "sum"
+    goals, params = load_goalset(goals_file)
+    assert exact["commit"]["objective"] == certify_commit(goals, params, form="sum").objective
+    assert exact["commit"]["objective"] <= even["commit"]["objective"]
+    bad = cli("certify", goals_file, "--commit", "--commit-form", "max")
+    assert bad.code == 2

@@ -38,9 +38,14 @@ def _angle(q0: list[float], q: list[float], n: int) -> float:
 
 
 def reference(
-    p0: list[float], q0: list[float], goals: list[tuple[list[float], list[float], int]], p: Params
+    p0: list[float],
+    q0: list[float],
+    goals: list[tuple[list[float], list[float], int]],
+    p: Params,
+    form: str = "min",
 ) -> list[dict[str, float | int | bool | None]]:
-    """Section 9 written out literally: one true goal, one step, one alternative at a time."""
+    """Section 9 written out literally: one true goal, one step, one alternative at a time
+    (``form="sum"``: the exact sum, ``ln((1-p)/p) - ln sum_j exp(-l_j)``)."""
     m = len(goals)
     step = p.v_max * p.dt
     rot = [p.rotation_weight * _angle(q0, q, n) for _, q, n in goals]
@@ -80,7 +85,11 @@ def reference(
                 ss.append(math.sqrt(var))
             margins.append(ms)
             sds.append(ss)
-            c.append(min(mg - z_c * sd for mg, sd in zip(ms, ss, strict=True)) - tau_c)
+            lows = [mg - z_c * sd for mg, sd in zip(ms, ss, strict=True)]
+            if form == "min":
+                c.append(min(lows) - tau_c)
+            else:
+                c.append(-tau_w - math.log(sum(math.exp(-x) for x in lows)))
         t_c = next((t for t in range(1, t_a + 1) if c[t - 1] >= 0), None)
         t_end = t_c if t_c is not None else t_a
         z_w = norm.ppf(1 - p.alpha / (2 * (m - 1) * t_end))
@@ -131,15 +140,16 @@ def goal_set(goals: list[tuple[list[float], list[float], int]]) -> GoalSet:
     )
 
 
+@pytest.mark.parametrize("form", ["min", "sum"])
 @pytest.mark.parametrize("cost", ["dragan", "ratio"])
 @pytest.mark.parametrize("m", [2, 3, 5, 8])
-def test_matches_an_independent_implementation(cost: str, m: int) -> None:
+def test_matches_an_independent_implementation(cost: str, m: int, form: str) -> None:
     rng = np.random.default_rng(100 + m)
     params = Params(cost=cost)  # type: ignore[arg-type]
     for _ in range(4):
         goals = random_goals(rng, m)
-        got = certify_commit(goal_set(goals), params)
-        want = reference(X0.position.tolist(), DOWN, goals, params)
+        got = certify_commit(goal_set(goals), params, form=form)
+        want = reference(X0.position.tolist(), DOWN, goals, params, form)
         for i, ref in enumerate(want):
             g = got.goals[f"g{i}"]
             assert g.arrival_steps == ref["t_a"]
@@ -331,3 +341,46 @@ def test_the_clipped_certificate_is_honest_for_clipped_users() -> None:
             # the unclipped step comes too early for the clipped robot
             if plain.goals[name].certified:
                 assert late[name].rate_by_step < rates[name].rate_by_step
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(2, 8))
+def test_the_exact_sum_is_never_less_certain_than_the_even_split(seed: int, m: int) -> None:
+    goals = goal_set(random_goals(np.random.default_rng(seed), m))
+    even = certify_commit(goals, Params(), form="min")
+    exact = certify_commit(goals, Params(), form="sum")
+    assert exact.objective <= even.objective + 1e-12
+    assert exact.certified >= even.certified
+    for name in goals.names:
+        a, b = even.goals[name], exact.goals[name]
+        assert b.fraction <= a.fraction + 1e-12
+        assert b.slack_at_arrival >= a.slack_at_arrival - 1e-12
+        assert not a.certified or b.certified
+        if m == 2:  # one alternative: the two forms are the same
+            assert b == a
+
+
+def test_unknown_commit_form_is_an_input_error() -> None:
+    from legws_daemon.errors import InputError
+
+    with pytest.raises(InputError, match="known: min, sum"):
+        certify_commit(goal_set(random_goals(np.random.default_rng(0), 3)), Params(), form="max")
+
+
+def test_the_exact_sum_keeps_its_promise_on_a_set_where_it_certifies_more() -> None:
+    """Five goals where the exact sum certifies goals that the even split does not; the
+    simulated users still commit on them by the (earlier) certified step."""
+    rng = np.random.default_rng(11)
+    p = Params()
+    for _ in range(200):  # find such a set among random ones
+        goals = goal_set(random_goals(rng, 5))
+        even, exact = certify_commit(goals, p), certify_commit(goals, p, form="sum")
+        if exact.certified > even.certified:
+            break
+    else:
+        pytest.fail("no goal set where the exact sum certifies more")
+    rolls = simulate_commits(goals, p, 2000, np.random.default_rng(12))["dragan"]
+    rates = commit_rates(rolls, [exact.goals[n].step for n in goals.names], goals.names)
+    for name in goals.names:
+        if exact.goals[name].certified:
+            assert rates[name].upper95 >= 1 - p.alpha

@@ -138,8 +138,11 @@ def test_commit_objective_designs_for_early_commits(
     assert {n: [p.x, p.y, p.yaw] for n, p in best.items()} == {
         n: [p["x"], p["y"], p["yaw"]] for n, p in verified[0]["layout"].items()
     }
-    # the objective searched is -K minus penalties: the best verified elite's is -K
-    assert verified[0]["objective"] == pytest.approx(-summary["commit_objective"], abs=1e-9)
+    # the objective searched is -K (of the exact-sum form, the default) minus penalties:
+    # the best verified elite's is -K; §9's K (the contract's) is never smaller
+    assert summary["commit_form"] == "sum"
+    assert verified[0]["objective"] == pytest.approx(-summary["commit_objective_sum"], abs=1e-9)
+    assert summary["commit_objective"] >= summary["commit_objective_sum"]
     for e in elites:
         assert e["verified"] or e["reason"]
     # the searched score went the right way: K beats the desk's shipped layout
@@ -163,7 +166,9 @@ def test_problem_scores_minus_k_with_the_commit_objective() -> None:
     np.testing.assert_array_equal(a.certificate, b.certificate)
     assert a.commit is None and b.commit is not None
     pos, rot, sym = sc.grasp_batch(slack.names, slack.decode(x))
-    k = commit_batch(sc.home.position, sc.home.rotation, pos, rot, sym, Params()).objective
+    k = commit_batch(
+        sc.home.position, sc.home.rotation, pos, rot, sym, Params(), form="sum"
+    ).objective
     np.testing.assert_allclose(b.commit, k)
     np.testing.assert_allclose(b.score, -k)
     # the same penalties: objective = score - penalties
@@ -171,3 +176,5 @@ def test_problem_scores_minus_k_with_the_commit_objective() -> None:
     assert np.all((b.score - b.objective >= INFEASIBLE_OFFSET) | b.feasible)
     with pytest.raises(InputError, match="objective"):
         LayoutProblem(sc, objective="fast")
+    with pytest.raises(InputError, match="commit form"):
+        LayoutProblem(sc, objective="commit", commit_form="max")
