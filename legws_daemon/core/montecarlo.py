@@ -5,6 +5,11 @@ The simulated user of section 2 drives the end effector from ``x0`` toward the t
 for the certificate's horizon ``T(g*)``. The certificate's model does not clip the speed;
 ``clip_speed=True`` applies the robot's clip ``|v| <= v_max`` as well. At step ``T`` the
 observer's argmax is compared with ``g*``; accuracy comes with a Clopper-Pearson interval.
+
+The commit certificate's check (method.md section 9): :func:`simulate_commits` rolls the
+same users out to arrival and records each observer's first commit (step, goal, and how far
+along the way); :func:`commit_rates` turns that into the promised rate by the certified
+step, wrong commits and commits before arrival, per goal.
 """
 
 from __future__ import annotations
