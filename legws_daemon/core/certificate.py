@@ -88,6 +88,24 @@ def horizon_steps(distance: ArrayLike, params: Params) -> IntArray:
     return np.asarray(np.maximum(steps, 1), dtype=np.int64)
 
 
+def goal_arrays(
+    p0: ArrayLike, goal_positions: ArrayLike, goal_rotations: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``p0``, goal positions ``(B, M>=2, 3)`` and rotations ``(B, M, 3, 3)`` as float arrays.
+
+    Raises:
+        InputError: on other shapes.
+    """
+    p = np.asarray(p0, dtype=np.float64)
+    pg = np.asarray(goal_positions, dtype=np.float64)
+    Rg = np.asarray(goal_rotations, dtype=np.float64)
+    if pg.ndim != 3 or pg.shape[-1] != 3 or pg.shape[1] < 2:
+        raise InputError(f"expected goal positions of shape (B, M>=2, 3), got {pg.shape}")
+    if Rg.shape != (*pg.shape[:2], 3, 3):
+        raise InputError(f"expected goal rotations of shape {(*pg.shape[:2], 3, 3)}")
+    return p, pg, Rg
+
+
 def nominal_terms(
     p0: ArrayLike,
     R0: ArrayLike,
@@ -106,13 +124,7 @@ def nominal_terms(
         symmetry: ``(M,)`` or ``(B, M)`` symmetry orders.
         params: model parameters (``cost`` selects the form).
     """
-    p0 = np.asarray(p0, dtype=np.float64)
-    pg = np.asarray(goal_positions, dtype=np.float64)
-    Rg = np.asarray(goal_rotations, dtype=np.float64)
-    if pg.ndim != 3 or pg.shape[-1] != 3 or pg.shape[1] < 2:
-        raise InputError(f"expected goal positions of shape (B, M>=2, 3), got {pg.shape}")
-    if Rg.shape != (*pg.shape[:2], 3, 3):
-        raise InputError(f"expected goal rotations of shape {(*pg.shape[:2], 3, 3)}")
+    p0, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
     step = params.v_max * params.dt
 
     rot_term = params.rotation_weight * symmetric_angle(R0, Rg, symmetry)  # (B, M)

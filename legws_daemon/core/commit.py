@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import logsumexp, ndtri
 
-from legws_daemon.core.certificate import MAX_HORIZON_STEPS
+from legws_daemon.core.certificate import MAX_HORIZON_STEPS, goal_arrays
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
 from legws_daemon.core.goals import GoalSet
@@ -190,13 +190,7 @@ def commit_batch(
             f"unknown commit form {form!r}; known: {', '.join(COMMIT_FORMS)}",
             field="--commit-form",
         )
-    p0 = np.asarray(p0, dtype=np.float64)
-    pg = np.asarray(goal_positions, dtype=np.float64)
-    Rg = np.asarray(goal_rotations, dtype=np.float64)
-    if pg.ndim != 3 or pg.shape[-1] != 3 or pg.shape[1] < 2:
-        raise InputError(f"expected goal positions of shape (B, M>=2, 3), got {pg.shape}")
-    if Rg.shape != (*pg.shape[:2], 3, 3):
-        raise InputError(f"expected goal rotations of shape {(*pg.shape[:2], 3, 3)}")
+    p0, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
     b, m = pg.shape[:2]
     sym = np.broadcast_to(np.asarray(symmetry), (b, m))
     rot_term = params.rotation_weight * symmetric_angle(R0, Rg, sym)  # (B, M)

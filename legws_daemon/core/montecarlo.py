@@ -72,6 +72,26 @@ class HorizonStates:
     steps: IntArray
 
 
+def _advance(
+    x: FloatArray,
+    length: FloatArray,
+    target: FloatArray,
+    active: np.ndarray,
+    rng: np.random.Generator,
+    params: Params,
+    clip_speed: bool,
+) -> None:
+    """One control period of the noisy users ``x`` ``(M, N, 3)`` toward ``target``, in place;
+    rows where ``active`` ``(M, 1)`` is false stay put. ``length`` accumulates the path."""
+    m, trials = length.shape
+    u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
+    if clip_speed:
+        u = clip_unit(u)
+    dx = params.v_max * params.dt * u
+    x += np.where(active[..., None], dx, 0.0)
+    length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+
+
 def simulate_user(
     goals: GoalSet,
     params: Params,
@@ -90,13 +110,7 @@ def simulate_user(
     x = np.broadcast_to(p0, (m, trials, 3)).copy()
     length = np.zeros((m, trials))
     for t in range(int(steps.max())):
-        active = (t < steps)[:, None]  # (M, 1)
-        u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
-        if clip_speed:
-            u = clip_unit(u)
-        dx = params.v_max * params.dt * u
-        x += np.where(active[..., None], dx, 0.0)
-        length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+        _advance(x, length, target, (t < steps)[:, None], rng, params, clip_speed)
     return HorizonStates(x, length, steps)
 
 
@@ -204,12 +218,7 @@ def simulate_commits(
     first_progress = {f: np.full((m, trials), np.inf) for f in forms}
     for t in range(1, int(t_a.max(initial=0)) + 1):
         active = (t <= t_a)[:, None]  # (M, 1)
-        u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
-        if clip_speed:
-            u = clip_unit(u)
-        dx = params.v_max * params.dt * u
-        x += np.where(active[..., None], dx, 0.0)
-        length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+        _advance(x, length, target, active, rng, params, clip_speed)
         furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
         diff = x[:, :, None, :] - goals.positions[None, None, :, :]
         dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
