@@ -106,6 +106,23 @@ def goal_arrays(
     return p, pg, Rg
 
 
+def start_terms(
+    p0: FloatArray,
+    R0: ArrayLike,
+    pg: FloatArray,
+    Rg: FloatArray,
+    symmetry: ArrayLike,
+    params: Params,
+) -> tuple[FloatArray, FloatArray]:
+    """``(|p_g - p0|, lambda_R angle(R0, R_g))`` of goals ``(..., M, 3)``: the start
+    distance ``d(x0, g)`` of method.md §2 is their sum; the rotation term stays constant
+    along a nominal (the user's deflection is translational)."""
+    delta = pg - p0
+    trans0 = np.sqrt(np.einsum("...i,...i->...", delta, delta))
+    rot = params.rotation_weight * symmetric_angle(R0, Rg, symmetry)
+    return np.asarray(trans0, dtype=np.float64), np.asarray(rot, dtype=np.float64)
+
+
 def nominal_terms(
     p0: ArrayLike,
     R0: ArrayLike,
@@ -127,9 +144,8 @@ def nominal_terms(
     p0, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
     step = params.v_max * params.dt
 
-    rot_term = params.rotation_weight * symmetric_angle(R0, Rg, symmetry)  # (B, M)
+    trans0, rot_term = start_terms(p0, R0, pg, Rg, symmetry, params)  # (B, M) each
     delta = pg - p0  # (B, M, 3)
-    trans0 = np.sqrt(np.einsum("bmi,bmi->bm", delta, delta))
     dist_start = trans0 + rot_term
     steps = horizon_steps(trans0, params)
     length = np.asarray(steps * step, dtype=np.float64)

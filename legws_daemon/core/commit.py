@@ -49,11 +49,11 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import logsumexp, ndtri
+from scipy.special import ndtr, ndtri
 
-from legws_daemon.core.certificate import MAX_HORIZON_STEPS, goal_arrays
+from legws_daemon.core.certificate import MAX_HORIZON_STEPS, goal_arrays, start_terms
 from legws_daemon.core.costs import path_costs
-from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
+from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
@@ -190,18 +190,14 @@ def commit_batch(
             f"unknown commit form {form!r}; known: {', '.join(COMMIT_FORMS)}",
             field="--commit-form",
         )
-    p0, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
+    p0, pg, rot_term, trans0, t_a, chunk = _setup(
+        p0, R0, goal_positions, goal_rotations, symmetry, params, user
+    )
     b, m = pg.shape[:2]
-    sym = np.broadcast_to(np.asarray(symmetry), (b, m))
-    rot_term = params.rotation_weight * symmetric_angle(R0, Rg, sym)  # (B, M)
-    trans0 = np.linalg.norm(pg - p0, axis=-1)
-    t_a = arrival_steps(trans0, params, user.speed)
     tau_c, tau_w = thresholds(m, params.p_thresh)
     z_c = float(ndtri(1.0 - params.alpha / (2 * (m - 1))))
 
     parts: list[tuple[FloatArray, ...]] = []
-    t_max = int(t_a.max()) if b else 1
-    chunk = max(1, CHUNK_ELEMENTS // (m * m * t_max))
     for s in range(0, b, chunk):
         sl = slice(s, s + chunk)
         parts.append(
@@ -240,7 +236,70 @@ def commit_batch(
     )
 
 
-def _chunk(
+def _setup(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+    user: UserMotion,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray, int]:
+    """``(p0, p_g, rotation terms, distances, T_a, layouts per chunk)`` of a batch."""
+    p0_, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
+    b, m = pg.shape[:2]
+    sym = np.broadcast_to(np.asarray(symmetry), (b, m))
+    trans0, rot_term = start_terms(p0_, R0, pg, Rg, sym, params)  # (B, M) each
+    t_a = arrival_steps(trans0, params, user.speed)
+    t_max = int(t_a.max()) if b else 1
+    return p0_, pg, rot_term, trans0, t_a, max(1, CHUNK_ELEMENTS // (m * m * t_max))
+
+
+def commit_chance_batch(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+    user: UserMotion | None = None,
+) -> FloatArray:
+    """Estimated chance that each goal's first commit comes before arrival, ``(B, M)``.
+
+    Not a certificate: a smooth search surrogate of the *rate* a person sees, where the
+    certificate (:func:`commit_batch`) bounds the worst goal. At each step ``t <= T_a`` the
+    noise-free posterior slack ``c0(t) = ln((1-p)/p) - ln sum_j exp(-m_ij(t))`` is divided
+    by the standard deviation of its linearisation, ``sum_j w_j sqrt(v_ij(t))`` with the
+    softmax weights ``w_j ~ exp(-m_ij)`` of the alternatives; the chance is
+    ``Phi(max_t c0(t) / sd(t))``. It ignores the correlation over steps (the real first
+    passage is likelier) and the union over alternatives (less likely); measured against
+    the Monte Carlo of :func:`~legws_daemon.core.montecarlo.simulate_commits` in the tests
+    and in ``benchmarks/commit_ceiling.py``.
+    """
+    user = user or unclipped_user(params)
+    p0_, pg, rot_term, trans0, t_a, chunk = _setup(
+        p0, R0, goal_positions, goal_rotations, symmetry, params, user
+    )
+    b, m = pg.shape[:2]
+    _, tau_w = thresholds(m, params.p_thresh)
+    others = ~np.eye(m, dtype=bool)[None, :, None, :]
+    out = np.zeros((b, m))
+    for s in range(0, b, chunk):
+        sl = slice(s, s + chunk)
+        t, margin, sd = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
+        m_alt = np.where(others, margin, np.inf)
+        low = m_alt.min(axis=-1)
+        weight = np.exp(low[..., None] - m_alt)  # 0 on the true goal
+        total = weight.sum(axis=-1)
+        c0 = -tau_w + low - np.log(total)
+        spread = (weight * np.where(others, sd, 0.0)).sum(axis=-1) / total
+        z = c0 / np.maximum(spread, 1e-12)
+        z = np.where(t[None, None, :] <= t_a[sl][:, :, None], z, -np.inf)
+        out[sl] = ndtr(z.max(axis=-1))
+    return np.asarray(out, dtype=np.float64)
+
+
+def _terms(
     p0: FloatArray,
     pg: FloatArray,
     rot_term: FloatArray,
@@ -248,12 +307,9 @@ def _chunk(
     t_a: IntArray,
     params: Params,
     user: UserMotion,
-    form: str,
-    tau_c: float,
-    tau_w: float,
-    z_c: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts, each ``(b, M)``."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(t, m_ij(t), sqrt(v_ij(t)))`` along each goal's nominal up to the chunk's longest
+    ``T_a``: steps ``(T,)``, margins and standard deviations ``(b, i, T, j)``."""
     b, m = pg.shape[:2]
     step_len = user.speed * params.v_max * params.dt
     n_t = int(t_a.max())
@@ -296,11 +352,38 @@ def _chunk(
     var = params.beta**2 * per_step * t[None, None, :, None] * np.maximum(spread, 0.0)
     sd = np.sqrt(np.maximum(var, 0.0))
 
+    return t, margin, sd
+
+
+def _chunk(
+    p0: FloatArray,
+    pg: FloatArray,
+    rot_term: FloatArray,
+    trans0: FloatArray,
+    t_a: IntArray,
+    params: Params,
+    user: UserMotion,
+    form: str,
+    tau_c: float,
+    tau_w: float,
+    z_c: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts, each ``(b, M)``."""
+    m = pg.shape[1]
+    n_t = int(t_a.max())
+    eye = np.eye(m, dtype=bool)
+    t, margin, sd = _terms(p0, pg, rot_term, trans0, t_a, params, user)
     valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
     others = ~eye[None, :, None, :]  # (1, i, 1, j)
     lower = np.where(others, margin - z_c * sd, np.inf)  # (b, i, T, j)
     # "sum": ln((1-p)/p) - ln sum_j exp(-l_j); exp(-inf) of the true goal adds nothing
-    c = lower.min(axis=-1) - tau_c if form == "min" else -tau_w - logsumexp(-lower, axis=-1)
+    if form == "min":
+        c = lower.min(axis=-1) - tau_c
+    else:
+        # -log sum_j exp(-l_j), stable: l_min - log sum_j exp(l_min - l_j) (about half the
+        # time of scipy's general logsumexp, which dominated the commit objective's search)
+        low = lower.min(axis=-1)
+        c = -tau_w + low - np.log(np.exp(low[..., None] - lower).sum(axis=-1))
     c = np.where(valid, c, -np.inf)
     reached = c >= 0.0
     has = reached.any(axis=-1)

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import betaincinv
 
-from legws_daemon.core.certificate import horizon_steps
+from legws_daemon.core.certificate import horizon_steps, start_terms
 from legws_daemon.core.commit import arrival_steps, clipped_user
 from legws_daemon.core.costs import path_costs, posterior
-from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
+from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import CostForm, Params
 from legws_daemon.core.user_model import clip_unit, deflection, noise
@@ -72,6 +72,13 @@ class HorizonStates:
     steps: IntArray
 
 
+def _start_terms(goals: GoalSet, params: Params) -> tuple[FloatArray, FloatArray]:
+    """Each goal's ``(|p_g - p0|, lambda_R angle)`` from the goal set's start, ``(M,)`` each."""
+    x0 = goals.x0
+    p0 = np.asarray(x0.position, dtype=np.float64)
+    return start_terms(p0, x0.rotation, goals.positions, goals.rotations, goals.symmetry, params)
+
+
 def _advance(
     x: FloatArray,
     length: FloatArray,
@@ -118,10 +125,8 @@ def horizon_correct(
     goals: GoalSet, params: Params, states: HorizonStates, cost: CostForm
 ) -> IntArray:
     """Number of trials per true goal whose observer argmax at the horizon is the true goal."""
-    rot = params.rotation_weight * symmetric_angle(
-        goals.x0.rotation, goals.rotations, goals.symmetry
-    )
-    d0 = np.linalg.norm(goals.positions - goals.x0.position, axis=1) + rot
+    trans0, rot = _start_terms(goals, params)
+    d0 = trans0 + rot
     diff = states.positions[:, :, None, :] - goals.positions[None, None, :, :]
     dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
     costs = path_costs(states.lengths, dist_now, d0, cost)  # (M, N, M)
@@ -203,12 +208,10 @@ def simulate_commits(
     target = goals.positions[rows, None, :]
     # the clipped user is slower: it arrives after the clipped motion's T_a
     speed = clipped_user(params).speed if clip_speed else 1.0
-    t_a_all = arrival_steps(np.linalg.norm(goals.positions - p0, axis=1), params, speed)
+    trans0, rot = _start_terms(goals, params)
+    t_a_all = arrival_steps(trans0, params, speed)
     t_a = t_a_all[rows]
-    rot = params.rotation_weight * symmetric_angle(
-        goals.x0.rotation, goals.rotations, goals.symmetry
-    )
-    d0 = np.linalg.norm(goals.positions - p0, axis=1) + rot
+    d0 = trans0 + rot
     way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
     x = np.broadcast_to(p0, (m, trials, 3)).copy()
     length = np.zeros((m, trials))

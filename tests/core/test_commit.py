@@ -13,7 +13,14 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import norm
 
 from legws_daemon.core import commit as commit_mod
-from legws_daemon.core.commit import arrival_steps, certify_commit, commit_batch, thresholds
+from legws_daemon.core.commit import (
+    arrival_steps,
+    certify_commit,
+    clipped_user,
+    commit_batch,
+    commit_chance_batch,
+    thresholds,
+)
 from legws_daemon.core.geometry import Pose
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.montecarlo import commit_rates, simulate_commits
@@ -384,3 +391,60 @@ def test_the_exact_sum_keeps_its_promise_on_a_set_where_it_certifies_more() -> N
     for name in goals.names:
         if exact.goals[name].certified:
             assert rates[name].upper95 >= 1 - p.alpha
+
+
+def _chance(goals: list[tuple[list[float], list[float], int]], params: Params) -> np.ndarray:
+    gs = goal_set(goals)
+    chance = commit_chance_batch(
+        gs.x0.position, gs.x0.rotation, gs.positions[None], gs.rotations[None], gs.symmetry,
+        params, clipped_user(params),
+    )  # fmt: skip
+    return np.asarray(chance[0])
+
+
+def test_commit_chance_follows_the_monte_carlo_rate_it_estimates() -> None:
+    # the search surrogate of the rate a person sees: per goal, close to the Monte Carlo
+    # rate of first commits on the true goal before arrival (the robot's clipped user)
+    rng = np.random.default_rng(7)
+    params = Params()
+    est: list[float] = []
+    got: list[float] = []
+    for m in (3, 5, 8):
+        for _ in range(4):
+            goals = random_goals(rng, m)
+            rolls = simulate_commits(goal_set(goals), params, 200, rng, clip_speed=True)
+            rates = commit_rates(rolls[params.cost], [None] * m, [f"g{i}" for i in range(m)])
+            est.extend(_chance(goals, params).tolist())
+            got.extend(r.before_arrival for r in rates.values())
+    e, g = np.array(est), np.array(got)
+    assert np.all((e >= 0) & (e <= 1))
+    assert np.corrcoef(e, g)[0, 1] > 0.9
+    assert np.mean(np.abs(e - g)) < 0.08
+    assert abs(e.mean() - g.mean()) < 0.05
+
+
+def test_commit_chance_without_noise_is_the_noise_free_commit() -> None:
+    # sigma -> 0: the chance is 1 exactly for the goals whose noise-free posterior reaches
+    # p before arrival, which is the exact-sum commit certificate's crossing without noise
+    rng = np.random.default_rng(11)
+    params = Params(sigma=1e-9)
+    for m in (2, 3, 5, 8):
+        for _ in range(3):
+            goals = random_goals(rng, m)
+            chance = _chance(goals, params)
+            cert = commit_batch(
+                X0.position, X0.rotation, goal_set(goals).positions[None],
+                goal_set(goals).rotations[None], goal_set(goals).symmetry, params,
+                clipped_user(params), form="sum",
+            )  # fmt: skip
+            crossed = cert.step[0] > 0
+            assert np.array_equal(chance > 0.5, crossed)
+            assert np.all((chance < 1e-6) | (chance > 1 - 1e-6))
+
+
+def test_commit_chance_grows_as_goals_move_apart() -> None:
+    params = Params()
+    near = [([0.80, 0.06, 0.02], DOWN, 1), ([0.80, -0.06, 0.02], DOWN, 1)]
+    far = [([0.80, 0.30, 0.02], DOWN, 1), ([0.80, -0.30, 0.02], DOWN, 1)]
+    assert np.all(_chance(far, params) > _chance(near, params))
+    assert np.all(_chance(far, params) > 0.99)
