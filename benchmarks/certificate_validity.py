@@ -44,10 +44,22 @@ from legws_daemon.core.montecarlo import commit_rates, monte_carlo, simulate_com
 from legws_daemon.core.params import CostForm, Params
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
+from legws_daemon.scene.scene import Scene
 from legws_daemon.workers import worker_context
 
 SCENES = {2: "breakfast_easy", 3: "desk", 5: "meal_assembly", 8: "cluttered"}
 FORMS: tuple[CostForm, ...] = ("dragan", "ratio")
+
+
+def _layouts(
+    scene_name: str, layouts: int, seed: int, m: int
+) -> tuple[Scene, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The scene, ``layouts`` random feasible layouts of it (the same for both parts) and
+    their grasps."""
+    sc = load_scene(scene_name)
+    cons = LayoutConstraints.of(sc, sc.goal_names)
+    poses = cons.sample(layouts, np.random.default_rng([seed, m]))
+    return sc, poses, sc.grasp_batch(sc.goal_names, poses)
 
 
 def _check(job: tuple[str, np.ndarray, int, int]) -> dict[str, Any]:
@@ -139,10 +151,7 @@ def run_commit(layouts: int, trials: int, seed: int, workers: int) -> dict[str, 
     started = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
         for m, scene_name in SCENES.items():
-            sc = load_scene(scene_name)
-            cons = LayoutConstraints.of(sc, sc.goal_names)
-            poses = cons.sample(layouts, np.random.default_rng([seed, m]))
-            pos, rot, sym = sc.grasp_batch(sc.goal_names, poses)
+            sc, poses, (pos, rot, sym) = _layouts(scene_name, layouts, seed, m)
             home = sc.home
             args = (home.position, home.rotation, pos, rot, sym)
             batch = {
@@ -244,11 +253,7 @@ def run(layouts: int, trials: int, seed: int, workers: int) -> dict[str, Any]:
     started = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
         for m, scene_name in SCENES.items():
-            sc = load_scene(scene_name)
-            cons = LayoutConstraints.of(sc, sc.goal_names)
-            rng = np.random.default_rng([seed, m])
-            poses = cons.sample(layouts, rng)
-            pos, rot, sym = sc.grasp_batch(sc.goal_names, poses)
+            sc, poses, (pos, rot, sym) = _layouts(scene_name, layouts, seed, m)
             J = {
                 form: certify_batch(
                     sc.home.position, sc.home.rotation, pos, rot, sym, params.with_cost(form)

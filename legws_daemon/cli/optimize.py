@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from legws_daemon.core.commit import COMMIT_FORMS
-from legws_daemon.design import METHODS, OBJECTIVES
+from legws_daemon.cli.design_options import objective_options
+from legws_daemon.design import METHODS
 
 
 @click.command("optimize")
@@ -22,15 +22,7 @@ from legws_daemon.design import METHODS, OBJECTIVES
 @click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
               help="With --all: local worker processes (without --dask).")  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
-@click.option(
-    "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
-    show_default=True,
-    help="Maximise the slack J (method.md §4) or certify early commits: minimise K (§9).",
-)  # fmt: skip
-@click.option(
-    "--commit-form", type=click.Choice(COMMIT_FORMS), default="sum", show_default=True,
-    help="With --objective commit: K of the exact-sum commit slack or of §9's even split.",
-)  # fmt: skip
+@objective_options("")
 @click.option("--iterations", type=click.IntRange(1, 1_000_000), default=1000, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--movable", help="Comma-separated objects to place; all others stay fixed.")

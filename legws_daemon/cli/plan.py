@@ -8,8 +8,8 @@ from typing import Any
 
 import click
 
-from legws_daemon.core.commit import COMMIT_FORMS
-from legws_daemon.design import METHODS, OBJECTIVES
+from legws_daemon.cli.design_options import objective_options
+from legws_daemon.design import METHODS
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
 
@@ -80,15 +80,7 @@ def render_table(plan: Plan) -> str:
     "out/plan/TASKGRAPH).",
 )  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
-@click.option(
-    "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
-    show_default=True,
-    help="Per decision: maximise the slack J or certify early commits (minimise K, §9).",
-)  # fmt: skip
-@click.option(
-    "--commit-form", type=click.Choice(COMMIT_FORMS), default="sum", show_default=True,
-    help="With --objective commit: K of the exact-sum commit slack or of §9's even split.",
-)  # fmt: skip
+@objective_options("Per decision: ")
 @click.option(
     "--iterations", type=click.IntRange(1, 1_000_000), default=DEFAULT_ITERATIONS,
     show_default=True, help="Search iterations per optimised decision.",
