@@ -2,8 +2,8 @@
 
 The commit objective ``K`` (method.md §9) bounds the worst goal; the person sees the rate
 over all goals. This benchmark searches layouts for the rate itself: the same CMA-ME search
-as ``legws optimize`` (the scene's constraints and reachability screen, 1000 iterations)
-with the score replaced by the mean over goals of
+as ``legws optimize --objective rate`` (the scene's constraints and reachability screen,
+1000 iterations): the score is ``R``, the mean over goals of
 :func:`~legws_daemon.core.commit.commit_chance_batch` (the estimated chance of a commit on the
 true goal before arrival, for the robot's speed-clipped user). Then, per scene:
 
@@ -29,17 +29,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 from tqdm import tqdm
 
-from legws_daemon.core.commit import clipped_user, commit_chance_batch
 from legws_daemon.core.montecarlo import clopper_pearson, commit_rates, simulate_commits
 from legws_daemon.core.params import Params
 from legws_daemon.design.problem import (
-    CONSTRAINT_WEIGHT,
-    INFEASIBLE_OFFSET,
-    UNREACHABLE_PENALTY,
-    Evaluation,
     LayoutProblem,
 )
 from legws_daemon.design.search import search
@@ -54,28 +48,6 @@ from legws_daemon.sim.evaluate import Elite, run_eval
 
 #: What the benchmark keeps of each layout's loop evaluation.
 LOOP_KEYS = ("commit_true_rate", "commit_rate_min_goal", "wrong_commit_rate", "t_infer_km_median")
-
-
-class RateProblem(LayoutProblem):
-    """The layout problem scored by the estimated commit rate (mean chance over goals)."""
-
-    def evaluate(self, x: ArrayLike) -> Evaluation:
-        ev = super().evaluate(x)
-        g = self.goals.poses(self.decode(x))
-        home = self.scene.home
-        chance = commit_chance_batch(
-            home.position, home.rotation, g.positions, g.rotations, g.symmetry,
-            self.params, clipped_user(self.params),
-        ).mean(axis=1)  # fmt: skip
-        infeasible = (ev.violation > 0) | (ev.unreachable > 0)
-        objective = (
-            chance
-            - CONSTRAINT_WEIGHT * ev.violation
-            - UNREACHABLE_PENALTY * ev.unreachable
-            - INFEASIBLE_OFFSET * infeasible
-        )
-        return Evaluation(objective, ev.certificate, ev.violation, ev.unreachable,
-                          ev.measures, -chance)  # fmt: skip
 
 
 def mc_rate(sc: Scene, layout: Any, params: Params, trials: int, seed: int) -> dict[str, Any]:
@@ -104,7 +76,7 @@ def ceiling(name: str, args: argparse.Namespace) -> dict[str, Any]:
     candidates: list[tuple[float, int, Any]] = []
     runs = []
     for seed in args.seeds:
-        problem = RateProblem(sc, params=params)
+        problem = LayoutProblem(sc, params=params, objective="rate")
         problem.screen = screen
         with tqdm(total=args.iterations, desc=f"{name} seed {seed}", unit="it") as bar:
 
@@ -114,16 +86,16 @@ def ceiling(name: str, args: argparse.Namespace) -> dict[str, Any]:
 
             result = search(problem, "cma-me", args.iterations, seed, progress=tick)
         rows = [(i, r) for i, r in enumerate(result.table) if r["feasible_screen"]]
-        rows.sort(key=lambda ir: ir[1]["commit_objective"])
+        rows.sort(key=lambda ir: -ir[1]["commit_rate_estimate"])
         runs.append({
             "seed": seed,
             "seconds": result.seconds,
             "feasible_cells": len(rows),
-            "best_chance": -rows[0][1]["commit_objective"] if rows else None,
+            "best_chance": rows[0][1]["commit_rate_estimate"] if rows else None,
         })  # fmt: skip
         for i, r in rows[: args.verify]:
             layout = problem.layout(result.elites[i].solution)
-            candidates.append((-r["commit_objective"], seed, layout))
+            candidates.append((r["commit_rate_estimate"], seed, layout))
     verified: list[dict[str, Any]] = []
     for chance, seed, layout in tqdm(candidates, desc=f"{name} Monte Carlo", unit="layout"):
         mc = mc_rate(sc, layout, params, args.trials, len(verified))

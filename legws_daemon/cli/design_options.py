@@ -26,8 +26,9 @@ def objective_options(per: str = "") -> Callable[[Callable[..., R]], Callable[..
         return click.option(
             "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
             show_default=True,
-            help=f"{per}{'m' if per else 'M'}aximise the slack J (method.md §4) or certify early commits: "
-            "minimise K (§9).",
+            help=f"{per}{'m' if per else 'M'}aximise the slack J (method.md §4); certify "
+            "early commits: minimise K (§9); or maximise the estimated commit rate R over all "
+            "goals (where K cannot reach 1).",
         )(f)  # fmt: skip
 
     return decorate

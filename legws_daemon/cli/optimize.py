@@ -80,7 +80,8 @@ def optimize_cmd(
         def progress(it: int, best: float, coverage: float) -> None:
             bar.update(1)
             if it % 20 == 0 or it == iterations:
-                shown = {"best_J": best} if objective_kind == "slack" else {"best_K": -best}
+                shown = {"slack": {"best_J": best}, "commit": {"best_K": -best},
+                         "rate": {"best_R": best}}[objective_kind]  # fmt: skip
                 bar.set_postfix(
                     {k: f"{v:.3f}" for k, v in shown.items()}, coverage=f"{coverage:.0%}"
                 )
@@ -90,8 +91,8 @@ def optimize_cmd(
             objective=objective_kind, commit_form=commit_form, use_cache=not no_cache,
             progress=progress,
         )  # fmt: skip
-    keys = ("objective", "commit_objective", "commit_certified", "coverage", "elites",
-            "evaluations", "seconds", "cached")  # fmt: skip
+    keys = ("objective", "commit_objective", "commit_certified", "commit_rate_estimate",
+            "coverage", "elites", "evaluations", "seconds", "cached")  # fmt: skip
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
 
 
@@ -143,8 +144,8 @@ def _run_all(
         results = run_all(
             jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
         )
-    keys = ("scene", "seed", "objective", "commit_objective", "commit_certified", "coverage",
-            "elites", "seconds", "cached", "out")  # fmt: skip
+    keys = ("scene", "seed", "objective", "commit_objective", "commit_certified",
+            "commit_rate_estimate", "coverage", "elites", "seconds", "cached", "out")  # fmt: skip
     table = [{k: r[k] for k in keys} for r in results]
     root.mkdir(parents=True, exist_ok=True)
     (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")

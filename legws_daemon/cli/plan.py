@@ -18,7 +18,7 @@ def _j(value: float | None) -> str:
 
 
 def plan_rows(plan: Plan) -> list[list[str]]:
-    """One table row per decision: label, candidates, optimised, J, K, feasible, image."""
+    """One table row per decision: label, candidates, optimised, J, K, R, feasible, image."""
     rows = []
     for d in plan.decisions:
         if not d.inference:
@@ -36,6 +36,7 @@ def plan_rows(plan: Plan) -> list[list[str]]:
                 "-"
                 if d.commit_objective is None
                 else f"{d.commit_objective:.3f} ({d.commit_certified}/{len(d.candidates)})",
+                "-" if d.commit_rate_estimate is None else f"{d.commit_rate_estimate:.0%}",
                 "yes" if d.feasible else "NO",
                 d.image or "-",
             ]
@@ -46,7 +47,7 @@ def plan_rows(plan: Plan) -> list[list[str]]:
 def render_table(plan: Plan) -> str:
     """The plan as text: a header line, the table, and the notes of infeasible decisions."""
     header = ["decision", "candidates", "optimised", "J start -> planned",
-              "K (commit-certified)", "feasible", "image"]  # fmt: skip
+              "K (commit-certified)", "R", "feasible", "image"]  # fmt: skip
     rows = plan_rows(plan)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
 

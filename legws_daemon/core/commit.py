@@ -299,6 +299,16 @@ def commit_chance_batch(
     return np.asarray(out, dtype=np.float64)
 
 
+def commit_rate_estimate(goals: GoalSet, params: Params) -> float:
+    """``R``: the mean over the goals of :func:`commit_chance_batch` for the robot's
+    speed-clipped user (the ``rate`` design objective of one goal set)."""
+    chance = commit_chance_batch(
+        goals.x0.position, goals.x0.rotation, goals.positions[None], goals.rotations[None],
+        goals.symmetry, params, clipped_user(params),
+    )  # fmt: skip
+    return float(chance.mean())
+
+
 def _terms(
     p0: FloatArray,
     pg: FloatArray,

@@ -5,7 +5,9 @@ from typing import Literal, get_args
 #: Search methods of ``legws optimize`` (kept here, light, for the CLI's option parsing).
 Method = Literal["cma-me", "map-elites", "cma-mae"]
 METHODS: tuple[str, ...] = get_args(Method)
-#: What the search maximises: the slack certificate J (method.md §4) or, for early commits,
-#: minus the commit objective K (method.md §9).
-Objective = Literal["slack", "commit"]
+#: What the search maximises: the slack certificate J (method.md §4); for early commits,
+#: minus the commit objective K (method.md §9: the worst goal's certified commit); or the
+#: estimated commit rate over all goals (``core.commit.commit_chance_batch``: where K cannot
+#: reach 1, as many goals as possible commit before the person arrives).
+Objective = Literal["slack", "commit", "rate"]
 OBJECTIVES: tuple[str, ...] = get_args(Objective)

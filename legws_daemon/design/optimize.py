@@ -3,11 +3,13 @@
 Outputs in the run folder (interfaces.md): ``summary.json`` (``objective``, ``coverage``,
 ``elites``, ``evaluations``, ``seconds`` and more), ``best_layout.json``, ``goals.json``
 (certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate; and
-``commit_objective``/``commit_certified`` are its commit certificate, method.md §9),
+``commit_objective``/``commit_certified`` are its commit certificate, method.md §9;
+``commit_rate_estimate`` its estimated commit rate R),
 ``elites.json`` (the elites checked in full, best first, with ``verified``: what ``legws
 eval --top-k`` evaluates), ``archive.csv``, ``archive.png`` (heatmap of the searched score
-over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``) or
-minus the commit objective K (``objective="commit"``). Results are cached by a hash of the
+over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``),
+minus the commit objective K (``objective="commit"``) or R (``objective="rate"``).
+Results are cached by a hash of the
 scene file and the settings.
 """
 
@@ -28,7 +30,7 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import certify_commit
+from legws_daemon.core.commit import certify_commit, commit_rate_estimate
 from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import GRID, SearchResult, search
@@ -140,16 +142,14 @@ def verify(
 
 
 def heatmap_png(result: SearchResult) -> bytes:
-    """The archive as a 20 × 20 heatmap of the searched score, J or -K (feasible elites;
+    """The archive as a 20 × 20 heatmap of the searched score, J, -K or R (feasible elites;
     grey: empty or infeasible)."""
     from PIL import Image
 
     grid = np.full(GRID[0] * GRID[1], np.nan)
     for row in result.table:
         if row["feasible_screen"]:
-            grid[row["cell"]] = (
-                -row["commit_objective"] if "commit_objective" in row else row["certificate"]
-            )
+            grid[row["cell"]] = row["score"]
     grid = grid.reshape(GRID)
     finite = grid[np.isfinite(grid)]
     lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
@@ -218,6 +218,7 @@ def optimize(
     slack = certify(written, params).objective
     commit = certify_commit(written, params)  # method.md §9 as `legws certify --commit`
     commit_sum = certify_commit(written, params, form="sum")
+    rate = commit_rate_estimate(written, params)
     write_atomic(out_dir / "elites.json", (json.dumps(checked, indent=2) + "\n").encode())
     summary = {
         "objective": slack,
@@ -225,6 +226,7 @@ def optimize(
         "commit_certified": commit.certified,
         "commit_objective_sum": commit_sum.objective,
         "commit_certified_sum": commit_sum.certified,
+        "commit_rate_estimate": rate,
         "goals": len(written.names),
         "coverage": result.coverage,
         "elites": len(result.elites),

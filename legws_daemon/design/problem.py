@@ -12,7 +12,10 @@ Objective: a score of the goals minus additive penalties, so an infeasible layou
 loses to a feasible one. The score is the slack certificate ``J`` (``objective="slack"``,
 method.md §4, the default) or minus the commit objective ``K`` (``objective="commit"``,
 method.md §9: the latest certified commit as a fraction of the way; smaller is earlier and
-``K <= 1`` certifies every goal's commit). The penalties:
+``K <= 1`` certifies every goal's commit) or the estimated commit rate ``R``
+(``objective="rate"``: the mean over goals of the chance of a commit on the true goal before
+arrival for the robot's speed-clipped user, ``core.commit.commit_chance_batch``; a search
+surrogate, not a certificate, for tiers where ``K`` cannot reach 1). The penalties:
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);
@@ -33,7 +36,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.commit import COMMIT_FORMS, commit_batch
+from legws_daemon.core.commit import (
+    COMMIT_FORMS,
+    clipped_user,
+    commit_batch,
+    commit_chance_batch,
+)
 from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
 from legws_daemon.design import OBJECTIVES
@@ -60,10 +68,13 @@ class Evaluation:
     unreachable: FloatArray  # (B,) grasps screened out
     measures: FloatArray  # (B, 2)
     commit: FloatArray | None = None  # (B,) K, with objective="commit"
+    rate: FloatArray | None = None  # (B,) R, with objective="rate"
 
     @property
     def score(self) -> FloatArray:
-        """What the search maximises before penalties: J, or -K."""
+        """What the search maximises before penalties: J, -K or R."""
+        if self.rate is not None:
+            return self.rate
         return self.certificate if self.commit is None else -self.commit
 
     @property
@@ -131,7 +142,8 @@ class LayoutProblem:
         goals: the certified goals (default: the grasps of the movable objects, which
             must then be at least 2).
         base: poses of the objects that stay put (default: the scene file's).
-        objective: ``"slack"`` (maximise J) or ``"commit"`` (minimise K).
+        objective: ``"slack"`` (maximise J), ``"commit"`` (minimise K) or ``"rate"``
+            (maximise the estimated commit rate R).
         commit_form: the commit slack's form for ``"commit"`` (``core.commit``): the exact
             ``"sum"`` (default: the tightest honest one) or section 9's ``"min"``.
     """
@@ -229,10 +241,11 @@ class LayoutProblem:
         home = sc.home
         args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
         J = certify_batch(*args).objective
-        K = None
+        K = R = None
         if self.objective == "commit":
             K = commit_batch(*args, form=self.commit_form).objective
-        score = J if K is None else -K
+        elif self.objective == "rate":
+            R = commit_chance_batch(*args, clipped_user(self.params)).mean(axis=1)
         violation = self.constraints.violation(poses)
         if self.screen is not None:
             unreachable = self.goals.unreachable(self.screen, poses)
@@ -240,12 +253,12 @@ class LayoutProblem:
             unreachable = np.zeros(len(poses))
         infeasible = (violation > 0) | (unreachable > 0)
         objective = (
-            score
+            (R if R is not None else J if K is None else -K)
             - CONSTRAINT_WEIGHT * violation
             - UNREACHABLE_PENALTY * unreachable
             - INFEASIBLE_OFFSET * infeasible
         )
-        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K)
+        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K, R)
 
     def layout(self, solution: ArrayLike) -> Layout:
         """One normalised solution as a :data:`Layout` of the movable objects."""

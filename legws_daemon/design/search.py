@@ -58,7 +58,7 @@ class SearchResult:
     iterations: int
     seconds: float
     ranges: list[tuple[float, float]]
-    table: list[dict[str, Any]]  # one row per elite: cell, measures, objective, J, (K,) feasible
+    table: list[dict[str, Any]]  # per elite: cell, measures, objective, J, (K, R,) score, feasible
 
 
 def _scheduler(
@@ -128,7 +128,7 @@ def search(
     progress: Callable[[int, float, float], None] | None = None,
 ) -> SearchResult:
     """Run the search; ``progress(iteration, best, coverage)`` is called every iteration with
-    the best feasible score so far (J, or -K with the commit objective)."""
+    the best feasible score so far (J, -K with the commit objective, R with the rate)."""
     if method not in METHODS:
         raise InputError(
             f"unknown method '{method}'; known: {', '.join(METHODS)}", field="--method"
@@ -171,6 +171,9 @@ def search(
             }
             if final.commit is not None:
                 row["commit_objective"] = float(final.commit[i])
+            if final.rate is not None:
+                row["commit_rate_estimate"] = float(final.rate[i])
+            row["score"] = float(final.score[i])  # what was searched: J, -K or R
             table.append(row)
     cells = GRID[0] * GRID[1]
     feasible_cells = int(final.feasible.sum()) if final is not None else 0

@@ -39,7 +39,7 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import CommitCertificate, certify_commit
+from legws_daemon.core.commit import CommitCertificate, certify_commit, commit_rate_estimate
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.design import METHODS, OBJECTIVES
@@ -113,10 +113,16 @@ class _Planner:
         goals = goal_set(self.targets(point, layout), self.scene.home)
         return certify_commit(goals, self.params, form=form)
 
+    def rate(self, point: DecisionPoint, layout: Layout) -> float:
+        goals = goal_set(self.targets(point, layout), self.scene.home)
+        return commit_rate_estimate(goals, self.params)
+
     def score(self, point: DecisionPoint, layout: Layout) -> float:
-        """What the search maximises: J, or -K (of the design's commit form)."""
+        """What the search maximises: J, -K (of the design's commit form) or R."""
         if self.objective == "commit":
             return -self.commit(point, layout, self.commit_form).objective
+        if self.objective == "rate":
+            return self.rate(point, layout)
         return self.certificate(point, layout)
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
@@ -176,6 +182,7 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
             certificate_start=j,
             commit_objective=k.objective if k else None,
             commit_certified=k.certified if k else None,
+            commit_rate_estimate=p.rate(point, base) if point.inference else None,
             feasible=start_problem is None,
             note=note if start_problem is None else f"{note}; {start_problem}",
         )
@@ -183,12 +190,14 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
     k_start = p.commit(point, base)
     score_start = p.score(point, base)
     layout, problem = _search(p, index, point, base, names, score_start, start_problem is None)
+    r_start = p.rate(point, base)
     j = p.certificate(point, layout)
     k = p.commit(point, layout)
+    r = p.rate(point, layout)
     if problem is None:
         note = (
             f"optimised {', '.join(names)}: J {j_start:.3f} -> {j:.3f}, "
-            f"K {k_start.objective:.3f} -> {k.objective:.3f}"
+            f"K {k_start.objective:.3f} -> {k.objective:.3f}, R {r_start:.2f} -> {r:.2f}"
         )
     else:
         note = f"no layout passed the full check: {problem}"
@@ -200,6 +209,7 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
         certificate_start=j_start,
         commit_objective=k.objective,
         commit_certified=k.certified,
+        commit_rate_estimate=r,
         feasible=problem is None,
         note=note,
     )
@@ -225,7 +235,7 @@ def _search(
     fallback: Layout | None = None
     first_problem: str | None = None
     for elite, row in list(zip(result.elites, result.table, strict=True))[:MAX_VERIFIED]:
-        score = -row["commit_objective"] if p.objective == "commit" else row["certificate"]
+        score = row["score"]
         if start_ok and score <= score_start:
             continue  # cannot beat the start, which passes
         layout = {**base, **problem.layout(elite.solution)}

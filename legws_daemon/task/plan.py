@@ -51,6 +51,8 @@ class PlannedDecision:
             ``None`` without inference).
         commit_certified: how many of them are commit-certified (``None`` without
             inference).
+        commit_rate_estimate: ``R``, their estimated commit rate before arrival
+            (``core.commit.commit_rate_estimate``; ``None`` without inference).
     """
 
     label: str
@@ -67,6 +69,7 @@ class PlannedDecision:
     note: str = ""
     commit_objective: float | None = None
     commit_certified: int | None = None
+    commit_rate_estimate: float | None = None
 
 
 @dataclass(frozen=True)

@@ -14,13 +14,14 @@ Written by ``legws plan`` (:func:`legws_daemon.design.stage_plan.plan_taskgraph`
         "layout": {"strawberry": {"x": 0.7, "y": 0.1, "yaw": 0.0}, ...},
         "certificate": 1.23, "certificate_start": 1.23, "feasible": true,
         "image": "dip+feed.png", "note": "certified, not optimised: ...",
-        "commit_objective": 0.8, "commit_certified": 3}]}
+        "commit_objective": 0.8, "commit_certified": 3, "commit_rate_estimate": 0.93}]}
 
 ``layout`` holds every movable object of the scene; ``certificate`` and
 ``certificate_start`` are ``null`` exactly when ``inference`` is false (one candidate).
-``commit_objective`` (K, method.md §9) and ``commit_certified`` are optional (plans written
-before them have neither) and ``null`` without inference; ``settings.objective`` says
-what the search maximised (``slack``: J, ``commit``: -K; absent means ``slack``).
+``commit_objective`` (K, method.md §9), ``commit_certified`` and ``commit_rate_estimate``
+(R, in [0, 1]) are optional (plans written before them have none) and ``null`` without
+inference; ``settings.objective`` says what the search maximised (``slack``: J,
+``commit``: -K, ``rate``: R; absent means ``slack``).
 Errors name the file and the field, e.g. ``plan.json: decisions[1].layout.grape.x: ...``.
 """
 
@@ -74,6 +75,7 @@ class DecisionSchema(_Model):
     note: str = ""
     commit_objective: Finite | None = None
     commit_certified: Annotated[int, Field(ge=0, strict=True)] | None = None
+    commit_rate_estimate: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> DecisionSchema:
@@ -94,10 +96,10 @@ class DecisionSchema(_Model):
             if (getattr(self, name) is None) == self.inference:
                 want = "a number" if self.inference else "null (no inference)"
                 raise field_error((name,), f"expected {want}")
-        if not self.inference and (
-            self.commit_objective is not None or self.commit_certified is not None
-        ):
-            raise field_error(("commit_objective",), "expected null (no inference)")
+        if not self.inference:
+            for name in ("commit_objective", "commit_certified", "commit_rate_estimate"):
+                if getattr(self, name) is not None:
+                    raise field_error((name,), "expected null (no inference)")
         if self.commit_certified is not None and self.commit_certified > len(self.candidates):
             raise field_error(("commit_certified",), "expected at most one per candidate")
         if self.image is not None and self.image != image_name(self.label):
@@ -149,6 +151,7 @@ def plan_to_data(plan: Plan) -> dict[str, Any]:
                 "note": d.note,
                 "commit_objective": d.commit_objective,
                 "commit_certified": d.commit_certified,
+                "commit_rate_estimate": d.commit_rate_estimate,
             }
             for d in plan.decisions
         ],
@@ -181,6 +184,7 @@ def plan_from_data(data: Any, source: str, scene: Scene | None = None) -> Plan:
             note=d.note,
             commit_objective=d.commit_objective,
             commit_certified=d.commit_certified,
+            commit_rate_estimate=d.commit_rate_estimate,
         )
         for d in doc.decisions
     )

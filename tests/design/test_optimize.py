@@ -178,3 +178,43 @@ def test_problem_scores_minus_k_with_the_commit_objective() -> None:
         LayoutProblem(sc, objective="fast")
     with pytest.raises(InputError, match="commit form"):
         LayoutProblem(sc, objective="commit", commit_form="max")
+
+
+def test_rate_objective_designs_for_more_commits(tmp_path: Path) -> None:
+    """`--objective rate` maximises R, the estimated commit rate over all goals; the summary
+    reports R of the written goals.json (for every objective) and the search raised it
+    above the shipped layout's."""
+    from legws_daemon.core.commit import commit_rate_estimate
+    from legws_daemon.formats.goalset import load_goalset
+
+    summary = optimize(tmp_path, "--scene", "meal_assembly", "--iterations", "30", "--seed",
+                       "1", "--objective", "rate")  # fmt: skip
+    out = tmp_path / "run"
+    assert summary["objective_kind"] == "rate" and "commit_form" not in summary
+    written, params = load_goalset(out / "goals.json")
+    assert summary["commit_rate_estimate"] == commit_rate_estimate(written, params)
+    assert 0.0 <= summary["commit_rate_estimate"] <= 1.0
+    elites = json.loads((out / "elites.json").read_text())
+    best = next(e for e in elites if e["verified"])
+    assert best["objective"] == pytest.approx(summary["commit_rate_estimate"], abs=1e-9)
+    sc = load_scene("meal_assembly")
+    shipped = commit_rate_estimate(sc.goal_set(sc.default_layout()), Params())
+    assert summary["commit_rate_estimate"] > shipped
+
+
+def test_problem_scores_the_commit_rate_with_the_rate_objective() -> None:
+    from legws_daemon.core.commit import clipped_user, commit_chance_batch
+
+    sc = load_scene("desk")
+    slack = LayoutProblem(sc)
+    rate = LayoutProblem(sc, objective="rate")
+    x = np.random.default_rng(1).uniform(size=(12, slack.dim))
+    a, b = slack.evaluate(x), rate.evaluate(x)
+    assert a.rate is None and b.rate is not None and b.commit is None
+    pos, rot, sym = sc.grasp_batch(slack.names, slack.decode(x))
+    r = commit_chance_batch(
+        sc.home.position, sc.home.rotation, pos, rot, sym, Params(), clipped_user(Params())
+    ).mean(axis=1)
+    np.testing.assert_allclose(b.score, r)
+    assert np.all((r >= 0) & (r <= 1))
+    np.testing.assert_allclose(a.certificate - a.objective, b.score - b.objective)

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import certify_commit
+from legws_daemon.core.commit import certify_commit, commit_rate_estimate
 from legws_daemon.core.params import Params
 from legws_daemon.design import stage_plan
 from legws_daemon.design.problem import LayoutProblem
@@ -170,11 +170,13 @@ def test_commit_objective_per_decision(plans: dict[str, Plan]) -> None:
     for point, d in zip(decision_points(graph), plan.decisions, strict=True):
         if not d.inference:
             assert d.commit_objective is None and d.commit_certified is None
+            assert d.commit_rate_estimate is None
             continue
         ts = [target(sc, d.layout, point.stage_of[c], a, c) for c, a in point.actions.items()]
         k = certify_commit(goal_set(ts, sc.home), Params())
         assert d.commit_objective == pytest.approx(k.objective)
         assert d.commit_certified == k.certified
+        assert d.commit_rate_estimate == commit_rate_estimate(goal_set(ts, sc.home), Params())
         assert d.feasible, d.note
         if d.optimised:
             start = plans["tea"].decision(d.label)

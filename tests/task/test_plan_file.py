@@ -32,7 +32,7 @@ def feeding_plan() -> Plan:
         decisions=(
             PlannedDecision("choose_food", ("choose_food",), food, dict.fromkeys(food, "pick"),
                             True, food, moved, 2.5, 0.3, True, "choose_food.png", "optimised",
-                            0.72, 3),
+                            0.72, 3, 0.81),
             PlannedDecision("dip|feed", ("dip", "feed"),
                             ("chocolate_bowl", "sprinkles_bowl", "mouth"),
                             {"chocolate_bowl": "dip", "sprinkles_bowl": "dip", "mouth": "feed"},
@@ -77,7 +77,7 @@ def test_look_ups() -> None:
 def test_plans_without_the_commit_fields_still_load(tmp_path: Path) -> None:
     data = plan_to_data(feeding_plan())
     for d in data["decisions"]:
-        del d["commit_objective"], d["commit_certified"]
+        del d["commit_objective"], d["commit_certified"], d["commit_rate_estimate"]
     loaded = load_plan(write(tmp_path, data))
     assert all(d.commit_objective is None for d in loaded.decisions)
     assert feeding_plan().decisions[0].commit_objective == 0.72
@@ -118,6 +118,10 @@ def _set(data: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
          "at most one per candidate"),
         (("decisions", 0, "commit_certified"), -1, "decisions[0].commit_certified",
          "greater than or equal"),
+        (("decisions", 0, "commit_rate_estimate"), 1.5, "decisions[0].commit_rate_estimate",
+         "less than or equal to 1"),
+        (("decisions", 2, "commit_rate_estimate"), 0.5, "decisions[2].commit_rate_estimate",
+         "null (no inference)"),
     ],
 )  # fmt: skip
 def test_malformed_plan_names_file_and_field(
