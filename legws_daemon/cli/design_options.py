@@ -27,8 +27,8 @@ def objective_options(per: str = "") -> Callable[[Callable[..., R]], Callable[..
             "--objective", "objective_kind", type=click.Choice(OBJECTIVES), default="slack",
             show_default=True,
             help=f"{per}{'m' if per else 'M'}aximise the slack J (method.md §4); certify "
-            "early commits: minimise K (§9); or maximise the estimated commit rate R over all "
-            "goals (where K cannot reach 1).",
+            "early commits: minimise K (§9); maximise the estimated commit rate R over all "
+            "goals (where K cannot reach 1); or minimise the estimated commit time T (s).",
         )(f)  # fmt: skip
 
     return decorate

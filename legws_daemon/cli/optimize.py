@@ -10,6 +10,10 @@ import click
 from legws_daemon.cli.design_options import objective_options
 from legws_daemon.design import METHODS
 
+#: The progress bar's best score per objective: its name and the sign from the searched one.
+SHOWN = {"slack": ("best_J", 1), "commit": ("best_K", -1), "rate": ("best_R", 1),
+         "time": ("best_T", -1)}  # fmt: skip
+
 
 @click.command("optimize")
 @click.option(
@@ -80,8 +84,8 @@ def optimize_cmd(
         def progress(it: int, best: float, coverage: float) -> None:
             bar.update(1)
             if it % 20 == 0 or it == iterations:
-                shown = {"slack": {"best_J": best}, "commit": {"best_K": -best},
-                         "rate": {"best_R": best}}[objective_kind]  # fmt: skip
+                name, sign = SHOWN[objective_kind]
+                shown = {name: sign * best}
                 bar.set_postfix(
                     {k: f"{v:.3f}" for k, v in shown.items()}, coverage=f"{coverage:.0%}"
                 )
@@ -92,7 +96,8 @@ def optimize_cmd(
             progress=progress,
         )  # fmt: skip
     keys = ("objective", "commit_objective", "commit_certified", "commit_rate_estimate",
-            "coverage", "elites", "evaluations", "seconds", "cached")  # fmt: skip
+            "commit_time_estimate", "coverage", "elites", "evaluations", "seconds",
+            "cached")  # fmt: skip
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
 
 

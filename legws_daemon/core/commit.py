@@ -299,6 +299,61 @@ def commit_chance_batch(
     return np.asarray(out, dtype=np.float64)
 
 
+def commit_time_batch(
+    p0: ArrayLike,
+    R0: ArrayLike,
+    goal_positions: ArrayLike,
+    goal_rotations: ArrayLike,
+    symmetry: ArrayLike,
+    params: Params,
+    user: UserMotion | None = None,
+) -> FloatArray:
+    """Each goal's noise-free commit time in seconds, ``(B, M)``: when the posterior of the
+    nominal reaches ``p`` (the zero crossing of ``c0(t)`` of :func:`commit_chance_batch`,
+    interpolated between steps from ``c0(0) = -tau_c``), which is also the median commit
+    time of that surrogate. A goal whose nominal never commits before arrival gets
+    ``T_a dt (1 + max(0, -c0(T_a)))``: later than any commit, and worse the further from
+    one. Not a certificate: the search surrogate of ``--objective time``."""
+    user = user or unclipped_user(params)
+    p0_, pg, rot_term, trans0, t_a, chunk = _setup(
+        p0, R0, goal_positions, goal_rotations, symmetry, params, user
+    )
+    b, m = pg.shape[:2]
+    tau_c, tau_w = thresholds(m, params.p_thresh)
+    others = ~np.eye(m, dtype=bool)[None, :, None, :]
+    out = np.zeros((b, m))
+    for s in range(0, b, chunk):
+        sl = slice(s, s + chunk)
+        t, margin, _ = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
+        m_alt = np.where(others, margin, np.inf)
+        low = m_alt.min(axis=-1)
+        c0 = -tau_w + low - np.log(np.exp(low[..., None] - m_alt).sum(axis=-1))  # (b, i, T)
+        c0 = np.where(t[None, None, :] <= t_a[sl][:, :, None], c0, -np.inf)
+        reached = c0 >= 0.0
+        has = reached.any(axis=-1)
+        first = np.argmax(reached, axis=-1)
+        c_at = np.take_along_axis(c0, first[..., None], -1)[..., 0]
+        before = np.where(
+            first > 0, np.take_along_axis(c0, np.maximum(first - 1, 0)[..., None], -1)[..., 0],
+            -tau_c,
+        )  # fmt: skip
+        crossing = first + (-before) / np.maximum(c_at - before, 1e-300)
+        c_end = np.take_along_axis(c0, (t_a[sl] - 1)[..., None], -1)[..., 0]
+        late = t_a[sl] * (1.0 + np.maximum(0.0, -c_end))
+        out[sl] = np.where(has, crossing, late) * params.dt
+    return np.asarray(out, dtype=np.float64)
+
+
+def commit_time_estimate(goals: GoalSet, params: Params) -> float:
+    """``T``: the mean over the goals of :func:`commit_time_batch` for the robot's
+    speed-clipped user, seconds (the ``time`` design objective of one goal set)."""
+    times = commit_time_batch(
+        goals.x0.position, goals.x0.rotation, goals.positions[None], goals.rotations[None],
+        goals.symmetry, params, clipped_user(params),
+    )  # fmt: skip
+    return float(times.mean())
+
+
 def commit_rate_estimate(goals: GoalSet, params: Params) -> float:
     """``R``: the mean over the goals of :func:`commit_chance_batch` for the robot's
     speed-clipped user (the ``rate`` design objective of one goal set)."""

@@ -4,11 +4,13 @@ Outputs in the run folder (interfaces.md): ``summary.json`` (``objective``, ``co
 ``elites``, ``evaluations``, ``seconds`` and more), ``best_layout.json``, ``goals.json``
 (certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate; and
 ``commit_objective``/``commit_certified`` are its commit certificate, method.md §9;
-``commit_rate_estimate`` its estimated commit rate R),
+``commit_rate_estimate`` its estimated commit rate R, ``commit_time_estimate`` its
+estimated commit time T in seconds),
 ``elites.json`` (the elites checked in full, best first, with ``verified``: what ``legws
 eval --top-k`` evaluates), ``archive.csv``, ``archive.png`` (heatmap of the searched score
 over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``),
-minus the commit objective K (``objective="commit"``) or R (``objective="rate"``).
+minus the commit objective K (``objective="commit"``), R (``objective="rate"``) or
+minus T (``objective="time"``).
 Results are cached by a hash of the
 scene file and the settings.
 """
@@ -30,7 +32,11 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import certify_commit, commit_rate_estimate
+from legws_daemon.core.commit import (
+    certify_commit,
+    commit_rate_estimate,
+    commit_time_estimate,
+)
 from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import GRID, SearchResult, search
@@ -219,6 +225,7 @@ def optimize(
     commit = certify_commit(written, params)  # method.md §9 as `legws certify --commit`
     commit_sum = certify_commit(written, params, form="sum")
     rate = commit_rate_estimate(written, params)
+    time_estimate = commit_time_estimate(written, params)
     write_atomic(out_dir / "elites.json", (json.dumps(checked, indent=2) + "\n").encode())
     summary = {
         "objective": slack,
@@ -227,6 +234,7 @@ def optimize(
         "commit_objective_sum": commit_sum.objective,
         "commit_certified_sum": commit_sum.certified,
         "commit_rate_estimate": rate,
+        "commit_time_estimate": time_estimate,
         "goals": len(written.names),
         "coverage": result.coverage,
         "elites": len(result.elites),

@@ -15,7 +15,10 @@ method.md §9: the latest certified commit as a fraction of the way; smaller is 
 ``K <= 1`` certifies every goal's commit) or the estimated commit rate ``R``
 (``objective="rate"``: the mean over goals of the chance of a commit on the true goal before
 arrival for the robot's speed-clipped user, ``core.commit.commit_chance_batch``; a search
-surrogate, not a certificate, for tiers where ``K`` cannot reach 1). The penalties:
+surrogate, not a certificate, for tiers where ``K`` cannot reach 1) or minus the
+estimated commit time ``T`` (``objective="time"``: the mean over goals of the noise-free
+commit time in seconds, ``core.commit.commit_time_batch``; K is a fraction of the way and
+does not see how long the way is). The penalties:
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);
@@ -41,6 +44,7 @@ from legws_daemon.core.commit import (
     clipped_user,
     commit_batch,
     commit_chance_batch,
+    commit_time_batch,
 )
 from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.params import Params
@@ -69,12 +73,15 @@ class Evaluation:
     measures: FloatArray  # (B, 2)
     commit: FloatArray | None = None  # (B,) K, with objective="commit"
     rate: FloatArray | None = None  # (B,) R, with objective="rate"
+    time: FloatArray | None = None  # (B,) T in seconds, with objective="time"
 
     @property
     def score(self) -> FloatArray:
-        """What the search maximises before penalties: J, -K or R."""
+        """What the search maximises before penalties: J, -K, R or -T."""
         if self.rate is not None:
             return self.rate
+        if self.time is not None:
+            return -self.time
         return self.certificate if self.commit is None else -self.commit
 
     @property
@@ -143,7 +150,8 @@ class LayoutProblem:
             must then be at least 2).
         base: poses of the objects that stay put (default: the scene file's).
         objective: ``"slack"`` (maximise J), ``"commit"`` (minimise K) or ``"rate"``
-            (maximise the estimated commit rate R).
+            (maximise the estimated commit rate R) or ``"time"`` (minimise the estimated
+            commit time T).
         commit_form: the commit slack's form for ``"commit"`` (``core.commit``): the exact
             ``"sum"`` (default: the tightest honest one) or section 9's ``"min"``.
     """
@@ -241,11 +249,13 @@ class LayoutProblem:
         home = sc.home
         args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
         J = certify_batch(*args).objective
-        K = R = None
+        K = R = T = None
         if self.objective == "commit":
             K = commit_batch(*args, form=self.commit_form).objective
         elif self.objective == "rate":
             R = commit_chance_batch(*args, clipped_user(self.params)).mean(axis=1)
+        elif self.objective == "time":
+            T = commit_time_batch(*args, clipped_user(self.params)).mean(axis=1)
         violation = self.constraints.violation(poses)
         if self.screen is not None:
             unreachable = self.goals.unreachable(self.screen, poses)
@@ -253,12 +263,12 @@ class LayoutProblem:
             unreachable = np.zeros(len(poses))
         infeasible = (violation > 0) | (unreachable > 0)
         objective = (
-            (R if R is not None else J if K is None else -K)
+            (R if R is not None else -T if T is not None else J if K is None else -K)
             - CONSTRAINT_WEIGHT * violation
             - UNREACHABLE_PENALTY * unreachable
             - INFEASIBLE_OFFSET * infeasible
         )
-        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K, R)
+        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K, R, T)
 
     def layout(self, solution: ArrayLike) -> Layout:
         """One normalised solution as a :data:`Layout` of the movable objects."""

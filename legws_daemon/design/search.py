@@ -173,7 +173,9 @@ def search(
                 row["commit_objective"] = float(final.commit[i])
             if final.rate is not None:
                 row["commit_rate_estimate"] = float(final.rate[i])
-            row["score"] = float(final.score[i])  # what was searched: J, -K or R
+            if final.time is not None:
+                row["commit_time_estimate"] = float(final.time[i])
+            row["score"] = float(final.score[i])  # what was searched: J, -K, R or -T
             table.append(row)
     cells = GRID[0] * GRID[1]
     feasible_cells = int(final.feasible.sum()) if final is not None else 0

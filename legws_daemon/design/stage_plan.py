@@ -39,7 +39,12 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import CommitCertificate, certify_commit, commit_rate_estimate
+from legws_daemon.core.commit import (
+    CommitCertificate,
+    certify_commit,
+    commit_rate_estimate,
+    commit_time_estimate,
+)
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.design import METHODS, OBJECTIVES
@@ -118,11 +123,14 @@ class _Planner:
         return commit_rate_estimate(goals, self.params)
 
     def score(self, point: DecisionPoint, layout: Layout) -> float:
-        """What the search maximises: J, -K (of the design's commit form) or R."""
+        """What the search maximises: J, -K (of the design's commit form), R or -T."""
         if self.objective == "commit":
             return -self.commit(point, layout, self.commit_form).objective
         if self.objective == "rate":
             return self.rate(point, layout)
+        if self.objective == "time":
+            goals = goal_set(self.targets(point, layout), self.scene.home)
+            return -commit_time_estimate(goals, self.params)
         return self.certificate(point, layout)
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:

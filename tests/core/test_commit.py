@@ -19,6 +19,7 @@ from legws_daemon.core.commit import (
     clipped_user,
     commit_batch,
     commit_chance_batch,
+    commit_time_batch,
     thresholds,
 )
 from legws_daemon.core.geometry import Pose
@@ -448,3 +449,50 @@ def test_commit_chance_grows_as_goals_move_apart() -> None:
     far = [([0.80, 0.30, 0.02], DOWN, 1), ([0.80, -0.30, 0.02], DOWN, 1)]
     assert np.all(_chance(far, params) > _chance(near, params))
     assert np.all(_chance(far, params) > 0.99)
+
+
+def test_commit_time_without_noise_is_the_noise_free_crossing() -> None:
+    # the time surrogate is the crossing of the noise-free posterior slack: with sigma -> 0
+    # it is the exact-sum commit certificate's interpolated crossing, in seconds
+    rng = np.random.default_rng(12)
+    params = Params(sigma=1e-9)
+    user = clipped_user(params)
+    for m in (2, 3, 5):
+        for _ in range(3):
+            gs = goal_set(random_goals(rng, m))
+            args = (gs.x0.position, gs.x0.rotation, gs.positions[None], gs.rotations[None],
+                    gs.symmetry, params, user)  # fmt: skip
+            times = commit_time_batch(*args)[0]
+            cert = commit_batch(*args, form="sum")
+            for i in range(m):
+                t_a = int(cert.arrival_steps[0, i])
+                if cert.certified[0, i]:
+                    want = cert.fraction[0, i] * t_a * params.dt
+                    assert times[i] == pytest.approx(want, rel=1e-6)  # sigma 1e-9, not 0
+                else:
+                    assert times[i] >= t_a * params.dt - 1e-12
+
+
+def test_commit_time_follows_the_monte_carlo_commit_time() -> None:
+    # for goals that (nearly) always commit, the surrogate is the median first-commit time
+    rng = np.random.default_rng(5)
+    params = Params()
+    user = clipped_user(params)
+    est: list[float] = []
+    got: list[float] = []
+    for m in (2, 3):
+        for _ in range(6):
+            goals = random_goals(rng, m)
+            gs = goal_set(goals)
+            times = commit_time_batch(gs.x0.position, gs.x0.rotation, gs.positions[None],
+                                      gs.rotations[None], gs.symmetry, params, user)[0]  # fmt: skip
+            roll = simulate_commits(gs, params, 200, rng, clip_speed=True)[params.cost]
+            for i in range(m):
+                on_true = roll.goal[i] == i
+                if on_true.mean() > 0.95:
+                    est.append(float(times[i]))
+                    got.append(float(np.median(roll.step[i][on_true])) * params.dt)
+    assert len(est) >= 8
+    e, g = np.array(est), np.array(got)
+    assert np.corrcoef(e, g)[0, 1] > 0.9
+    assert np.median(np.abs(e - g) / g) < 0.1

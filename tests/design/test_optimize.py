@@ -218,3 +218,22 @@ def test_problem_scores_the_commit_rate_with_the_rate_objective() -> None:
     np.testing.assert_allclose(b.score, r)
     assert np.all((r >= 0) & (r <= 1))
     np.testing.assert_allclose(a.certificate - a.objective, b.score - b.objective)
+
+
+def test_time_objective_minimises_the_estimated_commit_time(tmp_path: Path) -> None:
+    """`--objective time` minimises T, the estimated commit time in seconds; the summary
+    reports T of the written goals.json (for every objective), below the shipped layout's."""
+    from legws_daemon.core.commit import commit_time_estimate
+    from legws_daemon.formats.goalset import load_goalset
+
+    summary = optimize(tmp_path, "--scene", "desk", "--iterations", "30", "--seed", "3",
+                       "--objective", "time")  # fmt: skip
+    out = tmp_path / "run"
+    assert summary["objective_kind"] == "time"
+    written, params = load_goalset(out / "goals.json")
+    assert summary["commit_time_estimate"] == commit_time_estimate(written, params)
+    best = next(e for e in json.loads((out / "elites.json").read_text()) if e["verified"])
+    assert best["objective"] == pytest.approx(-summary["commit_time_estimate"], abs=1e-9)
+    sc = load_scene("desk")
+    shipped = commit_time_estimate(sc.goal_set(sc.default_layout()), Params())
+    assert summary["commit_time_estimate"] < shipped
