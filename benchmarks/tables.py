@@ -5,7 +5,8 @@ Parts (each resumable: a finished piece is read back, not run again):
 * ``random``: per tier, ``--layouts`` random feasible layouts for each of ``--random-seeds``
   (30 × 3 by default), evaluated by ``legws eval``'s code (``run_eval``) with
   ``--episodes-per-goal`` picks per goal; 95 % bootstrap intervals over the layouts;
-* ``optimise``: ``legws optimize``'s code for every tier × objective (``slack``, ``commit``)
+* ``optimise``: ``legws optimize``'s code for every tier × objective (``slack``, ``commit``,
+  ``rate``, ``time``)
   × method × seed (5 seeds by default), 1000 iterations; runs land in
   ``OUT/runs/OBJECTIVE/SCENE/METHOD/seedS`` (and in the optimisation cache);
 * ``eval``: per tier × objective, the ``--top-k`` best verified elites of every CMA-ME seed,
@@ -17,9 +18,9 @@ Parts (each resumable: a finished piece is read back, not run again):
 
 Usage:
     python benchmarks/tables.py [--part all|random|optimise|eval|report] [--tiers a,b]
-        [--objectives slack,commit] [--methods cma-me,map-elites,cma-mae] [--seeds 0,1,2,3,4]
-        [--random-seeds 0,1,2] [--layouts 30] [--episodes-per-goal 10] [--top-k 3]
-        [--iterations 1000] [--workers 2] [--out docs/results/tables]
+        [--objectives slack,commit,rate,time] [--methods cma-me,map-elites,cma-mae]
+        [--seeds 0,1,2,3,4] [--random-seeds 0,1,2] [--layouts 30] [--episodes-per-goal 10]
+        [--top-k 3] [--iterations 1000] [--workers 2] [--out docs/results/tables]
 """
 
 from __future__ import annotations
@@ -34,9 +35,10 @@ import numpy as np
 from tqdm import tqdm
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.commit import commit_batch
+from legws_daemon.core.commit import commit_batch, commit_rate_estimate, commit_time_estimate
 from legws_daemon.core.params import Params
 from legws_daemon.design.optimize import optimize
+from legws_daemon.formats.goalset import load_goalset
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.sim.evaluate import Elite, load_elites, random_layouts, run_eval
@@ -51,12 +53,12 @@ PAPER = {
     "meal_assembly": ("Hard-A", 1.74, 12.5, 3.0, 10.6, 0.88, 1.00, 461, 400, 1.0),
     "cluttered": ("Hard-B", -0.99, 10.9, 3.6, 9.6, 0.25, 0.54, 340, 400, 1.0),
 }
-OBJECTIVES = ("slack", "commit")
+OBJECTIVES = ("slack", "commit", "rate", "time")
 METHODS = ("cma-me", "map-elites", "cma-mae")
 #: The summary fields Table 2 reports per run.
 RUN_KEYS = ("objective", "commit_objective", "commit_certified", "commit_objective_sum",
-            "commit_certified_sum", "coverage", "feasible_coverage", "elites", "qd_score",
-            "seconds", "verified_rank")  # fmt: skip
+            "commit_certified_sum", "commit_rate_estimate", "commit_time_estimate", "coverage",
+            "feasible_coverage", "elites", "qd_score", "seconds", "verified_rank")  # fmt: skip
 
 
 def _ints(text: str) -> list[int]:
@@ -157,6 +159,12 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
                     summary = _load(run_dir(args, objective, name, method, s) / "summary.json")
                     if summary is not None:
                         runs.append({"seed": s} | {k: summary.get(k) for k in RUN_KEYS})
+                        if runs[-1]["commit_rate_estimate"] is None:  # runs made before R, T
+                            goals, params = load_goalset(
+                                run_dir(args, objective, name, method, s) / "goals.json"
+                            )
+                            runs[-1]["commit_rate_estimate"] = commit_rate_estimate(goals, params)
+                            runs[-1]["commit_time_estimate"] = commit_time_estimate(goals, params)
                 row[objective][method] = runs
         rows[name] = row
     return rows
@@ -224,8 +232,14 @@ def markdown(rows: dict[str, Any]) -> str:
         cells = {
             "random": (_person(row["random"], "layouts"), f"{t_r} ± {sd_r}", _pct(a_r)),
             "slack-optimised": (_person(row["slack"]["eval"], "runs"), f"{t_me} (ME)", _pct(a_me)),
-            "commit-optimised": (_person(row["commit"]["eval"], "runs"), "—", "—"),
         }
+        for objective in OBJECTIVES[1:]:
+            if objective == "commit" or row[objective]["eval"] is not None:
+                cells[f"{objective}-optimised"] = (
+                    _person(row[objective]["eval"], "runs"),
+                    "—",
+                    "—",
+                )
         for cond, (person, t_paper, a_paper) in cells.items():
             out.append(f"| {tier} | {m} | {cond} | " + " | ".join(person)
                        + f" | {t_paper} | {a_paper} |")  # fmt: skip
@@ -234,8 +248,8 @@ def markdown(rows: dict[str, Any]) -> str:
         "### Certificates of the optimised layouts (CMA-ME, mean ± sd over seeds)",
         "",
         "| tier | objective | J | K (§9) | certified (§9) | K (exact sum) | certified (exact "
-        "sum) | largest K, exact sum | verified rank per seed | paper J (ME) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "sum) | largest K, exact sum | R | T s | verified rank per seed | paper J (ME) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, row in rows.items():
         tier, j_paper, *_ = PAPER[name]
@@ -250,6 +264,8 @@ def markdown(rows: dict[str, Any]) -> str:
                 f"| {_mean_sd([r['commit_objective_sum'] for r in runs])} "
                 f"| {_mean_sd([r['commit_certified_sum'] for r in runs], 1)} "
                 f"| {max(r['commit_objective_sum'] for r in runs):.4f} "
+                f"| {_mean_sd([r['commit_rate_estimate'] for r in runs])} "
+                f"| {_mean_sd([r['commit_time_estimate'] for r in runs])} "
                 f"| {', '.join(str(r['verified_rank']) for r in runs)} | {j_paper} |"
             )
     out += [
@@ -257,8 +273,8 @@ def markdown(rows: dict[str, Any]) -> str:
         "### Table 2: the search (mean ± sd over seeds)",
         "",
         "| tier | objective | method | seeds | seconds | elites | coverage % | feasible "
-        "coverage % | best J | best K | paper ME: s / elites / coverage % |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "coverage % | J | K (§9) | K (exact sum) | paper ME: s / elites / coverage % |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, row in rows.items():
         tier, *_, s_p, e_p, c_p = PAPER[name]
@@ -275,6 +291,7 @@ def markdown(rows: dict[str, Any]) -> str:
                     f"| {_mean_sd([r['elites'] for r in runs], 0)} | {_mean_sd(cov, 1)} "
                     f"| {_mean_sd(feas, 1)} | {_mean_sd([r['objective'] for r in runs])} "
                     f"| {_mean_sd([r['commit_objective'] for r in runs])} "
+                    f"| {_mean_sd([r['commit_objective_sum'] for r in runs])} "
                     f"| {s_p} / {e_p} / {100 * c_p:.1f} |"
                 )
     return "\n".join(out) + "\n"
@@ -288,10 +305,12 @@ def plot(rows: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     names = list(rows)
-    conds = [("random", "layouts", "random"), ("slack", "runs", "slack-optimised"),
-             ("commit", "runs", "commit-optimised")]  # fmt: skip
+    conds = [("random", "layouts", "random")] + [
+        (o, "runs", f"{o}-optimised") for o in OBJECTIVES
+        if any(rows[n][o]["eval"] is not None for n in names)
+    ]  # fmt: skip
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    width = 0.26
+    width = 0.8 / len(conds)
     x = np.arange(len(names))
     for c, (key, group, label) in enumerate(conds):
         for ax, metric, scale in ((axes[0], "commit_true_rate", 100.0),
@@ -305,10 +324,11 @@ def plot(rows: dict[str, Any], path: Path) -> None:
                 vals.append(np.nan if v is None else scale * v)
                 lo.append(np.nan if v is None or iv[0] is None else scale * (v - iv[0]))
                 hi.append(np.nan if v is None or iv[1] is None else scale * (iv[1] - v))
-            ax.bar(x + (c - 1) * width, vals, width, yerr=[lo, hi], capsize=3, label=label)
+            offset = (c - (len(conds) - 1) / 2) * width
+            ax.bar(x + offset, vals, width, yerr=[lo, hi], capsize=3, label=label)
     tiers = [f"{PAPER[n][0]}\n(M={len(load_scene(n).goal_names)})" for n in names]
     paper_t = [PAPER[n][4] for n in names]
-    axes[1].scatter(x + width, paper_t, marker="_", s=300, color="black", zorder=3,
+    axes[1].scatter(x, paper_t, marker="_", s=300, color="black", zorder=3,
                     label="paper, ME optimised")  # fmt: skip
     axes[0].set_ylabel("commit on the true goal before arrival (%)")
     axes[0].set_ylim(0, 105)
@@ -331,7 +351,14 @@ def layouts_figure(args: argparse.Namespace, path: Path) -> None:
     from legws_daemon.scene.layout_file import load_layout
 
     w, h = 320, 240
-    cols = ("shipped", *OBJECTIVES)
+    cols = (
+        "shipped",
+        *(
+            o
+            for o in OBJECTIVES
+            if run_dir(args, o, args.tiers[0], "cma-me", args.seeds[0]).is_dir()
+        ),
+    )
     sheet = Image.new("RGB", (w * len(cols) + 90, h * len(args.tiers) + 24), "white")
     draw = ImageDraw.Draw(sheet)
     for c, label in enumerate(cols):
