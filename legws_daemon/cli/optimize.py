@@ -150,7 +150,8 @@ def _run_all(
             jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
         )
     keys = ("scene", "seed", "objective", "commit_objective", "commit_certified",
-            "commit_rate_estimate", "coverage", "elites", "seconds", "cached", "out")  # fmt: skip
+            "commit_rate_estimate", "commit_time_estimate", "coverage", "elites", "seconds",
+            "cached", "out")  # fmt: skip
     table = [{k: r[k] for k in keys} for r in results]
     root.mkdir(parents=True, exist_ok=True)
     (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")
