@@ -18,7 +18,7 @@ from types import FrameType
 import click
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
+from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile_named
 from legws_daemon.scene.catalog import load_scene
 
 #: ``PROTOCOL/HOST:PORT``, the form of the profile's endpoints.
@@ -55,10 +55,10 @@ def bridge_group() -> None:
 @bridge_group.command("fake")
 @click.option(
     "--profile",
-    "profile_file",
+    "profile_name",
     required=True,
-    type=click.Path(path_type=Path),
-    help="Hardware profile (.toml): robot name (zenoh keys) and transport.",
+    help="Hardware profile, by name (hw_profiles/NAME.toml, e.g. sawyer) or as a .toml path: "
+    "robot name (zenoh keys) and transport.",
 )
 @click.option(
     "--scene",
@@ -85,7 +85,7 @@ def bridge_group() -> None:
     help="Integration and state publication rate, Hz.",
 )
 def fake_cmd(
-    profile_file: Path,
+    profile_name: str,
     scene: str,
     zenoh_config: Path | None,
     listen: tuple[str, ...],
@@ -97,7 +97,7 @@ def fake_cmd(
     It publishes joint states on legws/<robot>/bridge/state and integrates the joint
     velocity commands from legws/<robot>/bridge/command (docs/bridge.md).
     """
-    profile = load_profile(profile_file)
+    profile = load_profile_named(profile_name)
     if zenoh_config is not None and (listen or connect):
         raise InputError("--zenoh-config replaces the transport: give no --listen/--connect")
     sc = load_scene(scene)

@@ -50,6 +50,7 @@ def _bridge_registered(monkeypatch: pytest.MonkeyPatch) -> None:
     ("argv", "needles"),
     [
         (["--profile", "missing.toml"], ["missing.toml", "no such file"]),
+        (["--profile", "moon"], ["unknown hardware profile 'moon'", "sawyer"]),
         (["--profile", PROFILE, "--listen", "tcp/localhost"], ["--listen", "invalid endpoint"]),
         (["--profile", PROFILE, "--connect", "http://x:1"], ["--connect", "invalid endpoint"]),
         (
@@ -91,7 +92,8 @@ def test_serves_the_sawyer_adapter_and_stops_on_a_signal(signum: int) -> None:
     with open_session(config_from_spec(listen)) as daemon:
         probe = daemon.declare_subscriber(keys["state"], lambda sample: heard.set())
         proc = subprocess.Popen(
-            [sys.executable, "-c", SHIM, "bridge", "fake", "--profile", str(PROFILE),
+            # the profile by name, as README and docs/daemon.md write it
+            [sys.executable, "-c", SHIM, "bridge", "fake", "--profile", "sawyer",
              "--connect", f"tcp/127.0.0.1:{port}", "--rate", "150"],
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
