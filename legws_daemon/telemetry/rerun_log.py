@@ -34,6 +34,8 @@ import json
 import logging
 import math
 import os
+import shutil
+import sys
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -284,6 +286,26 @@ def _free_bytes(path: Path) -> int | None:
     return st.f_bavail * st.f_frsize if st.f_blocks > 0 else None
 
 
+def viewer_executable() -> Path:
+    """The Rerun viewer to spawn: the one installed next to this Python (the venv's, found
+    even when the venv is not on PATH), else ``rerun`` on PATH.
+
+    Raises:
+        InputError: when neither exists (one line: what to install, or what to use instead).
+    """
+    here = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    if here.is_file() and os.access(here, os.X_OK):
+        return here
+    found = shutil.which("rerun")
+    if found:
+        return Path(found)
+    raise InputError(
+        f"no Rerun viewer: neither {here} nor `rerun` on PATH; install it with "
+        f"`{sys.executable} -m pip install rerun-sdk`, or log with --rerun save:PATH",
+        field="--rerun",
+    )
+
+
 def _disk_note(path: Path) -> str:
     """``"; no space left on the device"`` when the file system of ``path`` is full."""
     free = _free_bytes(path)
@@ -454,7 +476,14 @@ class RerunLog:
                 detail = " ".join(str(exc).split()) + _disk_note(path)
                 raise InputError(f"cannot write {path}: {detail}", field="--rerun") from None
         elif kind == "spawn":
-            self._stream.spawn(default_blueprint=blueprint)
+            viewer = viewer_executable()
+            try:
+                rr.spawn(executable_path=str(viewer), recording=self._stream,
+                         default_blueprint=blueprint)  # fmt: skip
+            except (OSError, RuntimeError) as exc:
+                detail = " ".join(str(exc).split())
+                raise InputError(f"cannot start the Rerun viewer {viewer}: {detail}",
+                                 field="--rerun") from None  # fmt: skip
         else:
             self._stream.connect_grpc(arg, default_blueprint=blueprint)
 
