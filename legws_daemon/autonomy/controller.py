@@ -32,6 +32,7 @@ from legws_daemon.autonomy.events import (
     Fault,
     Loaded,
     PlaceObjects,
+    PlanDropped,
     Recovered,
     Reset,
     StageDone,
@@ -51,7 +52,7 @@ from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
 from legws_daemon.autonomy.recovery import Recovery
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
-from legws_daemon.errors import HardwareError, InfeasibleError, LegwsError
+from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
@@ -456,12 +457,14 @@ class Controller:
         request: CommandRequest,
         scenes: Callable[[str], Scene],
         graphs: Callable[[str], tuple[TaskGraph, Scene]],
+        plans: Callable[[TaskGraph, Scene], Plan] | None = None,
     ) -> dict[str, Any]:
         """Carry out an operator command; returns the reply's detail.
 
         Args:
             request: the validated command.
             scenes / graphs: load a scene / a task graph (and its scene) by name.
+            plans: a task graph's plan (``load_taskgraph`` with ``plan: "auto"``).
         """
         match request.command:
             case "stop":
@@ -481,8 +484,17 @@ class Controller:
             case "load_taskgraph":
                 assert request.argument is not None
                 graph, scene = graphs(request.argument)
+                plan = None
+                if request.plan == "auto":
+                    if plans is None:
+                        raise InputError("this daemon loads no plans", field="plan")
+                    plan = plans(graph, scene)
+                dropped = self.layouts.plan if plan is None else None
                 same = scene.name == self.scene.name
-                return self.load(self.scene if same else scene, None, graph)
+                detail = self.load(self.scene if same else scene, None, graph, plan)
+                if dropped is not None:
+                    self._warn_plan_dropped(dropped)
+                return detail
             case _:
                 assert_never(request.command)
 
@@ -506,8 +518,23 @@ class Controller:
         self._start_assist(plan, RESET_TARGET)
         return {"mode": self.mode.value, "plan": [p.label for p in plan]}
 
-    def load(self, scene: Scene, layout: Layout | None, graph: TaskGraph | None) -> dict[str, Any]:
-        """Swap to another scene or task graph (the robot stops first); the task restarts."""
+    def _warn_plan_dropped(self, dropped: Plan) -> None:
+        """A plan was in use and the load replaced it by none: say what that costs now."""
+        planned = None
+        if dropped.taskgraph == self.graph.name and not self.task.finished:
+            with contextlib.suppress(LegwsError):
+                planned = dropped.decision(self.task.label).certificate
+        self.emit(PlanDropped(dropped.taskgraph, self.stage.name, self.stage.certificate, planned))
+
+    def load(
+        self,
+        scene: Scene,
+        layout: Layout | None,
+        graph: TaskGraph | None,
+        plan: Plan | None = None,
+    ) -> dict[str, Any]:
+        """Swap to another scene or task graph (the robot stops first), with the graph's plan
+        when given; the task restarts."""
         with contextlib.suppress(LegwsError):
             self.adapter.halt()
         if scene is not self.scene:
@@ -518,7 +545,7 @@ class Controller:
             self.scene = scene
             self.planner = MotionPlanner(adapter.kinematics.twin(), scene.home, adapter.box)
             self.recovery = Recovery(adapter.table_height, self.emit)
-        self.layouts.reset(dict(layout if layout is not None else scene.default_layout()))
+        self.layouts.reset(dict(layout if layout is not None else scene.default_layout()), plan)
         self.graph = graph if graph is not None else scene_graph(scene)
         self.task = TaskRun(self.graph, scene)
         self.assistant, self._gripper, self._recovering = None, None, False

@@ -228,6 +228,19 @@ class PlaceObjects(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class PlanDropped(Event):
+    """A task graph was loaded without a plan while one was in use: its decisions now run on
+    the shipped layout (``certificate``) instead of the planned one
+    (``planned_certificate``, the plan's for the same decision when it has it)."""
+
+    kind: ClassVar[EventKind] = "warning"
+    plan: str  # the task graph of the dropped plan
+    stage: str
+    certificate: float | None
+    planned_certificate: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class Misplaced(Event):
     """Reported object poses make the decision's certificate non-positive."""
 

@@ -43,6 +43,21 @@ def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
     return plan
 
 
+def cached_catalog_plan(graph: TaskGraph, scene: Scene) -> Plan:
+    """``load_taskgraph`` with ``plan: "auto"``: the graph's cached plan (as ``--plan auto``
+    would use). Nothing is planned on the control loop: without one, say how to make it."""
+    from legws_daemon.design.stage_plan import cached_plan
+
+    plan = cached_plan(graph, scene)
+    if plan is None:
+        raise InputError(
+            f"no cached plan of task graph '{graph.name}'; make it with `legws plan "
+            f"{graph.name}` (the daemon does not plan on its control loop)",
+            field="plan",
+        )
+    return plan
+
+
 def require_motion_allowed(spec: ProfileSpec, allow_motion: bool) -> None:
     """Refuse a profile that drives real hardware unless ``--allow-motion`` was given.
 
@@ -197,5 +212,6 @@ def daemon_cmd(
             trace=trace,
             graph=graph,
             plan=plan,
+            plan_loader=cached_catalog_plan,
         )
         return DaemonService(config).run(stop)

@@ -249,6 +249,8 @@ class DaemonConfig:
     graph_loader: Callable[[str], tuple[TaskGraph, Scene]] = field(
         default=lambda name: catalog_taskgraph(name)
     )
+    #: ``load_taskgraph`` with ``plan: "auto"`` (the CLI gives the plan cache's)
+    plan_loader: Callable[[TaskGraph, Scene], Plan] | None = None
 
 
 @dataclass
@@ -438,7 +440,10 @@ class DaemonService:
             done += 1
             try:
                 detail = c.command(
-                    pending.request, self.config.scene_loader, self.config.graph_loader
+                    pending.request,
+                    self.config.scene_loader,
+                    self.config.graph_loader,
+                    self.config.plan_loader,
                 )
                 pending.reply = {"ok": True, "command": pending.request.command, **detail}
             except LegwsError as err:

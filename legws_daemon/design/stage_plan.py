@@ -302,6 +302,34 @@ def _render(
     return out
 
 
+def plan_settings(
+    method: str = "cma-me",
+    iterations: int = DEFAULT_ITERATIONS,
+    seed: int = 0,
+    objective: str = "slack",
+    commit_form: str = "sum",
+    params: Params | None = None,
+) -> dict[str, Any]:
+    """The settings a plan's cache key is made of (``plan.json``'s ``settings``)."""
+    settings: dict[str, Any] = {
+        "method": method,
+        "iterations": iterations,
+        "seed": seed,
+        "params": (params or Params()).as_dict(),
+        "version": __version__,
+    }
+    if objective != "slack":  # absent means slack: plans made before the option keep their key
+        settings["objective"] = objective
+        settings["commit_form"] = commit_form
+    return settings
+
+
+def cached_plan(graph: TaskGraph, scene: Scene) -> Plan | None:
+    """The graph's plan with the default settings (``legws plan NAME``) from the cache, or
+    ``None`` (nothing is planned: for the daemon's ``load_taskgraph``, on the loop)."""
+    return load_cached(plan_cache_dir() / plan_key(graph, scene, plan_settings()))
+
+
 def plan_taskgraph(
     graph: TaskGraph,
     scene: Scene,
@@ -349,16 +377,7 @@ def plan_taskgraph(
             field="--objective",
         )
     params = params or Params()
-    settings: dict[str, Any] = {
-        "method": method,
-        "iterations": iterations,
-        "seed": seed,
-        "params": params.as_dict(),
-        "version": __version__,
-    }
-    if objective != "slack":  # absent means slack: plans made before the option keep their key
-        settings["objective"] = objective
-        settings["commit_form"] = commit_form
+    settings = plan_settings(method, iterations, seed, objective, commit_form, params)
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
     cached = load_cached(folder) if use_cache else None

@@ -123,6 +123,8 @@ class EventMessage(_Message):
 class CommandRequest(_Message):
     command: Literal["status", "reset", "stop", "load_scene", "load_taskgraph"]
     argument: Label | None = None
+    #: ``load_taskgraph`` only: ``"auto"`` uses the graph's cached plan (``legws plan``)
+    plan: Literal["auto"] | None = None
 
     @model_validator(mode="after")
     def _argument(self) -> CommandRequest:
@@ -131,6 +133,8 @@ class CommandRequest(_Message):
             raise field_error(("argument",), f"'{self.command}' needs an argument")
         if not needs and self.argument is not None:
             raise field_error(("argument",), f"'{self.command}' takes no argument")
+        if self.plan is not None and self.command != "load_taskgraph":
+            raise field_error(("plan",), "only with 'load_taskgraph'")
         return self
 
 
