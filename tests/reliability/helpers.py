@@ -211,7 +211,7 @@ class Rig:
         # the loop calls this unguarded: nothing may escape
         rec = c.tick(sample.operator if sample is not None else None)
         self.ticks += 1
-        self.modes[rec.mode] += 1
+        self.modes[rec.mode.value] += 1  # str keys: xdist sends the tallies home
         check_envelope(self.adapter, rec.command)
         if self.adapter is adapter:  # (a load swaps adapters only inside command())
             if rec.joints is None:  # a joint step is checked where it ends (check_envelope)
