@@ -44,6 +44,7 @@ exactly (mean 1, standard deviation ``sigma / v_max`` on every axis).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -287,12 +288,8 @@ def commit_chance_batch(
     for s in range(0, b, chunk):
         sl = slice(s, s + chunk)
         t, margin, sd = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
-        m_alt = np.where(others, margin, np.inf)
-        low = m_alt.min(axis=-1)
-        weight = np.exp(low[..., None] - m_alt)  # 0 on the true goal
-        total = weight.sum(axis=-1)
-        c0 = -tau_w + low - np.log(total)
-        spread = (weight * np.where(others, sd, 0.0)).sum(axis=-1) / total
+        c0, weight, total = _posterior_slack(np.where(others, margin, np.inf), tau_w)
+        spread = (weight * np.where(others, sd, 0.0)).sum(axis=-1) / total  # 0 on the true goal
         z = c0 / np.maximum(spread, 1e-12)
         z = np.where(t[None, None, :] <= t_a[sl][:, :, None], z, -np.inf)
         out[sl] = ndtr(z.max(axis=-1))
@@ -325,19 +322,9 @@ def commit_time_batch(
     for s in range(0, b, chunk):
         sl = slice(s, s + chunk)
         t, margin, _ = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
-        m_alt = np.where(others, margin, np.inf)
-        low = m_alt.min(axis=-1)
-        c0 = -tau_w + low - np.log(np.exp(low[..., None] - m_alt).sum(axis=-1))  # (b, i, T)
+        c0 = _posterior_slack(np.where(others, margin, np.inf), tau_w)[0]  # (b, i, T)
         c0 = np.where(t[None, None, :] <= t_a[sl][:, :, None], c0, -np.inf)
-        reached = c0 >= 0.0
-        has = reached.any(axis=-1)
-        first = np.argmax(reached, axis=-1)
-        c_at = np.take_along_axis(c0, first[..., None], -1)[..., 0]
-        before = np.where(
-            first > 0, np.take_along_axis(c0, np.maximum(first - 1, 0)[..., None], -1)[..., 0],
-            -tau_c,
-        )  # fmt: skip
-        crossing = first + (-before) / np.maximum(c_at - before, 1e-300)
+        has, _, crossing = _first_crossing(c0, tau_c)
         c_end = np.take_along_axis(c0, (t_a[sl] - 1)[..., None], -1)[..., 0]
         late = t_a[sl] * (1.0 + np.maximum(0.0, -c_end))
         out[sl] = np.where(has, crossing, late) * params.dt
@@ -347,21 +334,50 @@ def commit_time_batch(
 def commit_time_estimate(goals: GoalSet, params: Params) -> float:
     """``T``: the mean over the goals of :func:`commit_time_batch` for the robot's
     speed-clipped user, seconds (the ``time`` design objective of one goal set)."""
-    times = commit_time_batch(
-        goals.x0.position, goals.x0.rotation, goals.positions[None], goals.rotations[None],
-        goals.symmetry, params, clipped_user(params),
-    )  # fmt: skip
-    return float(times.mean())
+    return _goal_set_mean(commit_time_batch, goals, params)
 
 
 def commit_rate_estimate(goals: GoalSet, params: Params) -> float:
     """``R``: the mean over the goals of :func:`commit_chance_batch` for the robot's
     speed-clipped user (the ``rate`` design objective of one goal set)."""
-    chance = commit_chance_batch(
+    return _goal_set_mean(commit_chance_batch, goals, params)
+
+
+def _goal_set_mean(batch: Callable[..., FloatArray], goals: GoalSet, params: Params) -> float:
+    """The mean over one goal set's goals of a batched estimate, clipped user."""
+    values = batch(
         goals.x0.position, goals.x0.rotation, goals.positions[None], goals.rotations[None],
         goals.symmetry, params, clipped_user(params),
     )  # fmt: skip
-    return float(chance.mean())
+    return float(values.mean())
+
+
+def _posterior_slack(alt: FloatArray, tau_w: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``ln((1-p)/p) - ln sum_j exp(-alt_j)`` over the last axis (``alt`` is ``+inf`` on the
+    true goal, which adds nothing), with the unnormalised softmax weights
+    ``exp(l_min - alt_j)`` and their sum. Stable: ``l_min - ln sum_j exp(l_min - l_j)``;
+    about half the time of scipy's general logsumexp, which dominated the commit
+    objective's search."""
+    low = alt.min(axis=-1)
+    weight = np.exp(low[..., None] - alt)
+    total = weight.sum(axis=-1)
+    return -tau_w + low - np.log(total), weight, total
+
+
+def _first_crossing(c: FloatArray, tau_c: float) -> tuple[NDArray[np.bool_], IntArray, FloatArray]:
+    """``(has, first, t_hat)`` of slacks ``c (..., T)`` at steps ``1..T``: whether ``c``
+    reaches 0, the index of the first step where it does (0 without one) and the zero
+    crossing interpolated from the step before (``c(0) = -tau_c``)."""
+    reached = c >= 0.0
+    has = reached.any(axis=-1)
+    first = np.argmax(reached, axis=-1)
+    c_at = np.take_along_axis(c, first[..., None], -1)[..., 0]
+    c_before = np.where(
+        first > 0, np.take_along_axis(c, np.maximum(first - 1, 0)[..., None], -1)[..., 0],
+        -tau_c,
+    )  # fmt: skip
+    crossing = first + (-c_before) / np.maximum(c_at - c_before, 1e-300)
+    return np.asarray(has), np.asarray(first, dtype=np.int64), np.asarray(crossing)
 
 
 def _terms(
@@ -435,31 +451,16 @@ def _chunk(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts, each ``(b, M)``."""
     m = pg.shape[1]
-    n_t = int(t_a.max())
     eye = np.eye(m, dtype=bool)
     t, margin, sd = _terms(p0, pg, rot_term, trans0, t_a, params, user)
     valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
     others = ~eye[None, :, None, :]  # (1, i, 1, j)
     lower = np.where(others, margin - z_c * sd, np.inf)  # (b, i, T, j)
-    # "sum": ln((1-p)/p) - ln sum_j exp(-l_j); exp(-inf) of the true goal adds nothing
-    if form == "min":
-        c = lower.min(axis=-1) - tau_c
-    else:
-        # -log sum_j exp(-l_j), stable: l_min - log sum_j exp(l_min - l_j) (about half the
-        # time of scipy's general logsumexp, which dominated the commit objective's search)
-        low = lower.min(axis=-1)
-        c = -tau_w + low - np.log(np.exp(low[..., None] - lower).sum(axis=-1))
+    # "sum": ln((1-p)/p) - ln sum_j exp(-l_j)
+    c = lower.min(axis=-1) - tau_c if form == "min" else _posterior_slack(lower, tau_w)[0]
     c = np.where(valid, c, -np.inf)
-    reached = c >= 0.0
-    has = reached.any(axis=-1)
-    first = np.argmax(reached, axis=-1)  # index of t_c - 1
+    has, first, crossing = _first_crossing(c, tau_c)  # first: the index of t_c - 1
     t_c = np.where(has, first + 1, -1)
-    idx = np.clip(first, 0, n_t - 1)[..., None]
-    c_at = np.take_along_axis(c, idx, axis=-1)[..., 0]
-    c_before = np.where(
-        first > 0, np.take_along_axis(c, np.maximum(idx - 1, 0), -1)[..., 0], -tau_c
-    )
-    crossing = first + (-c_before) / np.maximum(c_at - c_before, 1e-300)  # t_hat
     c_arrival = np.take_along_axis(c, (t_a - 1)[..., None], axis=-1)[..., 0]
 
     t_end = np.where(has, t_c, t_a)  # (b, i)
