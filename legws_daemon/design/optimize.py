@@ -10,9 +10,8 @@ estimated commit time T in seconds),
 eval --top-k`` evaluates), ``archive.csv``, ``archive.png`` (heatmap of the searched score
 over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``),
 minus the commit objective K (``objective="commit"``), R (``objective="rate"``) or
-minus T (``objective="time"``).
-Results are cached by a hash of the
-scene file and the settings.
+minus T (``objective="time"``). Results are cached by a hash of the scene file and the
+settings.
 """
 
 from __future__ import annotations

@@ -262,13 +262,16 @@ class LayoutProblem:
         else:
             unreachable = np.zeros(len(poses))
         infeasible = (violation > 0) | (unreachable > 0)
+        ev = Evaluation(np.zeros(len(poses)), J, violation, unreachable, self.measures(poses),
+                        K, R, T)  # fmt: skip
+        # the searched score (Evaluation.score: J, -K, R or -T) minus the penalties
         objective = (
-            (R if R is not None else -T if T is not None else J if K is None else -K)
+            ev.score
             - CONSTRAINT_WEIGHT * violation
             - UNREACHABLE_PENALTY * unreachable
             - INFEASIBLE_OFFSET * infeasible
         )
-        return Evaluation(objective, J, violation, unreachable, self.measures(poses), K, R, T)
+        return replace(ev, objective=objective)
 
     def layout(self, solution: ArrayLike) -> Layout:
         """One normalised solution as a :data:`Layout` of the movable objects."""

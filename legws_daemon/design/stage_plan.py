@@ -46,6 +46,7 @@ from legws_daemon.core.commit import (
     commit_time_estimate,
 )
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.design import METHODS, OBJECTIVES
 from legws_daemon.design.optimize import check_capacity
@@ -110,17 +111,18 @@ class _Planner:
             target(self.scene, layout, stage[c], action, c) for c, action in point.actions.items()
         ]
 
+    def goals(self, point: DecisionPoint, layout: Layout) -> GoalSet:
+        """The decision's targets in ``layout`` as a goal set from the EE home."""
+        return goal_set(self.targets(point, layout), self.scene.home)
+
     def certificate(self, point: DecisionPoint, layout: Layout) -> float:
-        goals = goal_set(self.targets(point, layout), self.scene.home)
-        return certify(goals, self.params).objective
+        return certify(self.goals(point, layout), self.params).objective
 
     def commit(self, point: DecisionPoint, layout: Layout, form: str = "min") -> CommitCertificate:
-        goals = goal_set(self.targets(point, layout), self.scene.home)
-        return certify_commit(goals, self.params, form=form)
+        return certify_commit(self.goals(point, layout), self.params, form=form)
 
     def rate(self, point: DecisionPoint, layout: Layout) -> float:
-        goals = goal_set(self.targets(point, layout), self.scene.home)
-        return commit_rate_estimate(goals, self.params)
+        return commit_rate_estimate(self.goals(point, layout), self.params)
 
     def score(self, point: DecisionPoint, layout: Layout) -> float:
         """What the search maximises: J, -K (of the design's commit form), R or -T."""
@@ -129,8 +131,7 @@ class _Planner:
         if self.objective == "rate":
             return self.rate(point, layout)
         if self.objective == "time":
-            goals = goal_set(self.targets(point, layout), self.scene.home)
-            return -commit_time_estimate(goals, self.params)
+            return -commit_time_estimate(self.goals(point, layout), self.params)
         return self.certificate(point, layout)
 
     def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
