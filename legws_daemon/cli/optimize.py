@@ -13,6 +13,9 @@ from legws_daemon.design import METHODS
 #: The progress bar's best score per objective: its name and the sign from the searched one.
 SHOWN = {"slack": ("best_J", 1), "commit": ("best_K", -1), "rate": ("best_R", 1),
          "time": ("best_T", -1)}  # fmt: skip
+#: What a run reports on stdout (one run, or each row of --all's index), from summary.json.
+RESULT_KEYS = ("objective", "commit_objective", "commit_certified", "commit_rate_estimate",
+               "commit_time_estimate", "coverage", "elites")  # fmt: skip
 
 
 @click.command("optimize")
@@ -95,9 +98,7 @@ def optimize_cmd(
             objective=objective_kind, commit_form=commit_form, use_cache=not no_cache,
             progress=progress,
         )  # fmt: skip
-    keys = ("objective", "commit_objective", "commit_certified", "commit_rate_estimate",
-            "commit_time_estimate", "coverage", "elites", "evaluations", "seconds",
-            "cached")  # fmt: skip
+    keys = (*RESULT_KEYS, "evaluations", "seconds", "cached")
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
 
 
@@ -149,9 +150,7 @@ def _run_all(
         results = run_all(
             jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
         )
-    keys = ("scene", "seed", "objective", "commit_objective", "commit_certified",
-            "commit_rate_estimate", "commit_time_estimate", "coverage", "elites", "seconds",
-            "cached", "out")  # fmt: skip
+    keys = ("scene", "seed", *RESULT_KEYS, "seconds", "cached", "out")
     table = [{k: r[k] for k in keys} for r in results]
     root.mkdir(parents=True, exist_ok=True)
     (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")
