@@ -32,6 +32,8 @@ MAX_PAYLOAD = 64 * 1024
 Axis = Annotated[float, Strict(), Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 Seq = Annotated[int, Strict(), Field(ge=0, le=2**63 - 1)]
 Label = Annotated[str, Field(min_length=1, max_length=64)]
+#: A publisher session: 1 to 64 characters of letters, digits, ``-``, ``_``, ``.``, ``:``.
+SessionId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
 
 
 class _Message(BaseModel):
@@ -44,7 +46,11 @@ class Buttons(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     cancel: StrictBool = False  # give control back to the user during assistance
-    confirm: StrictBool = False
+    confirm: StrictBool = False  # commit to the most likely goal now
+    #: the hold-to-run (enable) button is held. ``false``: the message is no input (zero
+    #: velocity, assistance paused), however the stick stands. A publisher without such a
+    #: button leaves it at ``true`` (the stream itself is then the dead-man signal).
+    enable: StrictBool = True
 
 
 class JoystickMessage(_Message):
@@ -55,6 +61,11 @@ class JoystickMessage(_Message):
     axes: tuple[Axis, Axis, Axis]
     buttons: Buttons = Buttons()
     source: Label = "unknown"
+    #: chosen at random at each publisher start; ``seq`` counts within it. Without it the
+    #: daemon takes ``source`` as the session (schema-1 publishers before sessions).
+    session: SessionId | None = None
+    #: the publisher's last message (it stops): no input, and its operator lease ends now
+    bye: StrictBool = False
 
     @model_validator(mode="after")
     def _norm(self) -> JoystickMessage:

@@ -2,8 +2,10 @@
 
 A :class:`Publisher` opens one zenoh session, declares a publisher on the robot's
 ``legws/<robot>/joystick`` key and turns deflections into validated
-:class:`~legws_daemon.formats.messages.JoystickMessage` payloads (schema 1, increasing
-``seq``, ``stamp = time.time()``). Every message it puts can also be appended to a JSONL
+:class:`~legws_daemon.formats.messages.JoystickMessage` payloads (schema 1, a random
+``session`` id chosen when it opens, ``seq`` from 0 within it, ``stamp = time.time()``);
+its last message says goodbye (``bye``: zero deflection, enable released), which ends its
+operator lease at the daemon at once. Every message it puts can also be appended to a JSONL
 recording, one :func:`~legws_daemon.formats.messages.dump` per line, which
 ``legws joystick replay`` reads back.
 
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+import secrets
 import signal
 import threading
 import time
@@ -59,12 +62,14 @@ def clip_norm(axes: Sequence[float]) -> Axes:
 
 
 def process_source(kind: str) -> str:
-    """A ``source`` label unique to this process, e.g. ``keyboard:4242``.
-
-    The daemon drops a message whose ``seq`` is not above the last one of the same source;
-    a restarted publisher counts from 0 again, so each process gets its own label.
-    """
+    """A ``source`` label naming the publisher for people, e.g. ``keyboard:4242``
+    (the daemon tells publishers apart by their ``session``, not by this label)."""
     return f"{kind[:50]}:{os.getpid()}"
+
+
+def new_session_id() -> str:
+    """A fresh publisher session id: 16 random hexadecimal digits."""
+    return secrets.token_hex(8)
 
 
 def dial_spec(spec: TransportSpec) -> TransportSpec:
@@ -128,6 +133,7 @@ class Publisher:
         self._session: zenoh.Session | None = None
         self._publisher: zenoh.Publisher | None = None
         self._record: IO[str] | None = None
+        self.session_id = new_session_id()
 
     @classmethod
     def for_profile(
@@ -152,6 +158,8 @@ class Publisher:
                 self._record = stack.enter_context(_open_record(self.record_path))
             self._session = stack.enter_context(open_session(self.config))
             self._publisher = self._session.declare_publisher(self.key)
+            self.session_id = new_session_id()  # each opening is a new session, seq from 0
+            self._seq = 0
             self._stack = stack.pop_all()
         return self
 
@@ -204,7 +212,9 @@ class Publisher:
 
     # -- publishing -----------------------------------------------------------------------
 
-    def publish(self, axes: Sequence[float], buttons: Buttons | None = None) -> JoystickMessage:
+    def publish(
+        self, axes: Sequence[float], buttons: Buttons | None = None, *, bye: bool = False
+    ) -> JoystickMessage:
         """Validate and put one message; returns it. The recording gets it too.
 
         Raises :class:`InputError` (naming the field) if ``axes`` is not a valid deflection
@@ -221,6 +231,8 @@ class Publisher:
                 "axes": [float(a) for a in axes],
                 "buttons": buttons if buttons is not None else Buttons(),
                 "source": self.source,
+                "session": self.session_id,
+                "bye": bye,
             }
             message = validate(JoystickMessage, data, self.key)
             payload = dump(message)
@@ -235,8 +247,13 @@ class Publisher:
             return message
 
     def publish_zero(self) -> JoystickMessage:
-        """Publish zero deflection with no button pressed (the last message of every run)."""
+        """Publish zero deflection with no button pressed (enable held: a still stick)."""
         return self.publish(ZERO)
+
+    def goodbye(self) -> JoystickMessage:
+        """The last message of every run: zero, enable released, ``bye`` (the daemon takes
+        it as no input and ends this session's operator lease)."""
+        return self.publish(ZERO, Buttons(enable=False), bye=True)
 
     def run(
         self,
@@ -249,9 +266,9 @@ class Publisher:
 
         The loop ends when ``stop_event`` is set (by a signal handler, another thread or
         ``sample_fn`` itself) or after ``duration`` seconds, and then always publishes one
-        zero-deflection message. Ticks are on a fixed schedule; ticks missed by an overrun
+        goodbye (:meth:`goodbye`). Ticks are on a fixed schedule; ticks missed by an overrun
         are skipped, not made up in a burst. Returns the number of messages published from
-        samples (without the final zero).
+        samples (without the goodbye).
         """
         period = 1.0 / _check_rate(rate)
         length = _check_duration(duration)
@@ -273,7 +290,7 @@ class Publisher:
                 stop.wait(max(0.0, min(start + tick * period, end) - now))
         finally:
             if self._publisher is not None:
-                self.publish_zero()
+                self.goodbye()
         return published
 
 

@@ -98,8 +98,8 @@ def replay(
 
     With ``loop`` the file starts over ``gap`` after its last message. Ends at the end of
     the file (without ``loop``), after ``duration`` s or when ``stop_event`` is set, and
-    then always publishes one zero-deflection message. Returns the number of recorded
-    messages republished (without the final zero).
+    then always says goodbye (:meth:`Publisher.goodbye`). Returns the number of recorded
+    messages republished (without the goodbye).
     """
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED):
         raise InputError(f"must be in (0, {MAX_SPEED:g}], got {speed!r}", field="speed")
@@ -130,7 +130,7 @@ def replay(
                 return published
             base += cycle
     finally:
-        publisher.publish_zero()
+        publisher.goodbye()
 
 
 def _wait_until(due: float, end: float, stop: threading.Event) -> bool:

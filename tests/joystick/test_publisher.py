@@ -197,7 +197,9 @@ def test_run_publishes_at_the_rate_for_the_duration_then_zero(tmp_path: Path) ->
     assert [m.seq for m in messages] == list(range(published + 1))
     assert all(m.axes == (0.0, 0.3, 0.0) for m in messages[:-1])
     assert messages[-1].axes == (0.0, 0.0, 0.0)
-    assert messages[-1].buttons == Buttons()
+    assert messages[-1].buttons == Buttons(enable=False)  # the goodbye
+    assert messages[-1].bye and not any(m.bye for m in messages[:-1])
+    assert len({m.session for m in messages}) == 1 and messages[0].session is not None
     stamps = [m.stamp for m in messages]
     assert stamps == sorted(stamps)
 
