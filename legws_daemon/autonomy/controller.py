@@ -286,6 +286,8 @@ class Controller:
                 self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
                 return zero()
         else:
+            if inp is not None:
+                self.inference.steered(inp.axes)
             commit = self.inference.update(state)
             if commit is not None:
                 self._commit(*commit, state, confirmed=False)
@@ -307,12 +309,12 @@ class Controller:
         self, goal: str, p: float, state: RobotState, *, confirmed: bool, single: bool = False
     ) -> None:
         t = self.stage.target(goal)
-        seconds = self.inference.seconds
         self.committed = goal
         self.emit(
             Commit(
-                goal, p, self.ticks, seconds, t.stage, self.stage.name, t.action, confirmed,
-                single, self.stage.certificate, self.posterior(),
+                goal, p, self.ticks, self.inference.seconds, self.inference.waited, t.stage,
+                self.stage.name, t.action, confirmed, single, self.stage.certificate,
+                self.posterior(),
             )
         )  # fmt: skip
         ctx = self._context(state)
@@ -495,6 +497,8 @@ class Controller:
                 if dropped is not None:
                     self._warn_plan_dropped(dropped)
                 return detail
+            case "release" | "take_control":
+                raise InputError("the operator lease is the daemon's, not the controller's")
             case _:
                 assert_never(request.command)
 

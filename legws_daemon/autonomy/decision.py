@@ -84,10 +84,12 @@ class Inference:
         self.dt = dt
         self.observer: IntentObserver | None = None
         self.hold = hold
+        self._first: int | None = None  # observer ticks before the first steering input
 
     def restart(self, stage: StageState, state: RobotState | None) -> None:
         """A fresh observer whose start pose is where the EE is now (from home when the
         state is unknown or the EE sits on a goal); teleoperation holds this orientation."""
+        self._first = None
         if stage.goals_home is None:
             self.observer = None
             return
@@ -100,11 +102,29 @@ class Inference:
 
     def stop(self) -> None:
         self.observer = None
+        self._first = None
+
+    def steered(self, axes: FloatArray) -> None:
+        """This tick's input deflection (before :meth:`update`): the first non-zero one
+        starts the clock of :attr:`seconds`."""
+        if self._first is None and self.observer is not None and np.any(axes != 0.0):
+            self._first = self.observer.ticks
 
     @property
     def seconds(self) -> float:
-        """Seconds of inference so far (ticks the observer saw)."""
-        return self.observer.ticks * self.dt if self.observer is not None else 0.0
+        """Seconds from the first steering input to now (0 before it): what the person
+        spent steering until the commit, not the time the arm stood waiting for them."""
+        if self.observer is None or self._first is None:
+            return 0.0
+        return (self.observer.ticks - self._first) * self.dt
+
+    @property
+    def waited(self) -> float:
+        """Seconds the observer ran before the first steering input (all of it, if none)."""
+        if self.observer is None:
+            return 0.0
+        first = self._first if self._first is not None else self.observer.ticks
+        return first * self.dt
 
     def update(self, state: RobotState) -> tuple[str, float] | None:
         """One tick's EE pose; the goal committed to (posterior >= ``p_thresh``) and its

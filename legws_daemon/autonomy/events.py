@@ -95,7 +95,8 @@ class Commit(Event):
     goal: str
     p: float
     tick: int
-    seconds: float  # of inference
+    seconds: float  # from the first steering input of this decision to the commit
+    waited: float  # inference before that input (the person had not steered yet)
     stage: str
     decision: str
     action: str
@@ -107,6 +108,7 @@ class Commit(Event):
     def detail(self) -> dict[str, Any]:
         d = Event.detail(self)
         d["p"], d["seconds"] = round(self.p, 4), round(self.seconds, 3)
+        d["waited"] = round(self.waited, 3)
         return d
 
     def text(self) -> str:
@@ -165,6 +167,54 @@ class Reset(Event):
 class Stop(Event):
     kind: ClassVar[EventKind] = "stop"
     mode: str
+
+
+# --- the operator's input ----------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class OperatorChanged(Event):
+    """The operator lease changed hands: ``operator`` steers now (``None``: nobody; the next
+    session that steers takes it), ``previous`` held it. Each is ``{"source", "session"}``."""
+
+    kind: ClassVar[EventKind] = "operator"
+    operator: dict[str, str | None] | None
+    previous: dict[str, str | None] | None
+    reason: str  # first_input | goodbye | timeout | release | take_control
+
+    def text(self) -> str:
+        who = _who(self.operator) if self.operator else "nobody"
+        return f"operator {who} ({self.reason}; was {_who(self.previous)})"
+
+
+@dataclass(frozen=True, slots=True)
+class Deadman(Event):
+    """The dead-man state changed: ``on`` — no input reaches the robot (zero velocity,
+    assistance paused) because of ``reason``; off — the operator's input moves it again."""
+
+    kind: ClassVar[EventKind] = "deadman"
+    on: bool
+    reason: str | None  # no_operator | no_input | enable_released (None when off)
+
+
+@dataclass(frozen=True, slots=True)
+class InputRejected(Event):
+    """Joystick messages were rejected for ``reason`` (invalid | stale_seq | not_operator):
+    ``count`` since the last such event (at most one per reason every few seconds),
+    ``total`` so far; the last one's sender and error."""
+
+    kind: ClassVar[EventKind] = "input_rejected"
+    reason: str
+    count: int
+    total: int
+    source: str | None
+    session: str | None
+    error: str | None
+
+
+def _who(key: dict[str, str | None] | None) -> str:
+    if key is None:
+        return "nobody"
+    session = key.get("session")
+    return f"{key.get('source')}" + (f" [{session}]" if session else "")
 
 
 # --- warnings --------------------------------------------------------------------------

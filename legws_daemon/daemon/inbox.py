@@ -1,22 +1,44 @@
-"""The newest joystick sample, shared between the transport thread and the control loop.
+"""The operator's newest joystick sample, shared between the transport and the control loop.
 
-The transport calls :meth:`JoystickInbox.offer` with raw payloads as they arrive; the
-loop asks :meth:`JoystickInbox.latest` once per tick. A payload that does not validate is
-counted and dropped — it is never used and it does not refresh the deadman, so bad input
-stops the robot like no input. A sample older than the deadman timeout is no input.
+The transport calls :meth:`JoystickInbox.offer` with raw payloads as they arrive; the loop
+asks :meth:`JoystickInbox.poll` once per tick. A payload is *rejected* — never used, and it
+does not refresh the deadman — for one of :data:`REJECTIONS`:
+
+- ``invalid``: it does not validate (the field is in :attr:`JoystickInbox.last_error`);
+- ``stale_seq``: its ``seq`` is not above the last one of its session (out of order, or
+  replayed). A publisher without a ``session`` id that starts over at ``seq`` 0 is a
+  restart and accepted;
+- ``not_operator``: another session holds the operator lease (:mod:`.lease`).
+
+What the loop gets is the lease holder's newest sample if it arrived within the deadman
+timeout and the holder holds the enable button; else nothing, and the robot stands still.
+A goodbye (``bye``) is no input from the moment it arrives. Rejections and lease changes
+are queued for the loop, which reports them as events (:meth:`take_report`).
 """
 
 from __future__ import annotations
 
 import threading
-from collections import Counter
-from dataclasses import dataclass
+from collections import Counter, OrderedDict
+from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import numpy as np
 
 from legws_daemon.autonomy.inputs import OperatorInput
+from legws_daemon.daemon.lease import Lease, LeaseChange, SessionKey
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import JoystickMessage, parse
+
+#: Why a joystick message was not used.
+Rejection = Literal["invalid", "stale_seq", "not_operator"]
+REJECTIONS: tuple[Rejection, ...] = get_args(Rejection)
+#: Why no input reaches the controller this tick.
+NoInput = Literal["no_operator", "no_input", "enable_released"]
+#: Sessions whose last ``seq`` is remembered (the least recently heard are forgotten).
+MAX_SESSIONS = 256
+#: Default grace after the deadman timeout before a silent operator loses the lease, s.
+LEASE_GRACE = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,58 +58,183 @@ class Sample:
         )  # fmt: skip
 
 
+@dataclass(slots=True)
+class RejectionTally:
+    """Rejections of one reason since the last report: how many, and the last one's
+    sender and error."""
+
+    count: int = 0
+    source: str | None = None
+    session: str | None = None
+    error: str | None = None
+
+
+@dataclass(slots=True)
+class InputReport:
+    """What happened to the input since the last :meth:`JoystickInbox.take_report`."""
+
+    changes: list[LeaseChange] = field(default_factory=list)
+    rejections: dict[Rejection, RejectionTally] = field(default_factory=dict)
+
+
+def _steering(message: JoystickMessage) -> bool:
+    """Enable held and the stick deflected or a button pressed (what claims a free lease)."""
+    b = message.buttons
+    return b.enable and not message.bye and (any(message.axes) or b.confirm or b.cancel)
+
+
 class JoystickInbox:
-    """Thread-safe slot holding the newest valid joystick sample.
+    """Thread-safe: the lease and the operator's newest valid sample.
 
     Args:
         key: the key expression the samples come from (named in rejection reasons).
+        timeout: the deadman timeout, s.
+        grace: how much longer a silent operator keeps the lease, s.
     """
 
-    def __init__(self, key: str = "joystick") -> None:
+    def __init__(self, key: str = "joystick", timeout: float = 0.25, grace: float = LEASE_GRACE):
         self.key = key
+        self.timeout = timeout
         self._lock = threading.Lock()
         self._sample: Sample | None = None
-        self._last_seq: dict[str, int] = {}
+        self._last_seq: OrderedDict[SessionKey, int] = OrderedDict()
+        self.lease = Lease(timeout, grace)
         self.accepted = 0
-        self.rejected = 0
-        self.reasons: Counter[str] = Counter()
+        self.reasons: Counter[Rejection] = Counter()
         self.last_error: str | None = None
+        self._report = InputReport()
+
+    @property
+    def rejected(self) -> int:
+        """Messages rejected so far, all reasons."""
+        return sum(self.reasons.values())
 
     def offer(self, payload: bytes, now: float) -> Sample | None:
-        """Validate one payload received at ``now``; keep it if valid and newer.
+        """Validate one payload received at ``now``; keep it if it is the operator's newest.
 
-        Returns the stored sample, or ``None`` when the payload was rejected (bad) or
-        superseded (an older ``seq`` of the same source arriving late).
+        Returns the stored sample, or ``None`` when the payload was rejected or is not
+        input (a goodbye, a message of nobody's while the lease is free).
         """
         try:
             message = parse(JoystickMessage, payload, self.key)
         except InputError as err:
             with self._lock:
-                self.rejected += 1
-                self.reasons[err.field or "payload"] += 1
-                self.last_error = str(err)
+                self._reject("invalid", None, str(err))
             return None
+        key = SessionKey(message.session, message.source)
         with self._lock:
-            last = self._last_seq.get(message.source)
-            if last is not None and message.seq <= last and last - message.seq < 1000:
-                # out of order or repeated; a large jump back is a restarted publisher
-                self.reasons["stale_seq"] += 1
+            last = self._last_seq.get(key)
+            restart = message.session is None and message.seq == 0
+            if last is not None and message.seq <= last and not restart:
+                self._reject("stale_seq", key, f"seq {message.seq} after {last}")
                 return None
-            self._last_seq[message.source] = message.seq
+            self._remember(key, message.seq)
+            mine, changes = self.lease.offer(key, now, steering=_steering(message), bye=message.bye)
+            self._changed(changes)
+            if not mine:
+                if self.lease.holder is not None:
+                    self._reject("not_operator", key, "another session holds the lease")
+                return None
+            self.accepted += 1
+            if message.bye:
+                self._sample = None
+                return None
             sample = Sample(message, now)
             self._sample = sample
-            self.accepted += 1
             return sample
 
-    def latest(self, now: float, timeout: float) -> Sample | None:
-        """The newest valid sample if it arrived within ``timeout`` of ``now``, else ``None``."""
+    def poll(self, now: float) -> tuple[Sample | None, NoInput | None]:
+        """The input for a tick at ``now``: the operator's newest sample if it arrived within
+        the timeout and enable is held, else ``None`` and why."""
         with self._lock:
-            sample = self._sample
-        if sample is None or now - sample.received > timeout or now < sample.received - 1.0:
-            return None
-        return sample
+            change = self.lease.expire(now)
+            if change is not None:
+                self._changed([change])
+                self._sample = None
+            sample, holder = self._sample, self.lease.holder
+        if holder is None:
+            return None, "no_operator"
+        if sample is None or now - sample.received > self.timeout or now < sample.received - 1:
+            return None, "no_input"
+        if not sample.message.buttons.enable:
+            return None, "enable_released"
+        return sample, None
+
+    def latest(self, now: float) -> Sample | None:
+        """The sample of :meth:`poll` alone."""
+        return self.poll(now)[0]
+
+    def release(self, now: float) -> LeaseChange | None:
+        """The ``release`` command (see :mod:`.lease`)."""
+        with self._lock:
+            change = self.lease.release(now)
+            self._changed([change] if change else [])
+            self._sample = None
+        return change
+
+    def take_control(self, session: str, now: float) -> LeaseChange | None:
+        """The ``take_control`` command: the session with this id holds the lease — a
+        publisher's ``session``, or the ``source`` of one that sends no session id."""
+        with self._lock:
+            change = self.lease.take(self._known(session), now)
+            if change is not None:
+                self._changed([change])
+                self._sample = None
+        return change
+
+    def operator(self) -> dict[str, str | None] | None:
+        """The lease holder (``source``, ``session``), or ``None``."""
+        with self._lock:
+            holder = self.lease.holder
+        return None if holder is None else dict(holder.describe())
+
+    def take_report(self) -> InputReport:
+        """Lease changes and rejections since the last call (for events)."""
+        with self._lock:
+            report, self._report = self._report, InputReport()
+        return report
+
+    def counts(self) -> dict[Rejection, int]:
+        """Rejections so far by reason (every reason, zeros included)."""
+        with self._lock:
+            return {r: self.reasons[r] for r in REJECTIONS}
 
     def clear(self) -> None:
         """Forget the current sample (e.g. after a stop: the user must move the stick again)."""
         with self._lock:
             self._sample = None
+
+    # --- under the lock ------------------------------------------------------------------
+    def _known(self, ident: str) -> SessionKey:
+        """The session with id ``ident``, else the id-less one with that ``source``, else a
+        session not heard from yet."""
+        heard = list(reversed(self._last_seq))
+        for key in heard:
+            if key.session == ident:
+                return key
+        for key in heard:
+            if key.session is None and key.source == ident:
+                return key
+        return SessionKey(ident, "unknown")
+
+    def _reject(self, reason: Rejection, key: SessionKey | None, error: str) -> None:
+        self.reasons[reason] += 1
+        self.last_error = error if key is None else f"{key.source}: {error}"
+        tally = self._report.rejections.setdefault(reason, RejectionTally())
+        tally.count += 1
+        tally.error = error
+        tally.source = key.source if key is not None else None
+        tally.session = key.session if key is not None else None
+
+    def _remember(self, key: SessionKey, seq: int) -> None:
+        self._last_seq[key] = seq
+        self._last_seq.move_to_end(key)
+        while len(self._last_seq) > MAX_SESSIONS:
+            oldest = next(iter(self._last_seq))
+            if oldest == self.lease.holder:
+                self._last_seq.move_to_end(oldest)
+                continue
+            del self._last_seq[oldest]
+
+    def _changed(self, changes: list[LeaseChange]) -> None:
+        self._report.changes.extend(changes)

@@ -45,9 +45,12 @@ import zenoh
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
 from legws_daemon.autonomy.controller import Controller
 from legws_daemon.autonomy.events import (
+    Deadman,
     Event,
     Fallback,
     Fault,
+    InputRejected,
+    OperatorChanged,
     Overrun,
     Shutdown,
     Started,
@@ -59,7 +62,7 @@ from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
-from legws_daemon.daemon.inbox import JoystickInbox
+from legws_daemon.daemon.inbox import JoystickInbox, NoInput
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
@@ -95,6 +98,11 @@ OVERRUN_WARNING_INTERVAL = 5.0
 TELEMETRY_WARNING_INTERVAL = 10.0
 #: Seconds between health checks of the recording (on the telemetry worker's thread).
 TELEMETRY_CHECK_INTERVAL = 2.0
+#: An ``input_rejected`` event per reason at most this often, seconds.
+REJECTION_EVENT_INTERVAL = 2.0
+#: A ``deadman`` event at most this often (a flickering input is reported as its latest
+#: state once the interval has passed), seconds.
+DEADMAN_EVENT_INTERVAL = 1.0
 #: Recent events kept in memory (for a look in a debugger; the record is the event stream).
 RECENT_EVENTS = 256
 
@@ -267,7 +275,14 @@ class DaemonService:
         self.config = config
         self.profile = config.profile
         self.keys = keys(self.profile.robot)
-        self.inbox = JoystickInbox(self.keys["joystick"])
+        control = self.profile.control
+        self.inbox = JoystickInbox(
+            self.keys["joystick"], control.deadman_timeout, control.lease_grace
+        )
+        self._deadman: NoInput | None = "no_operator"  # as last reported (None: input flows)
+        self._last_deadman_event = -np.inf
+        self._last_rejection_event: dict[str, float] = {}
+        self._rejections_unreported: dict[str, InputRejected] = {}
         self.commands: queue.Queue[_PendingCommand] = queue.Queue()
         self.fallback = False
         self.adapter_kind = self.profile.adapter
@@ -372,6 +387,8 @@ class DaemonService:
             "tick": c.ticks,
             "overruns": self.ticker.overruns,
             "rejected": self.inbox.rejected,
+            "rejections": self.inbox.counts(),
+            "operator": self.inbox.operator(),
             "slack": slack,
             "decision": c.decisions,
             "targets": {t.name: t.position.tolist() for t in c.stage.targets},
@@ -439,6 +456,10 @@ class DaemonService:
                 return done
             done += 1
             try:
+                if pending.request.command in ("release", "take_control"):
+                    pending.reply = {"ok": True, **self._lease_command(pending.request)}
+                    pending.done.set()
+                    continue
                 detail = c.command(
                     pending.request,
                     self.config.scene_loader,
@@ -451,6 +472,48 @@ class DaemonService:
             pending.done.set()
             if pending.request.command in ("load_scene", "load_taskgraph"):
                 release_memory()  # the old scene's world is freed: give the memory back
+
+    def _lease_command(self, request: CommandRequest) -> dict[str, Any]:
+        """``release`` / ``take_control``: the lease changes hands now (the events follow)."""
+        now = time.monotonic()
+        if request.command == "release":
+            self.inbox.release(now)
+        else:
+            assert request.argument is not None
+            self.inbox.take_control(request.argument, now)
+        return {"command": request.command, "operator": self.inbox.operator()}
+
+    # --- the operator's input ---------------------------------------------------------------
+    def _report_input(self, now: float, why: NoInput | None) -> None:
+        """Events for lease changes (each), the dead-man state (on a change, at most every
+        :data:`DEADMAN_EVENT_INTERVAL`) and rejected input (per reason, at most every
+        :data:`REJECTION_EVENT_INTERVAL`, with the count since the last one)."""
+        report = self.inbox.take_report()
+        for change in report.changes:
+            self._emit(
+                OperatorChanged(
+                    change.operator.describe() if change.operator else None,
+                    change.previous.describe() if change.previous else None,
+                    change.reason,
+                )
+            )
+        flipped = (why is None) != (self._deadman is None)
+        if flipped and now - self._last_deadman_event >= DEADMAN_EVENT_INTERVAL:
+            self._deadman = why
+            self._last_deadman_event = now
+            self._emit(Deadman(why is not None, why))
+        totals = self.inbox.counts()
+        for reason, tally in report.rejections.items():
+            before = self._rejections_unreported.get(reason)
+            count = tally.count + (before.count if before is not None else 0)
+            self._rejections_unreported[reason] = InputRejected(
+                reason, count, totals[reason], tally.source, tally.session, tally.error
+            )
+        for kind, event in list(self._rejections_unreported.items()):
+            if now - self._last_rejection_event.get(kind, -np.inf) >= REJECTION_EVENT_INTERVAL:
+                self._last_rejection_event[kind] = now
+                del self._rejections_unreported[kind]
+                self._emit(event)
 
     # --- telemetry ----------------------------------------------------------------------
     def _log_setup(self) -> None:
@@ -628,8 +691,9 @@ class DaemonService:
             now = ticker.begin()
             commands = self._run_commands()
             self._apply_objects()
-            sample = self.inbox.latest(now, control.deadman_timeout)
+            sample, why = self.inbox.poll(now)
             rec = c.tick(sample.operator if sample is not None else None)
+            self._report_input(now, why)
             if c.stage is not self._logged_stage:
                 self._logged_stage = c.stage
                 self._log_setup()

@@ -82,11 +82,20 @@ class Pose(BaseModel):
     quaternion: Quat
 
 
+class OperatorInfo(BaseModel):
+    """The session holding the operator lease."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: Label
+    session: SessionId | None = None
+
+
 class StatusMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
-    mode: Literal["idle", "teleop", "assist", "stopped", "fault", "starting"]
+    mode: Literal["idle", "teleop", "assist", "stopped", "fault"]
     stage: Label | None = None
     posterior: dict[Label, Annotated[float, Field(ge=0.0, le=1.0)]] = {}
     committed: Label | None = None
@@ -100,7 +109,10 @@ class StatusMessage(_Message):
     deadman: StrictBool = False  # no valid joystick input within the timeout: zero velocity
     tick: Seq = 0
     overruns: Seq = 0  # control ticks that ran past their period
-    rejected: Seq = 0  # joystick messages that did not validate
+    rejected: Seq = 0  # joystick messages not used, all reasons (the sum of ``rejections``)
+    #: joystick messages not used, by reason: invalid, stale_seq, not_operator
+    rejections: dict[Literal["invalid", "stale_seq", "not_operator"], Seq] = {}
+    operator: OperatorInfo | None = None  # the session holding the operator lease
     slack: Finite | None = None  # certificate seen from the current EE pose
     decision: Seq = 0  # counts the decisions of the run (a new stage, or a restart)
     targets: dict[Label, Vec3] = {}  # goal positions of the current decision (base frame, m)
@@ -120,6 +132,9 @@ EventKind = Literal[
     "loaded",
     "started",
     "shutdown",
+    "operator",
+    "deadman",
+    "input_rejected",
 ]
 
 
@@ -132,14 +147,17 @@ class EventMessage(_Message):
 
 
 class CommandRequest(_Message):
-    command: Literal["status", "reset", "stop", "load_scene", "load_taskgraph"]
+    command: Literal[
+        "status", "reset", "stop", "load_scene", "load_taskgraph", "release", "take_control"
+    ]
+    #: ``load_scene``/``load_taskgraph``: a catalog name; ``take_control``: a session id
     argument: Label | None = None
     #: ``load_taskgraph`` only: ``"auto"`` uses the graph's cached plan (``legws plan``)
     plan: Literal["auto"] | None = None
 
     @model_validator(mode="after")
     def _argument(self) -> CommandRequest:
-        needs = self.command in ("load_scene", "load_taskgraph")
+        needs = self.command in ("load_scene", "load_taskgraph", "take_control")
         if needs and self.argument is None:
             raise field_error(("argument",), f"'{self.command}' needs an argument")
         if not needs and self.argument is not None:

@@ -39,6 +39,8 @@ class ControlSpec(_Model):
     v_max: Speed = 0.05  # EE speed at full joystick deflection, m/s
     assist_speed: Speed = 0.10  # autonomous approach, m/s
     deadman_timeout: Seconds = 0.25  # no valid input for this long: zero velocity
+    #: a silent operator keeps the lease this much longer than the deadman timeout, s
+    lease_grace: Annotated[float, Strict(), Field(ge=0.0, le=60.0, allow_inf_nan=False)] = 0.5
     status_rate_hz: Rate = 10.0
 
 
@@ -87,6 +89,9 @@ class CanSpec(_Model):
     button_offset: Annotated[int, Field(ge=0, le=63)] = 6
     scale: Annotated[float, Strict(), Field(gt=0)] = 32767.0
     invert: tuple[StrictBool, StrictBool, StrictBool] = (False, False, False)
+    #: bit 2 of the button byte is a hold-to-run (enable) button; ``false``: every frame is
+    #: enabled and the frame stream itself is the dead-man signal
+    enable_bit: StrictBool = False
 
 
 class ProfileSpec(_Model):

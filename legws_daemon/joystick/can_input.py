@@ -2,7 +2,8 @@
 
 The profile's ``[can]`` table gives the frame layout: one frame of ``arbitration_id`` with
 three signed 16-bit little-endian axes at ``axis_offsets`` and a button byte at
-``button_offset`` (bit 0 cancel, bit 1 confirm). Counts are divided by ``scale``, negated
+``button_offset`` (bit 0 cancel, bit 1 confirm, bit 2 enable — the hold-to-run button — when
+``enable_bit`` is set; else every frame counts as enabled). Counts are divided by ``scale``, negated
 where ``invert`` says so, clipped to [-1, 1] and the deflection to norm 1
 (:func:`decode_frame`; :func:`encode_frame` is its inverse).
 
@@ -30,6 +31,7 @@ Interface = Literal["socketcan", "virtual"]
 INTERFACES: tuple[Interface, ...] = ("socketcan", "virtual")
 CANCEL_BIT = 0x01
 CONFIRM_BIT = 0x02
+ENABLE_BIT = 0x04
 _INT16 = struct.Struct("<h")
 
 
@@ -71,7 +73,11 @@ def decode_frame(spec: CanSpec, arbitration_id: int, data: bytes) -> Sample:
         for off, inv in zip(spec.axis_offsets, spec.invert, strict=True)
     ]
     bits = data[spec.button_offset]
-    buttons = Buttons(cancel=bool(bits & CANCEL_BIT), confirm=bool(bits & CONFIRM_BIT))
+    buttons = Buttons(
+        cancel=bool(bits & CANCEL_BIT),
+        confirm=bool(bits & CONFIRM_BIT),
+        enable=bool(bits & ENABLE_BIT) or not spec.enable_bit,
+    )
     return clip_norm([min(1.0, max(-1.0, v)) for v in raw]), buttons
 
 
@@ -86,7 +92,8 @@ def encode_frame(spec: CanSpec, axes: Sequence[float], buttons: Buttons | None =
         count = round((-value if inv else value) * spec.scale)
         _INT16.pack_into(data, off, max(-32768, min(32767, count)))
     b = buttons if buttons is not None else Buttons()
-    data[spec.button_offset] = (CANCEL_BIT if b.cancel else 0) | (CONFIRM_BIT if b.confirm else 0)
+    bits = (CANCEL_BIT if b.cancel else 0) | (CONFIRM_BIT if b.confirm else 0)
+    data[spec.button_offset] = bits | (ENABLE_BIT if spec.enable_bit and b.enable else 0)
     return bytes(data)
 
 

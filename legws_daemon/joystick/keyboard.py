@@ -38,8 +38,12 @@ AXIS_KEYS: dict[str, tuple[int, float]] = {
 }
 ZERO_KEY = " "
 CANCEL_KEY = "c"
+CONFIRM_KEYS = frozenset({"\r", "\n"})  # Enter
 QUIT_KEYS = frozenset({"q", "\x03", "\x04"})  # q, and Ctrl-C / Ctrl-D should ISIG be off
-HELP = "keys: w/s +x/-x  a/d +y/-y  r/f +z/-z  space zero  c cancel  q quit"
+HELP = (
+    "keys: w/s +x/-x  a/d +y/-y  r/f +z/-z  space zero (hold: let assistance run)  "
+    "Enter confirm  c cancel  q quit"
+)
 #: Default hold time, s: a key's deflection lasts this long unless the key repeats.
 HOLD = 0.3
 
@@ -52,19 +56,25 @@ class KeyboardState:
 
     Args:
         step: the deflection one key sets on its axis, in (0, 1].
-        hold: how long, s, a key's deflection lasts without a repeat, in (0, 10].
+        hold: how long, s, a key's deflection (and the enable) lasts without a repeat,
+            in (0, 10].
+        hold_to_run: enable only while a steering key or space is held (see the module
+            docstring); ``False``: every message enabled.
     """
 
-    def __init__(self, step: float = 1.0, hold: float = HOLD) -> None:
+    def __init__(self, step: float = 1.0, hold: float = HOLD, hold_to_run: bool = True) -> None:
         if not (math.isfinite(step) and 0.0 < step <= 1.0):
             raise InputError(f"must be in (0, 1], got {step!r}", field="step")
         if not (math.isfinite(hold) and 0.0 < hold <= 10.0):
             raise InputError(f"must be in (0, 10] s, got {hold!r}", field="hold")
         self.step = step
         self.hold = hold
+        self.hold_to_run = hold_to_run
         self._value = [0.0, 0.0, 0.0]
         self._since = [-math.inf, -math.inf, -math.inf]
+        self._held = -math.inf  # the last steering key or space
         self._cancel = False
+        self._confirm = False
         self.quit = False
 
     def press(self, key: str, now: float) -> bool:
@@ -77,11 +87,15 @@ class KeyboardState:
             axis, sign = AXIS_KEYS[key]
             self._value[axis] = sign * self.step
             self._since[axis] = now
+            self._held = now
         elif key == ZERO_KEY:
             self._value = [0.0, 0.0, 0.0]
             self._since = [-math.inf, -math.inf, -math.inf]
+            self._held = now
         elif key == CANCEL_KEY:
             self._cancel = True
+        elif key in CONFIRM_KEYS:
+            self._confirm = True
         elif key in QUIT_KEYS:
             self.quit = True
         else:
@@ -99,10 +113,18 @@ class KeyboardState:
         ]
         return clip_norm(held)
 
+    def enabled(self, now: float) -> bool:
+        """Whether the enable button counts as held at ``now`` (always without hold-to-run)."""
+        return not self.hold_to_run or 0.0 <= now - self._held <= self.hold
+
     def sample(self, now: float) -> Sample:
-        """The deflection and buttons to publish at ``now``; a pending cancel is used up."""
-        buttons = Buttons(cancel=self._cancel)
-        self._cancel = False
+        """The deflection and buttons to publish at ``now``; a pending confirm or cancel is
+        used up (and sent enabled: pressing it is the operator's act)."""
+        pressed = self._cancel or self._confirm
+        buttons = Buttons(
+            cancel=self._cancel, confirm=self._confirm, enable=pressed or self.enabled(now)
+        )
+        self._cancel = self._confirm = False
         return self.axes(now), buttons
 
 
@@ -172,7 +194,8 @@ class RawTerminal:
 def status_line(axes: Axes, buttons: Buttons) -> str:
     """The one-line deflection display (without the carriage return)."""
     x, y, z = axes
-    return f"x {x:+.2f}  y {y:+.2f}  z {z:+.2f}" + ("  cancel" if buttons.cancel else "")
+    line = f"x {x:+.2f}  y {y:+.2f}  z {z:+.2f}  " + ("run " if buttons.enable else "hold")
+    return line + ("  confirm" if buttons.confirm else "") + ("  cancel" if buttons.cancel else "")
 
 
 def run_keyboard(

@@ -1,4 +1,5 @@
-"""The joystick inbox: only valid, fresh samples count; everything else is counted and dropped."""
+"""The joystick inbox: only the operator's valid, fresh, enabled samples count; everything
+else is counted by reason and dropped."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from legws_daemon.daemon.inbox import JoystickInbox
+from legws_daemon.daemon.inbox import MAX_SESSIONS, JoystickInbox
 
 
 def payload(seq: int = 0, axes: object = (0.1, 0.0, 0.0), **extra: object) -> bytes:
@@ -17,13 +18,17 @@ def payload(seq: int = 0, axes: object = (0.1, 0.0, 0.0), **extra: object) -> by
     return json.dumps(data).encode()
 
 
+def session(sid: str, seq: int, axes: object = (0.1, 0.0, 0.0), **extra: object) -> bytes:
+    return payload(seq, axes, session=sid, source=f"pub-{sid}", **extra)
+
+
 def test_valid_sample_is_kept_until_the_deadman_timeout() -> None:
     box = JoystickInbox()
     assert box.offer(payload(1), now=10.0) is not None
-    s = box.latest(10.2, timeout=0.25)
+    s = box.latest(10.2)
     assert s is not None
     assert s.message.axes == (0.1, 0.0, 0.0)
-    assert box.latest(10.26, timeout=0.25) is None  # stale: no input
+    assert box.poll(10.26) == (None, "no_input")  # stale: no input
     assert box.accepted == 1
     assert box.rejected == 0
 
@@ -51,7 +56,8 @@ def test_malformed_messages_are_counted_and_never_used(bad: bytes) -> None:
     box = JoystickInbox()
     assert box.offer(bad, now=1.0) is None
     assert box.rejected == 1
-    assert box.latest(1.0, timeout=0.25) is None
+    assert box.latest(1.0) is None
+    assert box.counts() == {"invalid": 1, "stale_seq": 0, "not_operator": 0}
     assert box.last_error is not None
     assert "\n" not in box.last_error
 
@@ -60,17 +66,124 @@ def test_a_bad_message_does_not_refresh_the_deadman() -> None:
     box = JoystickInbox()
     box.offer(payload(1), now=0.0)
     box.offer(b"garbage", now=0.2)
-    assert box.latest(0.3, timeout=0.25) is None
+    assert box.latest(0.3) is None
 
 
 def test_out_of_order_samples_are_dropped_but_a_restarted_publisher_is_not() -> None:
     box = JoystickInbox()
     box.offer(payload(5000, axes=[0.5, 0, 0]), now=0.0)
     assert box.offer(payload(4999, axes=[-0.5, 0, 0]), now=0.01) is None
-    s = box.latest(0.02, 0.25)
+    assert box.offer(payload(5000, axes=[-0.5, 0, 0]), now=0.01) is None
+    assert box.counts()["stale_seq"] == 2 and box.rejected == 2
+    s = box.latest(0.02)
     assert s is not None
     assert s.message.axes[0] == 0.5
-    assert box.offer(payload(0, axes=[0.2, 0, 0]), now=0.03) is not None  # restarted at 0
+    # a publisher without a session id that starts over at 0 is a restart: at once
+    assert box.offer(payload(0, axes=[0.2, 0, 0]), now=0.03) is not None
+    assert box.offer(payload(900, axes=[0.2, 0, 0]), now=0.04) is not None
+
+
+def test_a_replayed_seq_within_a_session_is_refused_even_at_zero() -> None:
+    box = JoystickInbox()
+    for i in range(3):
+        assert box.offer(session("a", i), now=0.01 * i) is not None
+    assert box.offer(session("a", 0), now=0.05) is None
+    assert box.offer(session("a", 2), now=0.05) is None
+    assert box.counts()["stale_seq"] == 2
+    assert box.offer(session("a", 3), now=0.06) is not None
+
+
+def test_the_first_session_that_steers_holds_the_lease_and_others_are_not_operator() -> None:
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    # a stream of zeros and a message without enable claim nothing
+    assert box.offer(session("idle", 0, axes=[0, 0, 0]), now=0.0) is None
+    assert box.offer(session("lazy", 0, buttons={"enable": False}), now=0.0) is None
+    assert box.poll(0.0) == (None, "no_operator")
+    assert box.operator() is None and box.rejected == 0
+    assert box.offer(session("a", 0), now=0.01) is not None
+    assert box.operator() == {"source": "pub-a", "session": "a"}
+    assert box.offer(session("b", 0, axes=[0, -0.9, 0]), now=0.02) is None
+    assert box.offer(session("idle", 1, axes=[0, 0, 0]), now=0.02) is None
+    assert box.counts() == {"invalid": 0, "stale_seq": 0, "not_operator": 2}
+    s = box.latest(0.03)
+    assert s is not None and s.message.session == "a"
+    report = box.take_report()
+    assert [(c.operator and c.operator.session, c.reason) for c in report.changes] == [
+        ("a", "first_input")
+    ]
+    assert report.rejections["not_operator"].count == 2
+    assert report.rejections["not_operator"].session == "idle"
+    assert box.take_report().changes == []
+
+
+def test_the_lease_passes_after_the_timeout_plus_the_grace() -> None:
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    box.offer(session("a", 0), now=0.0)
+    assert box.offer(session("b", 0), now=0.74) is None  # 0.74 s of silence: still a's
+    assert box.offer(session("b", 1), now=0.76) is not None  # 0.76 > 0.75: b takes it
+    assert box.operator() == {"source": "pub-b", "session": "b"}
+    reasons = [c.reason for c in box.take_report().changes]
+    assert reasons == ["first_input", "timeout", "first_input"]
+    # the control loop's poll ends a silent lease too
+    assert box.poll(1.6) == (None, "no_operator")
+    assert [c.reason for c in box.take_report().changes] == ["timeout"]
+
+
+def test_a_goodbye_is_no_input_at_once_and_a_restarted_publisher_steers_at_once() -> None:
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    box.offer(session("a", 0, axes=[0.5, 0, 0]), now=0.0)
+    assert box.latest(0.01) is not None
+    bye = session("a", 1, axes=[0, 0, 0], buttons={"enable": False}, bye=True)
+    assert box.offer(bye, now=0.02) is None
+    assert box.poll(0.03) == (None, "no_operator")  # not 0.25 s of a zero "input"
+    assert box.offer(session("a2", 0), now=0.05) is not None  # the restarted publisher
+    assert box.latest(0.05) is not None
+    assert [c.reason for c in box.take_report().changes] == [
+        "first_input",
+        "goodbye",
+        "first_input",
+    ]
+
+
+def test_enable_released_is_no_input_but_keeps_the_lease() -> None:
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    box.offer(session("a", 0), now=0.0)
+    off = session("a", 1, axes=[0.4, 0, 0], buttons={"enable": False})
+    assert box.offer(off, now=0.1) is not None
+    assert box.poll(0.1) == (None, "enable_released")
+    for i in range(2, 20):  # resting with enable released for 2 s
+        box.offer(session("a", i, axes=[0, 0, 0], buttons={"enable": False}), now=0.1 * i)
+    assert box.offer(session("b", 0), now=2.0) is None
+    assert box.operator() == {"source": "pub-a", "session": "a"}
+
+
+def test_release_and_take_control() -> None:
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    box.offer(session("a", 0), now=0.0)
+    change = box.take_control("b", now=0.1)  # b has not been heard yet
+    assert change is not None and change.reason == "take_control"
+    assert box.latest(0.1) is None  # a's sample is not b's input
+    assert box.offer(session("a", 1), now=0.15) is None
+    assert box.offer(session("b", 0), now=0.2) is not None
+    assert box.operator() == {"source": "pub-b", "session": "b"}
+    assert box.take_control("b", now=0.3) is None  # already b's
+    release = box.release(now=0.4)
+    assert release is not None and release.reason == "release"
+    assert box.operator() is None and box.release(now=0.5) is None
+    # a publisher without a session id is named by its source
+    box.offer(payload(0, source="legacy"), now=0.6)
+    box.take_control("legacy", now=0.7)
+    assert box.operator() == {"source": "legacy", "session": None}
+    assert box.offer(payload(1, source="legacy"), now=0.8) is not None
+
+
+def test_the_remembered_sessions_are_bounded() -> None:
+    box = JoystickInbox()
+    box.offer(session("op", 0), now=0.0)
+    for i in range(MAX_SESSIONS + 50):
+        box.offer(session(f"s{i}", 0), now=0.0)
+    assert len(box._last_seq) == MAX_SESSIONS
+    assert box.offer(session("op", 0), now=0.1) is None  # the operator's seq is remembered
 
 
 @settings(max_examples=300, deadline=None)
@@ -78,7 +191,7 @@ def test_out_of_order_samples_are_dropped_but_a_restarted_publisher_is_not() -> 
 def test_arbitrary_bytes_never_raise(data: bytes) -> None:
     box = JoystickInbox()
     box.offer(data, now=0.0)
-    assert box.accepted + box.rejected + box.reasons["stale_seq"] == 1
+    assert box.accepted + box.rejected == 1
 
 
 @settings(max_examples=300, deadline=None)

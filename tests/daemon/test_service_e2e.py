@@ -72,7 +72,12 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
             assert set(teleop[-1]["targets"]) == set(teleop[-1]["posterior"])
             assert teleop[-1]["certificate"] is not None
             assert next(s["committed"] for _, s in m.status if s["mode"] == "assist") == "white_mug"
-            assert m.kinds()[-2:] == ["stage_done", "task_done"]
+            input_kinds = ("operator", "deadman", "input_rejected")
+            task_kinds = [k for k in m.kinds() if k not in input_kinds]
+            assert task_kinds[-2:] == ["stage_done", "task_done"]
+            claim = next(e["detail"] for e in m.events if e["kind"] == "operator")
+            assert claim["reason"] == "first_input"
+            assert claim["operator"]["source"].startswith("sim-user:")
             ok, reply = m.command("status")
             assert ok
             assert reply["robot"] == ROBOT
@@ -90,6 +95,8 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
         assert p in paths or p.lstrip("/") in paths, sorted(paths)[:40]
     log = [text for _, _, text in read_text_log(rrd)]
     assert any(t.startswith("commit goal=white_mug") for t in log)
+    assert any(t.startswith("operator sim-user:") and "first_input" in t for t in log)
+    assert any(t.startswith("deadman on=False") for t in log)
 
 
 def test_deadman_malformed_input_and_commands(tmp_path: Path) -> None:

@@ -45,6 +45,7 @@ def layouts(draw: st.DrawFn) -> CanSpec:
         button_offset=base + 2 * slots[3] + draw(st.integers(0, 1)),
         scale=draw(st.floats(100.0, 32767.0)),
         invert=draw(st.tuples(st.booleans(), st.booleans(), st.booleans())),
+        enable_bit=draw(st.booleans()),
     )
 
 
@@ -81,6 +82,17 @@ def test_decode_known_frame() -> None:
     assert buttons == Buttons(cancel=True, confirm=False)
     _, buttons = decode_frame(SPEC, 0x100, struct.pack("<hhhB", 0, 0, 0, 0b10))
     assert buttons == Buttons(cancel=False, confirm=True)
+
+
+def test_the_enable_bit_is_a_hold_to_run_button_only_when_the_profile_says_so() -> None:
+    with_enable = CanSpec(enable_bit=True)
+    for bits, enabled in ((0b000, False), (0b100, True), (0b110, True), (0b010, False)):
+        frame = struct.pack("<hhhB", 8000, 0, 0, bits)
+        assert decode_frame(with_enable, 0x100, frame)[1].enable is enabled
+        assert decode_frame(SPEC, 0x100, frame)[1].enable is True  # no enable button
+    frame = encode_frame(with_enable, (0.5, 0, 0), Buttons(enable=False, confirm=True))
+    assert frame[6] == 0b010
+    assert encode_frame(SPEC, (0.5, 0, 0), Buttons(enable=True))[6] == 0
 
 
 def test_full_deflection_on_two_axes_is_clipped_to_norm_one_and_inverted() -> None:

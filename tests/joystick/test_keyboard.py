@@ -100,10 +100,37 @@ def test_cancel_is_sent_in_exactly_one_sample() -> None:
     assert state.sample(0.1) == ((1.0, 0.0, 0.0), Buttons())
 
 
+@pytest.mark.parametrize("enter", ["\r", "\n"])
+def test_enter_confirms_in_exactly_one_sample_and_enabled(enter: str) -> None:
+    state = KeyboardState()
+    assert state.press(enter, 0.0)
+    assert state.sample(5.0) == ((0.0, 0.0, 0.0), Buttons(confirm=True, enable=True))
+    assert state.sample(5.1) == ((0.0, 0.0, 0.0), Buttons(enable=False))
+
+
+def test_hold_to_run_enable_lasts_the_hold_time_after_a_steering_key_or_space() -> None:
+    state = KeyboardState(hold=0.3)
+    assert not state.sample(0.0)[1].enable  # nothing pressed yet: no input for the daemon
+    state.press("w", 1.0)
+    assert state.sample(1.2) == ((1.0, 0.0, 0.0), Buttons(enable=True))
+    assert state.sample(1.31) == ((0.0, 0.0, 0.0), Buttons(enable=False))  # let go
+    for t in (2.0, 2.03, 2.06):  # space held: auto-repeat keeps the assistance running
+        state.press(" ", t)
+        assert state.sample(t + 0.02) == ((0.0, 0.0, 0.0), Buttons(enable=True))
+    assert not state.sample(2.4)[1].enable
+
+
+def test_without_hold_to_run_every_message_is_enabled() -> None:
+    state = KeyboardState(hold_to_run=False)
+    assert state.sample(0.0)[1].enable
+    state.press("w", 1.0)
+    assert state.sample(9.0) == ((0.0, 0.0, 0.0), Buttons(enable=True))
+
+
 def test_quit_keys_and_unknown_keys() -> None:
     state = KeyboardState()
     assert not state.press("x", 0.0)
-    assert not state.press("\n", 0.0)
+    assert not state.press("\t", 0.0)
     assert not state.quit
     assert state.axes(0.0) == (0.0, 0.0, 0.0)
     assert state.press("q", 0.0)
@@ -154,7 +181,9 @@ def test_escape_sequences_are_not_read_as_letters() -> None:
 
 
 def test_status_line_shows_the_deflection() -> None:
-    assert status_line((0.5, -0.25, 0.0), Buttons()) == "x +0.50  y -0.25  z +0.00"
+    assert status_line((0.5, -0.25, 0.0), Buttons()) == "x +0.50  y -0.25  z +0.00  run "
+    assert status_line((0.0, 0.0, 0.0), Buttons(enable=False)).endswith("hold")
+    assert status_line((0.0, 0.0, 0.0), Buttons(confirm=True)).endswith("confirm")
     assert status_line((0.0, 0.0, 0.0), Buttons(cancel=True)).endswith("cancel")
 
 

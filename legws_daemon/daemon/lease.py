@@ -1,0 +1,125 @@
+"""Who steers: one operator at a time.
+
+Every joystick publisher is a *session*: the random ``session`` id its messages carry
+(chosen at each publisher start), or — for a publisher that sends none — its ``source``
+label. At most one session holds the operator *lease*; only its messages move the robot.
+
+- The lease is free at start. The first session that **steers** takes it: a message with
+  the enable button held and a deflection or a button press (a stream of zeros, or of
+  messages with enable released, claims nothing).
+- The holder keeps it while it is heard: each of its valid messages renews it, whatever
+  the stick says (an operator resting with enable released still holds it).
+- It ends when the holder says goodbye (``bye``: a publisher that stops), when the holder
+  has not been heard for the deadman timeout plus a grace period (a publisher that died),
+  or on the ``release`` command. The ``take_control`` command hands it to a named session
+  at once (heard from yet or not; a session never heard from loses it after the timeout
+  plus the grace).
+
+Pure logic: the caller passes the (monotonic) time; :class:`~.inbox.JoystickInbox` locks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+#: Why the lease changed hands.
+LeaseReason = Literal["first_input", "goodbye", "timeout", "release", "take_control"]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SessionKey:
+    """A publisher session: its ``session`` id, or its ``source`` label when it sends none."""
+
+    session: str | None
+    source: str
+
+    @property
+    def ident(self) -> tuple[str, str]:
+        """What tells sessions apart (a label never equals an id of the other kind)."""
+        return ("session", self.session) if self.session is not None else ("source", self.source)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SessionKey) and self.ident == other.ident
+
+    def __hash__(self) -> int:
+        return hash(self.ident)
+
+    def describe(self) -> dict[str, str | None]:
+        """The wire form: ``{"source": ..., "session": ...}``."""
+        return {"source": self.source, "session": self.session}
+
+
+@dataclass(frozen=True, slots=True)
+class LeaseChange:
+    """The lease went from ``previous`` to ``operator`` (``None``: nobody) for ``reason``."""
+
+    previous: SessionKey | None
+    operator: SessionKey | None
+    reason: LeaseReason
+
+
+class Lease:
+    """The operator lease (see the module docstring).
+
+    Args:
+        timeout: the deadman timeout, s.
+        grace: how much longer than the timeout a silent holder keeps the lease, s.
+    """
+
+    def __init__(self, timeout: float, grace: float) -> None:
+        if not (timeout > 0.0 and grace >= 0.0):
+            raise ValueError(f"timeout {timeout!r} must be > 0 and grace {grace!r} >= 0")
+        self.timeout = timeout
+        self.grace = grace
+        self.holder: SessionKey | None = None
+        self.since: float | None = None  # when the holder got it
+        self.heard: float | None = None  # when the holder was last heard (or got it)
+
+    @property
+    def expires_after(self) -> float:
+        """Seconds of silence after which the holder loses the lease."""
+        return self.timeout + self.grace
+
+    def expire(self, now: float) -> LeaseChange | None:
+        """End a silent holder's lease (``timeout``); the change, or ``None``."""
+        if self.holder is None or self.heard is None or now - self.heard <= self.expires_after:
+            return None
+        return self._set(None, now, "timeout")
+
+    def offer(
+        self, key: SessionKey, now: float, *, steering: bool, bye: bool
+    ) -> tuple[bool, list[LeaseChange]]:
+        """A valid message of ``key`` at ``now``: whether it is the operator's, and the
+        changes it caused (an expiry first, then a claim or a goodbye).
+
+        Args:
+            steering: enable held and a deflection or a button pressed.
+            bye: the publisher's last message.
+        """
+        changes = [c for c in (self.expire(now),) if c is not None]
+        if self.holder is None and steering and not bye:
+            changes.append(self._set(key, now, "first_input"))
+        if self.holder != key:
+            return False, changes
+        self.holder, self.heard = key, now  # (a session given the lease before it was heard)
+        if bye:
+            changes.append(self._set(None, now, "goodbye"))
+        return True, changes
+
+    def release(self, now: float) -> LeaseChange | None:
+        """The ``release`` command: nobody holds it; the next session that steers takes it."""
+        return None if self.holder is None else self._set(None, now, "release")
+
+    def take(self, key: SessionKey, now: float) -> LeaseChange | None:
+        """The ``take_control`` command: ``key`` holds it from now (``None`` if it did)."""
+        if self.holder == key:
+            self.heard = now
+            return None
+        return self._set(key, now, "take_control")
+
+    def _set(self, key: SessionKey | None, now: float, reason: LeaseReason) -> LeaseChange:
+        change = LeaseChange(self.holder, key, reason)
+        self.holder = key
+        self.since = self.heard = now if key is not None else None
+        return change

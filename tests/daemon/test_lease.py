@@ -1,0 +1,87 @@
+"""The operator lease: one holder at a time, passed only for the documented reasons."""
+
+from __future__ import annotations
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from legws_daemon.daemon.lease import Lease, SessionKey
+
+KEYS = [
+    SessionKey("a", "pad"),
+    SessionKey("b", "pad"),
+    SessionKey(None, "a"),
+    SessionKey(None, "b"),
+]
+
+Step = tuple[str, int, bool, bool, float]
+steps = st.lists(
+    st.tuples(
+        st.sampled_from(["msg", "msg", "msg", "release", "take", "tick"]),
+        st.integers(0, len(KEYS) - 1),
+        st.booleans(),  # steering
+        st.booleans(),  # bye
+        st.floats(0.0, 1.0),  # time since the previous step, s
+    ),
+    max_size=60,
+)
+
+
+def test_a_session_id_and_a_source_label_are_never_the_same_session() -> None:
+    assert SessionKey("a", "x") == SessionKey("a", "y")  # the label is only a name
+    assert SessionKey("a", "x") != SessionKey(None, "a")
+    assert len({SessionKey("a", "x"), SessionKey("a", "y"), SessionKey(None, "a")}) == 2
+
+
+@settings(max_examples=400, deadline=None)
+@given(steps)
+def test_one_holder_and_every_change_is_accounted_for(sequence: list[Step]) -> None:
+    lease = Lease(timeout=0.25, grace=0.5)
+    now = 0.0
+    for what, k, steering, bye, dt in sequence:
+        now += dt
+        before = lease.holder
+        heard = lease.heard
+        if what == "msg":
+            mine, changes = lease.offer(KEYS[k], now, steering=steering, bye=bye)
+            # the message is the operator's only if its session held the lease or claimed it
+            assert mine == (
+                (before == KEYS[k] and heard is not None and now - heard <= 0.75)
+                or any(c.operator == KEYS[k] and c.reason == "first_input" for c in changes)
+            )
+            if mine and bye:
+                assert lease.holder is None and changes[-1].reason == "goodbye"
+            if not mine:
+                assert lease.holder != KEYS[k] or lease.holder is None
+        elif what == "release":
+            changes = [c for c in [lease.release(now)] if c is not None]
+            assert lease.holder is None
+        elif what == "take":
+            changes = [c for c in [lease.take(KEYS[k], now)] if c is not None]
+            assert lease.holder == KEYS[k]
+        else:
+            changes = [c for c in [lease.expire(now)] if c is not None]
+        # the changes chain from the holder before to the holder after
+        chain = before
+        for change in changes:
+            assert change.previous == chain
+            assert change.operator != change.previous
+            if change.reason == "first_input":
+                assert change.previous is None and steering and not bye
+            if change.reason == "timeout":
+                assert change.operator is None
+            chain = change.operator
+        assert chain == lease.holder
+        if lease.holder is not None:
+            assert lease.heard is not None and lease.since is not None
+            assert lease.since <= lease.heard <= now
+
+
+def test_a_silent_holder_keeps_the_lease_for_exactly_the_timeout_plus_the_grace() -> None:
+    lease = Lease(timeout=0.25, grace=0.5)
+    a, b = KEYS[0], KEYS[1]
+    mine, changes = lease.offer(a, 0.0, steering=True, bye=False)
+    assert mine and [c.reason for c in changes] == ["first_input"]
+    assert lease.expire(0.75) is None
+    mine, changes = lease.offer(b, 0.7501, steering=True, bye=False)
+    assert mine and [c.reason for c in changes] == ["timeout", "first_input"]
