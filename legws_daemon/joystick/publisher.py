@@ -15,6 +15,7 @@ The daemon's profile *listens* on its endpoints; a publisher must *connect* to t
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import secrets
@@ -25,7 +26,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import IO
+from typing import IO, Any
 
 import zenoh
 
@@ -125,6 +126,8 @@ class Publisher:
             raise InputError("must not be empty", field="key")
         self.config = config
         self.key = key
+        #: the daemon's command key (``take_control``), next to the joystick key
+        self.command_key = key.rsplit("/", 1)[0] + "/command"
         self.source = source
         self.record_path = record
         self._lock = threading.Lock()
@@ -209,6 +212,27 @@ class Publisher:
                 return False
             time.sleep(0.01)
         return True
+
+    def take_control(self, timeout: float = 5.0) -> dict[str, Any]:
+        """Ask the daemon to give this session the operator lease (the ``take_control``
+        command with :attr:`session_id`); returns the reply.
+
+        Raises :class:`LegwsError` with the daemon's reason when it refuses, and when no
+        reply comes (no daemon, or its access control refuses commands from this identity).
+        """
+        body = {"schema": SCHEMA_VERSION, "command": "take_control", "argument": self.session_id}
+        for reply in self.session.get(
+            self.command_key, payload=json.dumps(body).encode(), timeout=timeout
+        ):
+            if reply.ok is not None:
+                answer: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                return answer
+            error = reply.err.payload.to_bytes().decode(errors="replace")
+            raise LegwsError(f"{self.command_key}: take_control refused: {error}")
+        raise LegwsError(
+            f"{self.command_key}: no reply to take_control within {timeout:g} s (is the daemon "
+            "running, and does its access control let this identity send commands?)"
+        )
 
     # -- publishing -----------------------------------------------------------------------
 

@@ -1,5 +1,6 @@
 """One operator at a time, seen from outside: the daemon in its own process, publishers that
-are plain zenoh clients writing the JSON of docs/messages.md (no legws code on their side).
+are plain zenoh clients writing the JSON of docs/messages.md (no legws code on their side,
+but for the ``take_control`` of legws' own publisher).
 
 - two publishers steer toward different goals: the daemon follows the first, commits to its
   goal, status names it as the operator, the second is counted ``not_operator`` and
@@ -24,6 +25,9 @@ import numpy as np
 import pytest
 import zenoh
 
+from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.joystick.publisher import Publisher
+from legws_daemon.transport.session import config_from_spec
 from tests.daemon.procs import Monitor, monitor, ready, start, stop, write_profile
 from tests.net import free_port
 
@@ -178,3 +182,51 @@ def test_two_publishers_the_daemon_follows_the_first_and_a_restart_steers_at_onc
     assert rows[i]["seq"] == 0  # the new session's first message, nothing lost
     assert rows[i - 1]["begin"] < rows[i]["received"] <= rows[i]["begin"]
     assert rows[i]["begin"] - rows[i]["received"] <= PERIOD + 0.02
+
+
+def test_take_control_and_release_move_the_lease_and_a_killed_publisher_loses_it(
+    tmp_path: Path,
+) -> None:
+
+    port = free_port()
+    profile = write_profile(tmp_path, "sim", port)
+    daemon = start(
+        ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90"],
+        tmp_path / "daemon.log",
+    )
+    spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        with monitor(port, ROBOT) as m, raw_session(port) as one:
+            assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
+
+            def operator() -> dict[str, Any] | None:
+                s = m.latest()
+                return None if s is None else s["operator"]
+
+            holder = Operator(one, "first", 20.0).steer(lambda: [0.0, 0.3, 0.0])
+            assert m.wait_for(lambda m: operator() is not None, 5)
+            with Publisher(config_from_spec(spec), KEY, source="second") as pub:
+                reply = pub.take_control()
+                assert reply["ok"] and reply["operator"]["session"] == pub.session_id
+                assert m.wait_for(lambda m: (operator() or {}).get("session") == pub.session_id, 5)
+                n = m.latest()["rejections"]["not_operator"]  # type: ignore[index]
+                for _ in range(10):
+                    pub.publish((0.0, -0.3, 0.0))
+                    time.sleep(0.05)
+                assert m.latest()["deadman"] is False  # type: ignore[index]
+                assert m.latest()["rejections"]["not_operator"] > n  # type: ignore[index]
+                ok, reply = m.command("release")
+                assert ok and reply["operator"] is None
+                # the first session steers on: with the lease free it takes it back
+                assert m.wait_for(lambda m: (operator() or {}).get("session") == holder.id, 5)
+            # "killed": the holder stops without a goodbye; the lease ends after 0.75 s
+            holder._stop.set()
+            t0 = time.monotonic()
+            assert m.wait_for(lambda m: operator() is None, 5)
+            assert time.monotonic() - t0 >= 0.5
+            events = list(m.events)
+    finally:
+        code, _ = stop(daemon)
+    assert code == 0
+    reasons = [e["detail"]["reason"] for e in events if e["kind"] == "operator"]
+    assert reasons == ["first_input", "take_control", "release", "first_input", "timeout"]
