@@ -49,6 +49,7 @@ class PublisherOptions:
     rate: float | None = None
     record: Path | None = None
     duration: float | None = None
+    take_control: bool = False
 
     def load_profile(self) -> ProfileSpec:
         """The hardware profile; errors name the file and the field."""
@@ -67,10 +68,11 @@ class PublisherOptions:
             source=process_source(kind),
             zenoh_config=self.zenoh_config,
             record=self.record,
+            take_control=self.take_control,
         )
 
 
-_OPTION_NAMES = ("profile", "zenoh_config", "rate", "record", "duration")
+_OPTION_NAMES = ("profile", "zenoh_config", "rate", "record", "duration", "take_control")
 
 
 def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Callable[..., R]]:
@@ -85,6 +87,7 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
         def wrapper(**kwargs: Any) -> R:
             common = {name: kwargs.pop(name, None) for name in _OPTION_NAMES}
             common["profile"] = common["profile"] or DEFAULT_PROFILE
+            common["take_control"] = bool(common["take_control"])
             return f(options=PublisherOptions(**common), **kwargs)
 
         options = [
@@ -110,6 +113,13 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
                 "--duration",
                 type=click.FloatRange(min=0.0, min_open=True),
                 help="Stop after this many seconds (default: until Ctrl-C or SIGTERM).",
+            ),
+            click.option(
+                "--take-control",
+                is_flag=True,
+                help="Take the operator lease from whoever holds it, at start (the daemon's "
+                "take_control command; its access control must let this identity send "
+                "commands).",
             ),
         ]
         if rate:
@@ -158,13 +168,23 @@ def joystick_group() -> None:
     type=click.FloatRange(min=0.0, max=10.0, min_open=True),
     default=0.3,
     show_default=True,
-    help="Seconds a key's deflection lasts unless the key repeats.",
+    help="Seconds a key's deflection (and the enable) lasts unless the key repeats.",
 )
-def keyboard_cmd(options: PublisherOptions, step: float, hold: float) -> None:
-    """Steer from this terminal: w/s +x/-x, a/d +y/-y, r/f +z/-z, space zero, c cancel, q quit.
+@click.option(
+    "--hold-to-run/--no-hold-to-run",
+    default=True,
+    show_default=True,
+    help="Enable only while a steering key or space is held (assistance runs while you hold "
+    "space); --no-hold-to-run: the running publisher itself is the dead-man signal.",
+)
+def keyboard_cmd(options: PublisherOptions, step: float, hold: float, hold_to_run: bool) -> None:
+    """Steer from this terminal: w/s +x/-x, a/d +y/-y, r/f +z/-z, space zero, Enter confirm,
+    c cancel, q quit.
 
     A terminal reports no key releases: a key's deflection decays to zero unless the key
-    repeats within --hold seconds (holding a key down repeats it).
+    repeats within --hold seconds (holding a key down repeats it; the terminal's repeat
+    delay must be shorter than --hold). Hold-to-run: the arm moves only while you steer or
+    hold space; after a commit, hold space to let the assistance finish.
     """
     from legws_daemon.joystick.keyboard import (
         KeyboardState,
@@ -175,7 +195,7 @@ def keyboard_cmd(options: PublisherOptions, step: float, hold: float) -> None:
     from legws_daemon.joystick.publisher import stop_on_signals
 
     profile = options.load_profile()
-    state = KeyboardState(step=step, hold=hold)
+    state = KeyboardState(step=step, hold=hold, hold_to_run=hold_to_run)
     fd = stdin_terminal_fd()
     rate = options.rate_for(profile)
     with stop_on_signals() as stop, options.publisher(profile, "keyboard") as pub:
@@ -265,3 +285,92 @@ def replay_cmd(options: PublisherOptions, file: Path, speed: float, loop: bool) 
             stop_event=stop,
         )
     click.echo(f"legws: replay stopped: {published} messages published", err=True)
+
+
+@joystick_group.command("evdev")
+@publisher_options()
+@click.option(
+    "--mapping",
+    metavar="NAME|FILE",
+    help="Device mapping: a name in hw_profiles/input/ (xbox, spacemouse, hid_joystick) or "
+    "a .toml path. Default: the first shipped mapping that recognises a plugged-in device.",
+)
+@click.option(
+    "--device",
+    "device_path",
+    type=click.Path(dir_okay=False),
+    metavar="PATH",
+    help="The event node to read, e.g. /dev/input/by-id/usb-...-event-joystick (a by-id path "
+    "survives replugging). Default: the first device the mapping recognises.",
+)
+@click.option(
+    "--list",
+    "list_only",
+    is_flag=True,
+    help="List the input devices, and the mapping that recognises each, then exit "
+    "(no zenoh session).",
+)
+def evdev_cmd(
+    options: PublisherOptions, mapping: str | None, device_path: str | None, list_only: bool
+) -> None:
+    """Steer with a gamepad, a 3Dconnexion SpaceMouse or a HID joystick (python-evdev).
+
+    Hold-to-run: only while the mapping's enable button is held (Xbox pad: LB, HID joystick:
+    the trigger) are the deflection, confirm and cancel sent; released, every message is zero
+    with enable released, which the daemon takes as no input. The SpaceMouse mapping has no
+    enable button: letting go of the cap is the stop. Xbox pad: left stick up/left = +x/+y,
+    right stick or d-pad up = +z, A confirm, B cancel.
+
+    Unplugging the device sends zero with enable released at once; the device is picked up
+    again when it comes back, without a restart. Reading /dev/input needs the 'input' group
+    or a udev rule. Start with --list; mapping files and their format: hw_profiles/input/,
+    docs/daemon.md.
+    """
+    from legws_daemon.joystick.evdev_input import (
+        EvdevReader,
+        choose_mapping,
+        input_dir,
+        list_devices,
+        none_found_reason,
+        run_evdev,
+    )
+    from legws_daemon.joystick.publisher import stop_on_signals
+
+    if list_only:
+        found = list_devices()
+        for dev in found:
+            click.echo(dev.describe())
+        if not found:
+            click.echo(none_found_reason())
+        return
+    profile = options.load_profile()
+    rate = options.rate_for(profile)
+    name, spec = choose_mapping(mapping, device_path)
+    reader = EvdevReader(spec, device=device_path, folder=input_dir(), label=name)
+    reader.open()  # a missing device is bad input (exit 2) before any zenoh session
+    enable = spec.buttons.enable
+    hold = (
+        "hold " + " or ".join(b.code for b in enable) + " to steer"
+        if enable
+        else "no enable button: every message is enabled"
+    )
+    published = 0
+    try:
+        with stop_on_signals() as stop, options.publisher(profile, f"evdev-{name}") as pub:
+            reader.start()
+            _started(
+                pub,
+                f'{name} mapping on "{reader.name}" ({reader.path}) at {rate:g} Hz; {hold}',
+            )
+            published = run_evdev(
+                pub, reader, rate=rate, duration=options.duration, stop_event=stop
+            )
+    finally:
+        reader.close()
+    state = reader.state
+    click.echo(
+        f"legws: evdev joystick stopped: {state.events} events, {state.dropped} dropped "
+        f"(SYN_DROPPED), {reader.unplugged} unplugged, {reader.reconnected} reconnected, "
+        f"{published} messages published",
+        err=True,
+    )

@@ -37,6 +37,8 @@ REJECTIONS: tuple[Rejection, ...] = get_args(Rejection)
 NoInput = Literal["no_operator", "no_input", "enable_released"]
 #: Sessions whose last ``seq`` is remembered (the least recently heard are forgotten).
 MAX_SESSIONS = 256
+#: The ``source`` of a session given the lease before it was heard from.
+NOT_HEARD = "(not heard yet)"
 #: Default grace after the deadman timeout before a silent operator loses the lease, s.
 LEASE_GRACE = 0.5
 
@@ -215,7 +217,7 @@ class JoystickInbox:
         for key in heard:
             if key.session is None and key.source == ident:
                 return key
-        return SessionKey(ident, "unknown")
+        return SessionKey(ident, NOT_HEARD)
 
     def _reject(self, reason: Rejection, key: SessionKey | None, error: str) -> None:
         self.reasons[reason] += 1

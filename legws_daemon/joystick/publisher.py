@@ -44,6 +44,8 @@ Sample = tuple[Axes, Buttons]
 SampleFn = Callable[[], Sample | None]
 
 ZERO: Axes = (0.0, 0.0, 0.0)
+#: How long opening with ``take_control`` waits for the daemon's subscriber first, s.
+CLAIM_WAIT = 3.0
 #: Highest publishing rate accepted, Hz (the profile's control rate has the same bound).
 MAX_RATE = 1000.0
 
@@ -112,13 +114,21 @@ class Publisher:
         key: the key expression, normally ``keys(profile.robot)["joystick"]``.
         source: the ``source`` label of every message (1 to 64 characters).
         record: a JSONL file every published message is appended to, or ``None``.
+        take_control: on opening, ask the daemon for the operator lease
+            (:meth:`take_control`; a refusal or no answer is a :class:`LegwsError`).
 
     The session and the recording are opened by ``with`` and closed on leaving it.
     :meth:`publish` may be called from any thread.
     """
 
     def __init__(
-        self, config: zenoh.Config, key: str, *, source: str, record: Path | None = None
+        self,
+        config: zenoh.Config,
+        key: str,
+        *,
+        source: str,
+        record: Path | None = None,
+        take_control: bool = False,
     ) -> None:
         if not 1 <= len(source) <= 64:
             raise InputError(f"must be 1 to 64 characters, got {source!r}", field="source")
@@ -130,6 +140,7 @@ class Publisher:
         self.command_key = key.rsplit("/", 1)[0] + "/command"
         self.source = source
         self.record_path = record
+        self.claim = take_control
         self._lock = threading.Lock()
         self._seq = 0
         self._stack: ExitStack | None = None
@@ -146,10 +157,12 @@ class Publisher:
         source: str,
         zenoh_config: Path | None = None,
         record: Path | None = None,
+        take_control: bool = False,
     ) -> Publisher:
         """A publisher on ``profile.robot``'s joystick key that connects to its daemon."""
         config = publisher_config(profile, zenoh_config)
-        return cls(config, keys(profile.robot)["joystick"], source=source, record=record)
+        key = keys(profile.robot)["joystick"]
+        return cls(config, key, source=source, record=record, take_control=take_control)
 
     # -- lifetime -------------------------------------------------------------------------
 
@@ -163,6 +176,9 @@ class Publisher:
             self._publisher = self._session.declare_publisher(self.key)
             self.session_id = new_session_id()  # each opening is a new session, seq from 0
             self._seq = 0
+            if self.claim:
+                self.wait_matched(CLAIM_WAIT)
+                self.take_control()
             self._stack = stack.pop_all()
         return self
 
@@ -227,7 +243,8 @@ class Publisher:
             if reply.ok is not None:
                 answer: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
                 return answer
-            error = reply.err.payload.to_bytes().decode(errors="replace")
+            err = reply.err
+            error = err.payload.to_bytes().decode(errors="replace") if err else "no detail"
             raise LegwsError(f"{self.command_key}: take_control refused: {error}")
         raise LegwsError(
             f"{self.command_key}: no reply to take_control within {timeout:g} s (is the daemon "

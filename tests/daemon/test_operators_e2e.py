@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import secrets
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -28,7 +29,7 @@ import zenoh
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.joystick.publisher import Publisher
 from legws_daemon.transport.session import config_from_spec
-from tests.daemon.procs import Monitor, monitor, ready, start, stop, write_profile
+from tests.daemon.procs import LEGWS, Monitor, monitor, ready, start, stop, write_profile
 from tests.net import free_port
 
 ROBOT = "sawyer_sim"
@@ -224,9 +225,33 @@ def test_take_control_and_release_move_the_lease_and_a_killed_publisher_loses_it
             t0 = time.monotonic()
             assert m.wait_for(lambda m: operator() is None, 5)
             assert time.monotonic() - t0 >= 0.5
-            events = list(m.events)
+
+            # the command line: a publisher started with --take-control while another steers
+            other = Operator(one, "other", 20.0).steer(lambda: [0.0, 0.3, 0.0])
+            assert m.wait_for(lambda m: (operator() or {}).get("session") == other.id, 5)
+            recording = tmp_path / "rec.jsonl"
+            lines = [
+                {"schema": 1, "seq": i, "stamp": 0.05 * i, "axes": [0.0, -0.2, 0.0]}
+                for i in range(20)
+            ]
+            recording.write_text("".join(json.dumps(x) + "\n" for x in lines))
+            replay = subprocess.run(
+                [*LEGWS, "joystick", "replay", str(recording), "--profile", str(profile),
+                 "--take-control"],
+                capture_output=True, text=True, timeout=60, check=False,
+            )  # fmt: skip
+            assert replay.returncode == 0, replay.stderr
+            other.goodbye()
+            events, statuses = list(m.events), list(m.status)
     finally:
         code, _ = stop(daemon)
     assert code == 0
     reasons = [e["detail"]["reason"] for e in events if e["kind"] == "operator"]
-    assert reasons == ["first_input", "take_control", "release", "first_input", "timeout"]
+    assert reasons[:5] == ["first_input", "take_control", "release", "first_input", "timeout"]
+    assert reasons[5:7] == ["first_input", "take_control"]
+    taken = [e["detail"] for e in events if e["kind"] == "operator"][6]
+    assert taken["operator"]["source"] == "(not heard yet)"  # asked for before it published
+    assert taken["previous"]["session"] == other.id
+    holders = [s["operator"] for _, s in statuses if s["operator"]]
+    replayer = next(h for h in holders if h["source"].startswith("replay:"))
+    assert replayer["session"] == taken["operator"]["session"]

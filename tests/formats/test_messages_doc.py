@@ -42,9 +42,7 @@ def fields_of(model: type[BaseModel], prefix: str = "") -> set[str]:
     ],
 )
 def test_every_field_is_documented(model: type[BaseModel]) -> None:
-    missing = {
-        f for f in fields_of(model) if f not in NAMED and f.rsplit(".", 1)[-1] not in NAMED
-    }
+    missing = {f for f in fields_of(model) if f not in NAMED and f.rsplit(".", 1)[-1] not in NAMED}
     assert not missing, f"{model.__name__}: {sorted(missing)} not in docs/messages.md"
 
 
