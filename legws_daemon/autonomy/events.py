@@ -178,7 +178,7 @@ class OperatorChanged(Event):
     kind: ClassVar[EventKind] = "operator"
     operator: dict[str, str | None] | None
     previous: dict[str, str | None] | None
-    reason: str  # first_input | goodbye | timeout | release | take_control
+    reason: str  # first_input | resumed | goodbye | timeout | release | take_control
 
     def text(self) -> str:
         who = _who(self.operator) if self.operator else "nobody"

@@ -316,10 +316,11 @@ def evdev_cmd(
     """Steer with a gamepad, a 3Dconnexion SpaceMouse or a HID joystick (python-evdev).
 
     Hold-to-run: only while the mapping's enable button is held (Xbox pad: LB, HID joystick:
-    the trigger) are the deflection, confirm and cancel sent; released, every message is zero
-    with enable released, which the daemon takes as no input. The SpaceMouse mapping has no
-    enable button: letting go of the cap is the stop. Xbox pad: left stick up/left = +x/+y,
-    right stick or d-pad up = +z, A confirm, B cancel.
+    the trigger, SpaceMouse: the left button) are the deflection, confirm and cancel sent;
+    released, every message is zero with enable released, which the daemon takes as no
+    input (after a commit, keep it held while the arm finishes). Xbox pad: left stick
+    up/left = +x/+y, right stick or d-pad up = +z, A confirm, B cancel. SpaceMouse: push the
+    cap away/left/up = +x/+y/+z, right button confirm, push against the motion to cancel.
 
     Unplugging the device sends zero with enable released at once; the device is picked up
     again when it comes back, without a restart. Reading /dev/input needs the 'input' group

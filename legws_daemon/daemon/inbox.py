@@ -80,9 +80,12 @@ class InputReport:
 
 
 def _steering(message: JoystickMessage) -> bool:
-    """Enable held and the stick deflected or a button pressed (what claims a free lease)."""
+    """What claims a free lease: the enable button held (a deliberate act, whatever the
+    stick says), or — from a publisher without one — a deflection or a button pressed."""
     b = message.buttons
-    return b.enable and not message.bye and (any(message.axes) or b.confirm or b.cancel)
+    if message.bye or b.enable is False:
+        return False
+    return b.enable is True or any(message.axes) or b.confirm or b.cancel
 
 
 class JoystickInbox:
@@ -101,8 +104,10 @@ class JoystickInbox:
         self._sample: Sample | None = None
         self._last_seq: OrderedDict[SessionKey, int] = OrderedDict()
         self.lease = Lease(timeout, grace)
-        self.accepted = 0
+        self.accepted = 0  # the operator's messages taken (a goodbye included)
+        self.ignored = 0  # valid, nobody's input: the lease free and the message not steering
         self.reasons: Counter[Rejection] = Counter()
+        self.invalid_fields: Counter[str] = Counter()  # ``invalid`` by the field named
         self.last_error: str | None = None
         self._report = InputReport()
 
@@ -122,6 +127,7 @@ class JoystickInbox:
         except InputError as err:
             with self._lock:
                 self._reject("invalid", None, str(err))
+                self.invalid_fields[err.field or "payload"] += 1
             return None
         key = SessionKey(message.session, message.source)
         with self._lock:
@@ -131,11 +137,17 @@ class JoystickInbox:
                 self._reject("stale_seq", key, f"seq {message.seq} after {last}")
                 return None
             self._remember(key, message.seq)
-            mine, changes = self.lease.offer(key, now, steering=_steering(message), bye=message.bye)
+            enabled = message.buttons.enabled
+            steering = _steering(message)
+            mine, changes = self.lease.offer(
+                key, now, steering=steering, bye=message.bye, enabled=enabled
+            )
             self._changed(changes)
             if not mine:
                 if self.lease.holder is not None:
                     self._reject("not_operator", key, "another session holds the lease")
+                else:
+                    self.ignored += 1
                 return None
             self.accepted += 1
             if message.bye:
@@ -158,7 +170,7 @@ class JoystickInbox:
             return None, "no_operator"
         if sample is None or now - sample.received > self.timeout or now < sample.received - 1:
             return None, "no_input"
-        if not sample.message.buttons.enable:
+        if not sample.message.buttons.enabled:
             return None, "enable_released"
         return sample, None
 

@@ -5,15 +5,18 @@ Every joystick publisher is a *session*: the random ``session`` id its messages 
 label. At most one session holds the operator *lease*; only its messages move the robot.
 
 - The lease is free at start. The first session that **steers** takes it: a message with
-  the enable button held and a deflection or a button press (a stream of zeros, or of
-  messages with enable released, claims nothing).
+  the enable button held (even with the stick centred), or — from a publisher without an
+  enable button — a deflection or a button press (a stream of zeros, or of messages with
+  enable released, claims nothing).
 - The holder keeps it while it is heard: each of its valid messages renews it, whatever
   the stick says (an operator resting with enable released still holds it).
 - It ends when the holder says goodbye (``bye``: a publisher that stops), when the holder
   has not been heard for the deadman timeout plus a grace period (a publisher that died),
-  or on the ``release`` command. The ``take_control`` command hands it to a named session
-  at once (heard from yet or not; a session never heard from loses it after the timeout
-  plus the grace).
+  or on the ``release`` command. A holder that lost it to silence takes it back with any
+  message that is input (``resumed``: a network hiccup, the stick centred while the arm
+  works) as long as nobody else took it meanwhile.
+- The ``take_control`` command hands it to a named session at once (heard from yet or
+  not; a session never heard from loses it after the timeout plus the grace).
 
 Pure logic: the caller passes the (monotonic) time; :class:`~.inbox.JoystickInbox` locks.
 """
@@ -24,7 +27,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 #: Why the lease changed hands.
-LeaseReason = Literal["first_input", "goodbye", "timeout", "release", "take_control"]
+LeaseReason = Literal["first_input", "resumed", "goodbye", "timeout", "release", "take_control"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -75,6 +78,7 @@ class Lease:
         self.holder: SessionKey | None = None
         self.since: float | None = None  # when the holder got it
         self.heard: float | None = None  # when the holder was last heard (or got it)
+        self.lapsed: SessionKey | None = None  # lost it to silence; nobody had it since
 
     @property
     def expires_after(self) -> float:
@@ -85,21 +89,28 @@ class Lease:
         """End a silent holder's lease (``timeout``); the change, or ``None``."""
         if self.holder is None or self.heard is None or now - self.heard <= self.expires_after:
             return None
-        return self._set(None, now, "timeout")
+        holder = self.holder
+        change = self._set(None, now, "timeout")
+        self.lapsed = holder
+        return change
 
     def offer(
-        self, key: SessionKey, now: float, *, steering: bool, bye: bool
+        self, key: SessionKey, now: float, *, steering: bool, bye: bool, enabled: bool = True
     ) -> tuple[bool, list[LeaseChange]]:
         """A valid message of ``key`` at ``now``: whether it is the operator's, and the
         changes it caused (an expiry first, then a claim or a goodbye).
 
         Args:
-            steering: enable held and a deflection or a button pressed.
+            steering: the message claims a free lease (see the module docstring).
             bye: the publisher's last message.
+            enabled: the message is input (enable not released).
         """
         changes = [c for c in (self.expire(now),) if c is not None]
-        if self.holder is None and steering and not bye:
-            changes.append(self._set(key, now, "first_input"))
+        if self.holder is None and not bye:
+            if steering:
+                changes.append(self._set(key, now, "first_input"))
+            elif enabled and key == self.lapsed:
+                changes.append(self._set(key, now, "resumed"))
         if self.holder != key:
             return False, changes
         self.holder, self.heard = key, now  # (a session given the lease before it was heard)
@@ -121,5 +132,6 @@ class Lease:
     def _set(self, key: SessionKey | None, now: float, reason: LeaseReason) -> LeaseChange:
         change = LeaseChange(self.holder, key, reason)
         self.holder = key
+        self.lapsed = None
         self.since = self.heard = now if key is not None else None
         return change

@@ -47,10 +47,16 @@ class Buttons(BaseModel):
 
     cancel: StrictBool = False  # give control back to the user during assistance
     confirm: StrictBool = False  # commit to the most likely goal now
-    #: the hold-to-run (enable) button is held. ``false``: the message is no input (zero
-    #: velocity, assistance paused), however the stick stands. A publisher without such a
-    #: button leaves it at ``true`` (the stream itself is then the dead-man signal).
-    enable: StrictBool = True
+    #: the hold-to-run (enable) button: ``true`` held, ``false`` released — the message is
+    #: then no input (zero velocity, assistance paused), however the stick stands. ``null``
+    #: (or left out): the publisher has no such button; every message is enabled and the
+    #: stream itself is the dead-man signal.
+    enable: StrictBool | None = None
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the message is input (enable held, or no enable button)."""
+        return self.enable is not False
 
 
 class JoystickMessage(_Message):

@@ -76,7 +76,7 @@ def decode_frame(spec: CanSpec, arbitration_id: int, data: bytes) -> Sample:
     buttons = Buttons(
         cancel=bool(bits & CANCEL_BIT),
         confirm=bool(bits & CONFIRM_BIT),
-        enable=bool(bits & ENABLE_BIT) or not spec.enable_bit,
+        enable=bool(bits & ENABLE_BIT) if spec.enable_bit else None,
     )
     return clip_norm([min(1.0, max(-1.0, v)) for v in raw]), buttons
 
@@ -93,7 +93,7 @@ def encode_frame(spec: CanSpec, axes: Sequence[float], buttons: Buttons | None =
         _INT16.pack_into(data, off, max(-32768, min(32767, count)))
     b = buttons if buttons is not None else Buttons()
     bits = (CANCEL_BIT if b.cancel else 0) | (CONFIRM_BIT if b.confirm else 0)
-    data[spec.button_offset] = bits | (ENABLE_BIT if spec.enable_bit and b.enable else 0)
+    data[spec.button_offset] = bits | (ENABLE_BIT if spec.enable_bit and b.enabled else 0)
     return bytes(data)
 
 

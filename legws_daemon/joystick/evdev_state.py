@@ -274,7 +274,7 @@ class DeviceState:
         if not self.enabled():
             return NO_INPUT
         buttons = Buttons(
-            enable=True,
+            enable=True if self._enable else None,  # None: the device has no such button
             confirm=any(self._pressed(b) for b in self._confirm),
             cancel=any(self._pressed(b) for b in self._cancel),
         )

@@ -121,9 +121,8 @@ class KeyboardState:
         """The deflection and buttons to publish at ``now``; a pending confirm or cancel is
         used up (and sent enabled: pressing it is the operator's act)."""
         pressed = self._cancel or self._confirm
-        buttons = Buttons(
-            cancel=self._cancel, confirm=self._confirm, enable=pressed or self.enabled(now)
-        )
+        enable = (pressed or self.enabled(now)) if self.hold_to_run else None
+        buttons = Buttons(cancel=self._cancel, confirm=self._confirm, enable=enable)
         self._cancel = self._confirm = False
         return self.axes(now), buttons
 
@@ -194,7 +193,7 @@ class RawTerminal:
 def status_line(axes: Axes, buttons: Buttons) -> str:
     """The one-line deflection display (without the carriage return)."""
     x, y, z = axes
-    line = f"x {x:+.2f}  y {y:+.2f}  z {z:+.2f}  " + ("run " if buttons.enable else "hold")
+    line = f"x {x:+.2f}  y {y:+.2f}  z {z:+.2f}  " + ("run " if buttons.enabled else "hold")
     return line + ("  confirm" if buttons.confirm else "") + ("  cancel" if buttons.cancel else "")
 
 

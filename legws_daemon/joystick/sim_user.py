@@ -155,7 +155,8 @@ class SimUser:
             return None
         a = self.act(view, now)
         x, y, z = (float(v) for v in a.axes)
-        return (x, y, z), Buttons(cancel=a.cancel, confirm=a.confirm)
+        # a simulated person holding the enable button throughout (it claims a free lease)
+        return (x, y, z), Buttons(cancel=a.cancel, confirm=a.confirm, enable=True)
 
 
 class StatusWatch:

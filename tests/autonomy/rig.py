@@ -77,6 +77,7 @@ class Rig:
         self.typed: list[Event] = []
         self.events: list[tuple[str, dict[str, Any]]] = []
         self.inbox = JoystickInbox()
+        self.inbox.take_control("rig", 0.0)  # the rig's session is the operator throughout
         self.seq = 0
         #: called with every event after it is recorded
         self.on_event: list[Callable[[Event], None]] = []
@@ -116,7 +117,8 @@ class Rig:
         """A joystick message through the daemon's inbox, as the controller gets it."""
         self.seq += 1
         msg: dict[str, Any] = {"schema": 1, "seq": self.seq, "stamp": 0.0,
-                               "axes": [float(a) for a in axes], "source": "t"}  # fmt: skip
+                               "axes": [float(a) for a in axes], "source": "t",
+                               "session": "rig"}  # fmt: skip
         if buttons:
             msg["buttons"] = buttons
         s = self.inbox.offer(json.dumps(msg).encode(), self.c.dt * self.seq)

@@ -116,6 +116,16 @@ def test_the_first_session_that_steers_holds_the_lease_and_others_are_not_operat
     assert box.take_report().changes == []
 
 
+def test_holding_the_enable_button_claims_a_free_lease_with_the_stick_centred() -> None:
+    """A person who joins during assistance holds enable and keeps the stick still."""
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    assert box.offer(session("nobutton", 0, axes=[0, 0, 0]), now=0.0) is None  # no claim
+    held = session("pad", 0, axes=[0, 0, 0], buttons={"enable": True})
+    assert box.offer(held, now=0.1) is not None
+    assert box.operator() == {"source": "pub-pad", "session": "pad"}
+    assert box.poll(0.1)[0] is not None
+
+
 def test_the_lease_passes_after_the_timeout_plus_the_grace() -> None:
     box = JoystickInbox(timeout=0.25, grace=0.5)
     box.offer(session("a", 0), now=0.0)

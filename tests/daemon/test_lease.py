@@ -42,12 +42,16 @@ def test_one_holder_and_every_change_is_accounted_for(sequence: list[Step]) -> N
         now += dt
         before = lease.holder
         heard = lease.heard
+        lapsed = lease.lapsed
         if what == "msg":
             mine, changes = lease.offer(KEYS[k], now, steering=steering, bye=bye)
-            # the message is the operator's only if its session held the lease or claimed it
+            # the message is the operator's only if its session held the lease or took it
             assert mine == (
                 (before == KEYS[k] and heard is not None and now - heard <= 0.75)
-                or any(c.operator == KEYS[k] and c.reason == "first_input" for c in changes)
+                or any(
+                    c.operator == KEYS[k] and c.reason in ("first_input", "resumed")
+                    for c in changes
+                )
             )
             if mine and bye:
                 assert lease.holder is None and changes[-1].reason == "goodbye"
@@ -68,8 +72,12 @@ def test_one_holder_and_every_change_is_accounted_for(sequence: list[Step]) -> N
             assert change.operator != change.previous
             if change.reason == "first_input":
                 assert change.previous is None and steering and not bye
+            if change.reason == "resumed":  # the one that lapsed, and nobody had it since
+                assert change.previous is None and lapsed == change.operator and not bye
             if change.reason == "timeout":
                 assert change.operator is None
+            if change.reason == "timeout":
+                lapsed = change.previous  # (an expiry inside this step)
             chain = change.operator
         assert chain == lease.holder
         if lease.holder is not None:
@@ -85,3 +93,19 @@ def test_a_silent_holder_keeps_the_lease_for_exactly_the_timeout_plus_the_grace(
     assert lease.expire(0.75) is None
     mine, changes = lease.offer(b, 0.7501, steering=True, bye=False)
     assert mine and [c.reason for c in changes] == ["timeout", "first_input"]
+
+
+def test_a_holder_that_lapsed_takes_it_back_unless_someone_else_had_it() -> None:
+    lease = Lease(timeout=0.25, grace=0.5)
+    a, b = KEYS[0], KEYS[1]
+    lease.offer(a, 0.0, steering=True, bye=False)
+    # silence past 0.75 s, then a's stick centred (not steering): it is a's again
+    mine, changes = lease.offer(a, 1.0, steering=False, bye=False)
+    assert mine and [c.reason for c in changes] == ["timeout", "resumed"]
+    # ... but not with enable released, and not once b had it
+    mine, changes = lease.offer(a, 2.0, steering=False, bye=False, enabled=False)
+    assert not mine and [c.reason for c in changes] == ["timeout"]
+    lease.offer(b, 2.1, steering=True, bye=False)
+    lease.expire(3.0)
+    mine, _ = lease.offer(a, 3.1, steering=False, bye=False)
+    assert not mine and lease.holder is None

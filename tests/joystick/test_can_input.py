@@ -51,7 +51,12 @@ def layouts(draw: st.DrawFn) -> CanSpec:
 
 unit = st.floats(-1.0, 1.0)
 deflections = st.tuples(unit, unit, unit).map(clip_norm)
-button_sets = st.builds(Buttons, cancel=st.booleans(), confirm=st.booleans())
+button_sets = st.builds(
+    Buttons,
+    cancel=st.booleans(),
+    confirm=st.booleans(),
+    enable=st.sampled_from([None, True, False]),
+)
 
 
 @given(layouts(), deflections, button_sets)
@@ -61,7 +66,9 @@ def test_decode_inverts_encode(
     data = encode_frame(spec, axes, buttons)
     assert len(data) == frame_length(spec)
     got, got_buttons = decode_frame(spec, spec.arbitration_id, data)
-    assert got_buttons == buttons
+    # with an enable bit the frame says held or released; without one, nothing (None)
+    enable = buttons.enabled if spec.enable_bit else None
+    assert got_buttons == buttons.model_copy(update={"enable": enable})
     assert got == pytest.approx(axes, abs=2.0 / spec.scale)
 
 
@@ -89,7 +96,7 @@ def test_the_enable_bit_is_a_hold_to_run_button_only_when_the_profile_says_so() 
     for bits, enabled in ((0b000, False), (0b100, True), (0b110, True), (0b010, False)):
         frame = struct.pack("<hhhB", 8000, 0, 0, bits)
         assert decode_frame(with_enable, 0x100, frame)[1].enable is enabled
-        assert decode_frame(SPEC, 0x100, frame)[1].enable is True  # no enable button
+        assert decode_frame(SPEC, 0x100, frame)[1].enable is None  # no enable button
     frame = encode_frame(with_enable, (0.5, 0, 0), Buttons(enable=False, confirm=True))
     assert frame[6] == 0b010
     assert encode_frame(SPEC, (0.5, 0, 0), Buttons(enable=True))[6] == 0

@@ -658,6 +658,7 @@ def test_an_unexpected_reader_error_is_no_input_not_a_frozen_stick(devices: Fake
         devices.opened[-1].read = broken  # type: ignore[method-assign]
         node.frame((EV_ABS, ecodes.ABS_X, -32768))
         wait_for(lambda: reader.sample() == NO_INPUT, "the failed reader still steers")
+        wait_for(lambda: bool(log), "the loss was not logged")  # (logged after the stop)
         assert log[0].startswith("legws: input device lost (reader error: RuntimeError: boom)")
         wait_for(lambda: reader.connected, "the device was not opened again")
         assert reader.sample() == NO_INPUT  # LB still held from before: press it again

@@ -96,8 +96,8 @@ def test_cancel_is_sent_in_exactly_one_sample() -> None:
     state.press("c", 0.0)
     state.press("w", 0.0)
     first = state.sample(0.05)
-    assert first == ((1.0, 0.0, 0.0), Buttons(cancel=True))
-    assert state.sample(0.1) == ((1.0, 0.0, 0.0), Buttons())
+    assert first == ((1.0, 0.0, 0.0), Buttons(cancel=True, enable=True))
+    assert state.sample(0.1) == ((1.0, 0.0, 0.0), Buttons(enable=True))
 
 
 @pytest.mark.parametrize("enter", ["\r", "\n"])
@@ -122,9 +122,9 @@ def test_hold_to_run_enable_lasts_the_hold_time_after_a_steering_key_or_space() 
 
 def test_without_hold_to_run_every_message_is_enabled() -> None:
     state = KeyboardState(hold_to_run=False)
-    assert state.sample(0.0)[1].enable
+    assert state.sample(0.0)[1].enable is None  # no enable button: every message is input
     state.press("w", 1.0)
-    assert state.sample(9.0) == ((0.0, 0.0, 0.0), Buttons(enable=True))
+    assert state.sample(9.0) == ((0.0, 0.0, 0.0), Buttons())
 
 
 def test_quit_keys_and_unknown_keys() -> None:

@@ -210,7 +210,10 @@ class EnvelopeMachine(RuleBasedStateMachine):
     @rule(stick=axes, cancel=rare, confirm=rare)
     def tick_with_input(self, stick: list[float], cancel: bool, confirm: bool) -> None:
         rig = self.rig
-        assert rig.offer(rig.joystick(stick, cancel=cancel, confirm=confirm)) is not None
+        taken = rig.offer(rig.joystick(stick, cancel=cancel, confirm=confirm)) is not None
+        # not taken only while nobody holds the lease and the message does not steer
+        steers = any(stick) or cancel or confirm
+        assert taken or (rig.inbox.operator() is None and not steers)
         self.last_sent = rig.tick().command
         self.step("tick with input")
 
@@ -220,7 +223,7 @@ class EnvelopeMachine(RuleBasedStateMachine):
         rig = self.rig
         for _ in range(periods):
             rig.now += rig.dt
-        stale = rig.inbox.latest(rig.now + rig.dt, rig.timeout) is None
+        stale = rig.inbox.latest(rig.now + rig.dt) is None
         rec = rig.tick()  # (stale input: zero and nothing moved, checked in the rig)
         if stale:
             assert rec.joystick is None
