@@ -292,8 +292,9 @@ def replay_cmd(options: PublisherOptions, file: Path, speed: float, loop: bool) 
 @click.option(
     "--mapping",
     metavar="NAME|FILE",
-    help="Device mapping: a name in hw_profiles/input/ (xbox, spacemouse, hid_joystick) or "
-    "a .toml path. Default: the first shipped mapping that recognises a plugged-in device.",
+    help="Device mapping: a name in hw_profiles/input/ (xbox, playstation, spacemouse, "
+    "hid_joystick) or a .toml path. Default: the first shipped mapping that recognises a "
+    "plugged-in device.",
 )
 @click.option(
     "--device",

@@ -31,7 +31,7 @@ def xbox_data() -> dict[str, Any]:
 
 
 def test_the_shipped_mappings_load() -> None:
-    assert mapping_names() == ["hid_joystick", "spacemouse", "xbox"]
+    assert mapping_names() == ["hid_joystick", "playstation", "spacemouse", "xbox"]
     assert mappings_dir() == INPUT
     mappings = dict(shipped_mappings())
     xbox = mappings["xbox"]
@@ -74,8 +74,8 @@ def test_names_and_paths() -> None:
     with pytest.raises(InputError) as info:
         load_mapping_named("ps5")
     assert str(info.value) == (
-        "mapping: unknown input mapping 'ps5'; known: hid_joystick, spacemouse, xbox "
-        "(or a .toml path)"
+        "mapping: unknown input mapping 'ps5'; known: hid_joystick, playstation, spacemouse, "
+        "xbox (or a .toml path)"
     )
     with pytest.raises(InputError, match=r"nope\.toml: no such file"):
         load_mapping_named("nope.toml")

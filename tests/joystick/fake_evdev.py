@@ -253,6 +253,28 @@ def xbox_pad(name: str = "Microsoft X-Box 360 pad") -> FakeNode:
     return FakeNode(name, 0x045E, 0x028E, keys=PAD_KEYS, abs=axes)
 
 
+PS_STICK = AbsInfo(value=128, min=0, max=255, fuzz=0, flat=0, resolution=0)
+
+
+def dualsense(
+    name: str = "Sony Interactive Entertainment DualSense Wireless Controller",
+) -> FakeNode:
+    """A DualSense as hid-playstation presents its gamepad node (sticks 0..255)."""
+    axes = {c: PS_STICK for c in (ecodes.ABS_X, ecodes.ABS_Y, ecodes.ABS_RX, ecodes.ABS_RY)}
+    axes |= {ecodes.ABS_Z: PS_STICK, ecodes.ABS_RZ: PS_STICK}  # L2, R2
+    axes |= {ecodes.ABS_HAT0X: HAT, ecodes.ABS_HAT0Y: HAT}
+    keys = (*PAD_KEYS, ecodes.BTN_TL2, ecodes.BTN_TR2)
+    return FakeNode(name, 0x054C, 0x0CE6, keys=keys, abs=axes)
+
+
+def dualsense_motion() -> FakeNode:
+    """The motion-sensor node the same pad creates: accelerometer and gyro, no buttons."""
+    codes = (ecodes.ABS_X, ecodes.ABS_Y, ecodes.ABS_Z, ecodes.ABS_RX, ecodes.ABS_RY, ecodes.ABS_RZ)
+    sensor = AbsInfo(value=0, min=-32768, max=32767, fuzz=0, flat=0, resolution=8192)
+    name = "Sony Interactive Entertainment DualSense Wireless Controller Motion Sensors"
+    return FakeNode(name, 0x054C, 0x0CE6, abs=dict.fromkeys(codes, sensor))
+
+
 def spacemouse_rel() -> FakeNode:
     """A SpaceNavigator on a kernel that reports EV_REL."""
     rel = (ecodes.REL_X, ecodes.REL_Y, ecodes.REL_Z, ecodes.REL_RX, ecodes.REL_RY, ecodes.REL_RZ)

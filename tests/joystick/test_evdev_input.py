@@ -47,6 +47,8 @@ from tests.joystick.fake_evdev import (
     STICK,
     FakeInputDir,
     FakeNode,
+    dualsense,
+    dualsense_motion,
     event,
     keyboard,
     spacemouse_abs,
@@ -60,6 +62,7 @@ from tests.net import free_port
 _, XBOX = load_mapping_named("xbox")
 _, SPACEMOUSE = load_mapping_named("spacemouse")
 _, HID = load_mapping_named("hid_joystick")
+_, PLAYSTATION = load_mapping_named("playstation")
 PAD_RANGES = {c: (i.min, i.max) for c, i in xbox_pad().absinfo.items()}
 PUCK_RANGES = {c: (i.min, i.max) for c, i in spacemouse_abs().absinfo.items()}
 
@@ -224,6 +227,19 @@ def test_an_absolute_axis_without_a_range_is_inactive() -> None:
 # --- the SpaceMouse ------------------------------------------------------------------------
 
 
+def test_a_playstation_pad_with_its_0_to_255_sticks() -> None:
+    ranges = {c: (i.min, i.max) for c, i in dualsense().absinfo.items()}
+    state = DeviceState(PLAYSTATION, ranges)
+    frame(state, 0.0, (EV_ABS, ecodes.ABS_Y, 0), (EV_ABS, ecodes.ABS_X, 128))  # stick up
+    assert state.sample(0.0) == (ZERO, Buttons(enable=False))  # L1 not held
+    frame(state, 0.1, (EV_KEY, ecodes.BTN_TL, 1), (EV_KEY, ecodes.BTN_SOUTH, 1))
+    axes, buttons = state.sample(0.1)
+    assert axes == pytest.approx((1.0, 0.0, 0.0), abs=1e-3)
+    assert buttons == Buttons(enable=True, confirm=True)
+    frame(state, 0.2, (EV_ABS, ecodes.ABS_Y, 130), (EV_ABS, ecodes.ABS_X, 125))  # drift
+    assert state.sample(0.2)[0] == ZERO  # inside the deadzone
+
+
 def test_spacemouse_on_ev_rel_pushes_and_decays_after_the_hold_time() -> None:
     state = DeviceState(SPACEMOUSE)
     frame(state, 9.9, (EV_KEY, ecodes.BTN_0, 1))  # the left button held: hold-to-run
@@ -376,6 +392,10 @@ def identity(node: FakeNode) -> DeviceIdentity:
     [
         (xbox_pad(), ["xbox"]),
         (xbox_pad("Generic X-Box pad"), ["xbox"]),
+        (xbox_pad("Xbox Wireless Controller"), ["xbox"]),
+        (dualsense(), ["playstation"]),
+        (dualsense("Sony Interactive Entertainment Wireless Controller"), ["playstation"]),
+        (dualsense_motion(), []),  # the pad's sensor node: no L1
         (spacemouse_rel(), ["spacemouse"]),
         (spacemouse_abs(), ["spacemouse"]),
         (keyboard(), []),
@@ -395,6 +415,7 @@ def identity(node: FakeNode) -> DeviceIdentity:
 )
 def test_which_mapping_recognises_which_device(node: FakeNode, expected: list[str]) -> None:
     mappings = {"xbox": XBOX, "spacemouse": SPACEMOUSE, "hid_joystick": HID}
+    mappings["playstation"] = PLAYSTATION
     got = [name for name, m in mappings.items() if recognises(m, identity(node))]
     assert got == expected
 
