@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, assert_never
 
 import numpy as np
@@ -61,7 +62,7 @@ from legws_daemon.robot.planner import MotionPlanner
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
-from legws_daemon.task.plan import Plan
+from legws_daemon.task.plan import Plan, PlannedDecision
 from legws_daemon.task.runner import TaskRun, scene_graph
 from legws_daemon.task.targets import Held, held_object
 
@@ -69,6 +70,34 @@ from legws_daemon.task.targets import Held, held_object
 RESET_TARGET = "(reset)"
 #: Builds a connected adapter for a scene (the service decides which kind).
 AdapterFactory = Callable[[Scene], Adapter]
+#: The operator commands that load something (prepared off the control loop by the daemon).
+LOADS = frozenset({"load_scene", "load_taskgraph"})
+
+
+@dataclass
+class PreparedLoad:
+    """Everything a load needs that takes time, made without touching the running robot:
+    the scene, the task graph's run, the layout (with the plan's first moves) and the first
+    decision with its certificate, and — for another scene — its connected adapter and
+    planner. :meth:`Controller.install` swaps it in (quickly, on the loop's thread)."""
+
+    scene: Scene
+    graph: TaskGraph
+    plan: Plan | None
+    layouts: LayoutBook
+    task: TaskRun
+    stage: StageState  # the first decision, in ``layouts.layout``
+    moves: tuple[Layout, PlannedDecision] | None  # what the plan moved for it
+    adapter: Adapter | None = None  # None: the current scene stays
+    planner: MotionPlanner | None = None
+    warn_dropped: bool = False  # a task graph loaded without a plan: say if one is dropped
+
+    def discard(self) -> None:
+        """Not installed after all (a stop came first): disconnect the prepared adapter."""
+        if self.adapter is not None:
+            with contextlib.suppress(LegwsError):
+                self.adapter.disconnect()
+            self.adapter = None
 
 
 class Controller:
@@ -142,12 +171,15 @@ class Controller:
         return self.layouts.layout
 
     # --- stages and inference -------------------------------------------------------
-    def _begin_stage(self) -> StageState:
-        """Targets of the stage(s) that come next; inference starts (or, with a single
-        candidate, the commit is immediate)."""
+    def _begin_stage(self, prepared: StageState | None = None) -> StageState:
+        """Targets of the stage(s) that come next (``prepared``: made by a load, its plan's
+        moves applied); inference starts (or, with a single candidate, the commit is
+        immediate)."""
         self.decisions += 1
-        self._apply_plan()
-        self.stage = StageState.of(self.task, self.layouts.layout, self.scene, self.params)
+        if prepared is None:
+            self._apply_plan()
+            prepared = StageState.of(self.task, self.layouts.layout, self.scene, self.params)
+        self.stage = prepared
         self.committed = None
         self.inference.stop()
         targets = self.stage.targets
@@ -174,8 +206,12 @@ class Controller:
             return
         moves, decision = planned
         if not self._place(moves):
-            place = {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in moves.items()}
-            self.emit(PlaceObjects(place, self.task.label, decision.certificate))
+            self._ask_to_place(moves, decision)
+
+    def _ask_to_place(self, moves: Layout, decision: PlannedDecision) -> None:
+        """A robot that cannot move objects: where a person should put them."""
+        place = {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in moves.items()}
+        self.emit(PlaceObjects(place, self.task.label, decision.certificate))
 
     def _place(self, layout: Layout) -> bool:
         """Objects to ``layout`` (``False``: a person has to put them there); the planner
@@ -480,22 +516,11 @@ class Controller:
                 return self._reset()
             case "status":
                 return {"mode": self.mode.value}
-            case "load_scene":
-                assert request.argument is not None
-                return self.load(scenes(request.argument), None, None)
-            case "load_taskgraph":
-                assert request.argument is not None
-                graph, scene = graphs(request.argument)
-                plan = None
-                if request.plan == "auto":
-                    if plans is None:
-                        raise InputError("this daemon loads no plans", field="plan")
-                    plan = plans(graph, scene)
-                dropped = self.layouts.plan if plan is None else None
-                same = scene.name == self.scene.name
-                detail = self.load(self.scene if same else scene, None, graph, plan)
-                if dropped is not None:
-                    self._warn_plan_dropped(dropped)
+            case "load_scene" | "load_taskgraph":
+                prepared = self.prepare(request, scenes, graphs, plans)
+                detail, old = self.install(prepared)
+                if old is not None:
+                    old.disconnect()
                 return detail
             case "release" | "take_control":
                 raise InputError("the operator lease is the daemon's, not the controller's")
@@ -530,6 +555,96 @@ class Controller:
                 planned = dropped.decision(self.task.label).certificate
         self.emit(PlanDropped(dropped.taskgraph, self.stage.name, self.stage.certificate, planned))
 
+    def prepare(
+        self,
+        request: CommandRequest,
+        scenes: Callable[[str], Scene],
+        graphs: Callable[[str], tuple[TaskGraph, Scene]],
+        plans: Callable[[TaskGraph, Scene], Plan] | None = None,
+    ) -> PreparedLoad:
+        """The slow half of ``load_scene`` / ``load_taskgraph``: read and validate what the
+        command names and build what a new scene needs. Changes nothing of the running
+        controller (the daemon runs it off the control loop while the robot goes on)."""
+        assert request.command in LOADS and request.argument is not None
+        if request.command == "load_scene":
+            return self.prepare_load(scenes(request.argument), None, None)
+        graph, scene = graphs(request.argument)
+        plan = None
+        if request.plan == "auto":
+            if plans is None:
+                raise InputError("this daemon loads no plans", field="plan")
+            plan = plans(graph, scene)
+        same = scene.name == self.scene.name
+        prepared = self.prepare_load(self.scene if same else scene, graph, plan)
+        prepared.warn_dropped = True
+        return prepared
+
+    def prepare_load(
+        self,
+        scene: Scene,
+        graph: TaskGraph | None,
+        plan: Plan | None = None,
+        layout: Layout | None = None,
+    ) -> PreparedLoad:
+        """A load of ``scene`` (with ``graph`` and its ``plan``; ``layout``: the scene's
+        default): the task's run, the layout and the first decision certified; for another
+        scene than the current one, its connected adapter and its motion planner."""
+        layouts = LayoutBook(dict(layout if layout is not None else scene.default_layout()), plan)
+        graph = graph if graph is not None else scene_graph(scene)
+        task = TaskRun(graph, scene)
+        moves = None if task.finished else layouts.plan_moves(task.label)
+        stage = StageState.of(task, layouts.layout, scene, self.params)
+        prepared = PreparedLoad(scene, graph, plan, layouts, task, stage, moves)
+        if scene is self.scene:
+            return prepared
+        adapter = self._make_adapter(scene)
+        try:
+            planner = MotionPlanner(adapter.kinematics.twin(), scene.home, adapter.box)
+        except BaseException:
+            with contextlib.suppress(LegwsError):
+                adapter.disconnect()
+            raise
+        prepared.adapter, prepared.planner = adapter, planner
+        return prepared
+
+    def install(self, prepared: PreparedLoad) -> tuple[dict[str, Any], Adapter | None]:
+        """Swap a prepared load in (the robot stops first); the task restarts. Returns the
+        reply's detail and the replaced adapter, halted but still connected: the caller
+        disconnects it (the daemon does so off the control loop).
+
+        Raises:
+            InputError: the load was prepared against another current scene (it reuses
+                the scene in use, which has changed since).
+        """
+        scene = prepared.scene
+        if prepared.adapter is None and scene is not self.scene:
+            raise InputError("the scene changed while this load was prepared; send it again")
+        with contextlib.suppress(LegwsError):
+            self.adapter.halt()
+        old = None
+        dropped = self.layouts.plan if prepared.warn_dropped and prepared.plan is None else None
+        if prepared.adapter is not None:
+            assert prepared.planner is not None
+            old, self.adapter = self.adapter, prepared.adapter
+            self.scene = scene
+            self.planner = prepared.planner
+            self.recovery = Recovery(self.adapter.table_height, self.emit)
+            prepared.adapter = None  # installed: no longer the prepared load's to discard
+        self.layouts, self.graph, self.task = prepared.layouts, prepared.graph, prepared.task
+        self.assistant, self._gripper, self._recovering = None, None, False
+        placed = self._place(self.layouts.layout)
+        if placed:
+            self._held = None  # the stand-in let go of it and put it back
+        self.recovery.drop_asked = False
+        if prepared.moves is not None and not placed:
+            self._ask_to_place(*prepared.moves)
+        self._begin_stage(prepared.stage)
+        loaded = Loaded(scene.name, self.graph.name, self.stage.name, self.stage.certificate)
+        self.emit(loaded)
+        if dropped is not None:
+            self._warn_plan_dropped(dropped)
+        return loaded.detail(), old
+
     def load(
         self,
         scene: Scene,
@@ -538,28 +653,11 @@ class Controller:
         plan: Plan | None = None,
     ) -> dict[str, Any]:
         """Swap to another scene or task graph (the robot stops first), with the graph's plan
-        when given; the task restarts."""
-        with contextlib.suppress(LegwsError):
-            self.adapter.halt()
-        if scene is not self.scene:
-            old = self.adapter
-            adapter = self._make_adapter(scene)
+        when given; the task restarts (:meth:`prepare_load` and :meth:`install` in one)."""
+        detail, old = self.install(self.prepare_load(scene, graph, plan, layout))
+        if old is not None:
             old.disconnect()
-            self.adapter = adapter
-            self.scene = scene
-            self.planner = MotionPlanner(adapter.kinematics.twin(), scene.home, adapter.box)
-            self.recovery = Recovery(adapter.table_height, self.emit)
-        self.layouts.reset(dict(layout if layout is not None else scene.default_layout()), plan)
-        self.graph = graph if graph is not None else scene_graph(scene)
-        self.task = TaskRun(self.graph, scene)
-        self.assistant, self._gripper, self._recovering = None, None, False
-        if self._place(self.layouts.layout):
-            self._held = None  # the stand-in let go of it and put it back
-        self.recovery.drop_asked = False
-        self._begin_stage()
-        detail = Loaded(scene.name, self.graph.name, self.stage.name, self.stage.certificate)
-        self.emit(detail)
-        return detail.detail()
+        return detail
 
     def shutdown(self) -> None:
         """Zero velocity and disconnect (idempotent)."""

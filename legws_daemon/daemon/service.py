@@ -4,7 +4,12 @@ Threads: zenoh's callback threads only validate and hand over (the joystick inbo
 command queue); the loop thread — the only one touching the robot — runs the
 controller once per period, publishes status at the profile's status rate and events
 as they happen, and logs to Rerun. I/O never blocks the loop: publishing and logging are
-asynchronous, and a command that takes long (loading a scene) stops the robot first.
+asynchronous. Commands cannot stall control: at most :data:`COMMAND_QUEUE` wait (more are
+answered ``busy``), the loop takes up at most :data:`COMMANDS_PER_TICK` per tick, and a load
+(``load_scene``, ``load_taskgraph``: files, a new MuJoCo world, a plan) is prepared on its
+own thread while the robot goes on, then swapped in at the start of a tick (the robot stops
+there, as for any load); the replaced world is freed off the loop too. A ``stop`` cancels
+the loads before it.
 
 On SIGINT/SIGTERM (or ``--duration``) the loop stops within one period; the robot is
 sent zero velocity and disconnected, the recording is flushed and closed, the zenoh
@@ -36,6 +41,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import IO, Any, Protocol
 
@@ -43,7 +49,7 @@ import numpy as np
 import zenoh
 
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
-from legws_daemon.autonomy.controller import Controller
+from legws_daemon.autonomy.controller import LOADS, Controller, PreparedLoad
 from legws_daemon.autonomy.events import (
     Deadman,
     Event,
@@ -90,8 +96,15 @@ log = logging.getLogger("legws.daemon")
 #: Rerun text-log level of each event kind (INFO when not listed).
 _SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN"}
 
-#: A command waits at most this long for the loop to carry it out, seconds.
+#: A command not taken up by the loop within this long is answered ``busy`` (nothing was
+#: done), seconds.
 COMMAND_TIMEOUT = 5.0
+#: Commands waiting for the loop at most; more are answered ``busy`` at once.
+COMMAND_QUEUE = 8
+#: Loads taken up and waiting for the preparer at most; more are answered ``busy``.
+LOAD_QUEUE = 4
+#: Commands the loop takes up per tick at most (the others wait for the next tick).
+COMMANDS_PER_TICK = 2
 #: An overrun warning event at most this often, seconds.
 OVERRUN_WARNING_INTERVAL = 5.0
 #: A telemetry warning event at most this often while problems continue, seconds.
@@ -263,9 +276,26 @@ class DaemonConfig:
 
 @dataclass
 class _PendingCommand:
+    """A command on its way from the query to the loop; :meth:`finish` replies (once)."""
+
     request: CommandRequest
-    done: threading.Event = field(default_factory=threading.Event)
-    reply: dict[str, Any] = field(default_factory=dict)
+    respond: Callable[[dict[str, Any]], None]
+    arrived: float  # monotonic
+    answered: bool = False
+
+    def finish(self, reply: dict[str, Any]) -> None:
+        if not self.answered:
+            self.answered = True
+            self.respond(reply)
+
+
+@dataclass
+class _Load:
+    """A load being prepared off the loop."""
+
+    pending: _PendingCommand
+    future: Future[PreparedLoad]
+    cancelled: str | None = None  # why it will not be installed (a stop came after it)
 
 
 class DaemonService:
@@ -283,7 +313,15 @@ class DaemonService:
         self._last_deadman_event = -np.inf
         self._last_rejection_event: dict[str, float] = {}
         self._rejections_unreported: dict[str, InputRejected] = {}
-        self.commands: queue.Queue[_PendingCommand] = queue.Queue()
+        self.commands: queue.Queue[_PendingCommand] = queue.Queue(maxsize=COMMAND_QUEUE)
+        #: loads taken up, waiting for the preparer; the one being prepared
+        self._loads: deque[_PendingCommand] = deque()
+        self._load: _Load | None = None
+        self._preparer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="legws-load")
+        #: work for the preparer's thread, handed over when the tick's own work is done (so
+        #: that a tick never shares the interpreter with a load being built or freed)
+        self._after_tick: list[Callable[[], object]] = []
+        self._emit_lock = threading.Lock()
         self.fallback = False
         self.adapter_kind = self.profile.adapter
         self.ticker = Ticker(self.profile.control.rate_hz, paced=self._paced())
@@ -341,7 +379,11 @@ class DaemonService:
 
     # --- events and status ------------------------------------------------------------
     def _emit(self, event: Event) -> None:
-        """Publish an event and log it (called on the loop thread)."""
+        """Publish an event and log it (the loop's thread; the preparer's for a fallback)."""
+        with self._emit_lock:
+            self._emit_locked(event)
+
+    def _emit_locked(self, event: Event) -> None:
         self._event_seq += 1
         msg = EventMessage.model_validate(
             {
@@ -403,7 +445,9 @@ class DaemonService:
 
     # --- commands ---------------------------------------------------------------------
     def _on_query(self, query: zenoh.Query) -> None:
-        """zenoh thread: validate, hand over to the loop, reply when it is done."""
+        """zenoh thread: validate and hand over to the loop; never waits for it (a zenoh
+        thread that waits holds up the transport). The loop, or the load preparer, replies
+        when the command is done; ``status`` and bad requests are answered here at once."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
             request = parse(CommandRequest, payload, self.keys["command"])
@@ -415,16 +459,26 @@ class DaemonService:
                 status = self._status_bytes
             query.reply(self.keys["command"], status)
             return
-        pending = _PendingCommand(request)
-        self.commands.put(pending)
-        if not pending.done.wait(COMMAND_TIMEOUT):
-            query.reply_err(json.dumps({"ok": False, "error": "timed out"}).encode())
-            return
-        body = json.dumps(jsonable(pending.reply)).encode()
-        if pending.reply.get("ok"):
-            query.reply(self.keys["command"], body)
-        else:
-            query.reply_err(body)
+        key = self.keys["command"]
+
+        def respond(reply: dict[str, Any]) -> None:
+            body = json.dumps(jsonable(reply)).encode()
+            try:
+                if reply.get("ok"):
+                    query.reply(key, body)
+                else:
+                    query.reply_err(body)
+            except Exception as err:  # the asker gone: nothing to tell
+                log.debug("reply to %s: %s", request.command, err)
+            finally:
+                query.drop()  # type: ignore[no-untyped-call]
+
+        pending = _PendingCommand(request, respond, time.monotonic())
+        try:
+            self.commands.put_nowait(pending)
+        except queue.Full:
+            busy = f"busy: {COMMAND_QUEUE} commands are waiting; nothing was done"
+            pending.finish({"ok": False, "command": request.command, "error": busy})
 
     def _on_objects(self, sample: zenoh.Sample) -> None:
         """zenoh thread: validate a tracker's object poses; the loop applies them."""
@@ -445,33 +499,101 @@ class DaemonService:
             self.controller.observe(poses)
 
     def _run_commands(self) -> int:
-        """Carry out the queued operator commands; returns how many."""
+        """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
+        installed counts as one); returns how many. Loads are prepared off the loop, one at
+        a time, in order; a ``stop`` cancels the loads before it (a load must not undo it)."""
         c = self.controller
         assert c is not None
-        done = 0
-        while True:
+        done = self._install_load()
+        while done < COMMANDS_PER_TICK:
             try:
                 pending = self.commands.get_nowait()
             except queue.Empty:
-                return done
+                break
             done += 1
+            request = pending.request
+            if time.monotonic() - pending.arrived > COMMAND_TIMEOUT:  # the loop was stalled
+                busy = f"busy: not taken up within {COMMAND_TIMEOUT:g} s; nothing was done"
+                pending.finish({"ok": False, "command": request.command, "error": busy})
+                continue
+            if request.command in LOADS:
+                if len(self._loads) >= LOAD_QUEUE:
+                    busy = f"busy: {LOAD_QUEUE} loads are waiting; nothing was done"
+                    pending.finish({"ok": False, "command": request.command, "error": busy})
+                else:
+                    self._loads.append(pending)
+                continue
+            if request.command == "stop":
+                self._cancel_loads("cancelled: a stop came after it")
             try:
-                if pending.request.command in ("release", "take_control"):
-                    pending.reply = {"ok": True, **self._lease_command(pending.request)}
-                    pending.done.set()
-                    continue
-                detail = c.command(
-                    pending.request,
-                    self.config.scene_loader,
-                    self.config.graph_loader,
-                    self.config.plan_loader,
-                )
-                pending.reply = {"ok": True, "command": pending.request.command, **detail}
+                if request.command in ("release", "take_control"):
+                    reply = {"ok": True, **self._lease_command(request)}
+                else:
+                    detail = c.command(request, self.config.scene_loader, self.config.graph_loader)
+                    reply = {"ok": True, "command": request.command, **detail}
             except LegwsError as err:
-                pending.reply = {"ok": False, "command": pending.request.command, "error": str(err)}
-            pending.done.set()
-            if pending.request.command in ("load_scene", "load_taskgraph"):
-                release_memory()  # the old scene's world is freed: give the memory back
+                reply = {"ok": False, "command": request.command, "error": str(err)}
+            pending.finish(reply)
+        if self._load is None and self._loads:
+            self._after_tick.append(self._prepare_next)
+        return done
+
+    def _hand_over(self) -> None:
+        """Give the preparer its work for this tick (the tick's own work is done)."""
+        work, self._after_tick = self._after_tick, []
+        for job in work:
+            job()
+
+    def _prepare_next(self) -> None:
+        """Start preparing the next load, if none is being prepared."""
+        c = self.controller
+        if self._load is not None or not self._loads or c is None:
+            return
+        pending = self._loads.popleft()
+        cfg = self.config
+        future = self._preparer.submit(
+            c.prepare, pending.request, cfg.scene_loader, cfg.graph_loader, cfg.plan_loader
+        )
+        self._load = _Load(pending, future)
+
+    def _install_load(self) -> int:
+        """Install the load whose preparation finished (1), or nothing (0)."""
+        load, c = self._load, self.controller
+        if load is None or not load.future.done() or c is None:
+            return 0
+        self._load = None
+        command = load.pending.request.command
+        try:
+            prepared = load.future.result()
+        except LegwsError as err:
+            if load.cancelled is None:
+                load.pending.finish({"ok": False, "command": command, "error": str(err)})
+            return 1
+        if load.cancelled is not None:
+            self._after_tick.append(lambda: self._preparer.submit(prepared.discard))
+            return 1
+        try:
+            detail, old = c.install(prepared)
+        except LegwsError as err:
+            self._after_tick.append(lambda: self._preparer.submit(prepared.discard))
+            load.pending.finish({"ok": False, "command": command, "error": str(err)})
+            return 1
+        load.pending.finish({"ok": True, "command": command, **detail})
+        if old is not None:
+            self._after_tick.append(lambda: self._preparer.submit(_dispose, old))
+        return 1
+
+    def _cancel_loads(self, why: str) -> None:
+        """Answer the loads not installed yet with ``why``; none of them will be."""
+        while self._loads:
+            pending = self._loads.popleft()
+            pending.finish({"ok": False, "command": pending.request.command, "error": why})
+        load = self._load
+        if load is not None and load.cancelled is None:
+            load.cancelled = why
+            load.pending.finish(
+                {"ok": False, "command": load.pending.request.command, "error": why}
+            )
 
     def _lease_command(self, request: CommandRequest) -> dict[str, Any]:
         """``release`` / ``take_control``: the lease changes hands now (the events follow)."""
@@ -704,6 +826,7 @@ class DaemonService:
             self._log_tick(rec, slack)
             self._report_telemetry()
             self._trace(rec, now, commands)
+            self._hand_over()
             if ticker.end():
                 self._overrun_warning()
 
@@ -753,13 +876,19 @@ class DaemonService:
             self._emit(TraceFailed(f"{type(err).__name__}: {err}"))
 
     def _fail_pending(self) -> None:
+        """At shutdown: answer every command not carried out; discard a prepared load."""
+        self._cancel_loads("the daemon is shutting down")
+        load, self._load = self._load, None
+        if load is not None:
+            with contextlib.suppress(Exception):
+                load.future.result(timeout=30.0).discard()
+        self._preparer.shutdown(wait=True, cancel_futures=True)
         while True:
             try:
                 pending = self.commands.get_nowait()
             except queue.Empty:
                 return
-            pending.reply = {"ok": False, "error": "the daemon is shutting down"}
-            pending.done.set()
+            pending.finish({"ok": False, "error": "the daemon is shutting down"})
 
 
 #: glibc's ``mallopt`` parameter number of ``M_MMAP_THRESHOLD``.
@@ -804,6 +933,16 @@ def release_memory() -> None:
     libc = _libc()
     if libc is not None:
         libc.malloc_trim(0)
+
+
+def _dispose(adapter: Adapter) -> None:
+    """Disconnect a replaced adapter and give its memory back (off the control loop)."""
+    try:
+        adapter.disconnect()
+    except Exception:
+        log.exception("disconnecting the replaced adapter failed")
+    del adapter
+    release_memory()  # the old scene's world is freed: give the memory back
 
 
 def _quietly(what: str, fn: Callable[..., Any], *args: Any) -> None:
