@@ -9,7 +9,6 @@ become connect endpoints) unless ``--listen``/``--connect``/``--zenoh-config`` s
 
 from __future__ import annotations
 
-import re
 import signal
 import threading
 from pathlib import Path
@@ -18,11 +17,15 @@ from types import FrameType
 import click
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile_named
+from legws_daemon.formats.profile import (
+    ProfileSpec,
+    TransportSpec,
+    endpoint_problem,
+    load_profile_named,
+)
 from legws_daemon.scene.catalog import load_scene
 
 #: ``PROTOCOL/HOST:PORT``, the form of the profile's endpoints.
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/[^\s]+:\d{1,5}$")
 
 
 def bridge_transport(
@@ -35,12 +38,9 @@ def bridge_transport(
     """
     for flag, endpoints in (("--listen", listen), ("--connect", connect)):
         for endpoint in endpoints:
-            if not _ENDPOINT.match(endpoint):
-                raise InputError(
-                    f"invalid endpoint '{endpoint}'; expected PROTOCOL/HOST:PORT, "
-                    "e.g. tcp/127.0.0.1:7447",
-                    field=flag,
-                )
+            problem = endpoint_problem(endpoint)
+            if problem is not None:
+                raise InputError(problem, field=flag)
     spec = profile.transport
     if listen or connect:
         return spec.model_copy(update={"listen": list(listen), "connect": list(connect)})

@@ -9,11 +9,21 @@ only, multicast scouting off.
 
 from __future__ import annotations
 
+import ipaddress
 import os
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    StrictBool,
+    model_validator,
+)
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import (
@@ -27,7 +37,44 @@ from legws_daemon.formats.validation import (
 Rate = Annotated[float, Strict(), Field(gt=0, le=1000)]
 Speed = Annotated[float, Strict(), Field(gt=0, le=2.0)]
 Seconds = Annotated[float, Strict(), Field(gt=0, le=60)]
-Endpoint = Annotated[str, Field(pattern=r"^(tcp|udp|tls|quic)/[^\s]+:\d{1,5}$")]
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]]+):(\d{1,5})$")
+_HOST_LABEL = re.compile(r"^(?!-)[A-Za-z0-9-]{1,63}(?<!-)$")
+
+
+def endpoint_problem(text: str) -> str | None:
+    """What is wrong with a zenoh endpoint ``PROTOCOL/HOST:PORT`` (``None``: nothing).
+
+    The protocol is tcp, udp, tls or quic; the host an IPv4 address, an IPv6 address in
+    brackets or a host name; the port 1 to 65535 (0, "any free port", is refused: the other
+    side could not find it).
+    """
+    expected = "expected PROTOCOL/HOST:PORT (tcp, udp, tls or quic), e.g. tcp/127.0.0.1:7447"
+    m = _ENDPOINT.match(text)
+    if m is None:
+        return f"invalid endpoint {text!r}; {expected}"
+    host, port = m.group(2), int(m.group(3))
+    if not 1 <= port <= 65535:
+        return f"invalid endpoint {text!r}: port {port} is not in 1..65535"
+    try:
+        ipaddress.ip_address(host[1:-1] if host.startswith("[") else host)
+        return None
+    except ValueError:
+        pass
+    if host.startswith("[") or re.fullmatch(r"[0-9.]+", host):
+        return f"invalid endpoint {text!r}: {host} is not an IP address"
+    if len(host) > 253 or not all(_HOST_LABEL.match(label) for label in host.split(".")):
+        return f"invalid endpoint {text!r}: {host!r} is not a host name"
+    return None
+
+
+def _endpoint(text: str) -> str:
+    problem = endpoint_problem(text)
+    if problem is not None:
+        raise ValueError(problem)
+    return text
+
+
+Endpoint = Annotated[str, Strict(), AfterValidator(_endpoint)]
 
 
 class _Model(BaseModel):

@@ -39,6 +39,8 @@ def config_from_spec(spec: TransportSpec) -> zenoh.Config:
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(spec.mode))
     cfg.insert_json5("scouting/multicast/enabled", json.dumps(spec.multicast_scouting))
+    # no gossip either: a peer learns of no one but the endpoints it is given
+    cfg.insert_json5("scouting/gossip/enabled", "false")
     cfg.insert_json5("listen/endpoints", json.dumps(list(spec.listen)))
     cfg.insert_json5("connect/endpoints", json.dumps(list(spec.connect)))
     return cfg

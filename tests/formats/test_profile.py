@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.profile import load_profile
+from legws_daemon.formats.profile import endpoint_problem, load_profile
 
 PROFILES = Path(__file__).parents[2] / "hw_profiles"
 
@@ -47,3 +47,44 @@ def test_bad_profiles_name_file_and_field(
     message = str(info.value)
     assert message.startswith(f"{path}: {field}")
     assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    "endpoint",
+    [
+        "tcp/127.0.0.1:7447",
+        "tls/localhost:7447",
+        "udp/192.168.1.20:1",
+        "quic/robot-pc.lab.example:65535",
+        "tcp/[::1]:7447",
+        "tcp/[fe80::1]:7447",
+    ],
+)
+def test_good_endpoints(endpoint: str) -> None:
+    assert endpoint_problem(endpoint) is None
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "why"),
+    [
+        ("tcp/127.0.0.1:99999", "port 99999 is not in 1..65535"),
+        ("tcp/127.0.0.1:0", "port 0 is not in 1..65535"),
+        ("tcp/127.0.0.300:7447", "127.0.0.300 is not an IP address"),
+        ("tcp/[1::2::3]:7447", "[1::2::3] is not an IP address"),
+        ("tcp/-robot:7447", "'-robot' is not a host name"),
+        ("tcp/a..b:7447", "'a..b' is not a host name"),
+        ("http/127.0.0.1:7447", "expected PROTOCOL/HOST:PORT"),
+        ("tcp/127.0.0.1", "expected PROTOCOL/HOST:PORT"),
+        ("tcp/127.0.0.1:7447 ", "expected PROTOCOL/HOST:PORT"),
+        ("tcp/a b:7447", "expected PROTOCOL/HOST:PORT"),
+    ],
+)
+def test_bad_endpoints_say_what_is_wrong(tmp_path: Path, endpoint: str, why: str) -> None:
+    problem = endpoint_problem(endpoint)
+    assert problem is not None and why in problem
+    text = (PROFILES / "sim.toml").read_text()
+    path = tmp_path / "p.toml"
+    path.write_text(text.replace('listen = ["tcp/127.0.0.1:7447"]', f"listen = [{endpoint!r}]"))
+    with pytest.raises(InputError, match=r"transport\.listen\[0\]") as info:
+        load_profile(path)
+    assert why in str(info.value) and "\n" not in str(info.value)

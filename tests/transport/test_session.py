@@ -21,6 +21,14 @@ def test_default_spec_is_loopback_without_multicast() -> None:
     assert keys("sawyer")["joystick"] == "legws/sawyer/joystick"
 
 
+def test_the_default_transport_has_no_multicast_and_no_gossip() -> None:
+    """A peer of the default transport learns of no one but its endpoints."""
+    config = config_from_spec(TransportSpec())
+    assert config.get_json("scouting/multicast/enabled") == "false"
+    assert config.get_json("scouting/gossip/enabled") == "false"
+    assert config.get_json("listen/endpoints") == '["tcp/127.0.0.1:7447"]'
+
+
 def test_two_peers_exchange_a_joystick_message_on_loopback() -> None:
     port = free_port()
     listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
