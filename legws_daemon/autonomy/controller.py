@@ -517,11 +517,7 @@ class Controller:
             case "status":
                 return {"mode": self.mode.value}
             case "load_scene" | "load_taskgraph":
-                prepared = self.prepare(request, scenes, graphs, plans)
-                detail, old = self.install(prepared)
-                if old is not None:
-                    old.disconnect()
-                return detail
+                return self._install_now(self.prepare(request, scenes, graphs, plans))
             case "release" | "take_control":
                 raise InputError("the operator lease is the daemon's, not the controller's")
             case _:
@@ -654,7 +650,11 @@ class Controller:
     ) -> dict[str, Any]:
         """Swap to another scene or task graph (the robot stops first), with the graph's plan
         when given; the task restarts (:meth:`prepare_load` and :meth:`install` in one)."""
-        detail, old = self.install(self.prepare_load(scene, graph, plan, layout))
+        return self._install_now(self.prepare_load(scene, graph, plan, layout))
+
+    def _install_now(self, prepared: PreparedLoad) -> dict[str, Any]:
+        """:meth:`install`, and the replaced adapter disconnected here and now."""
+        detail, old = self.install(prepared)
         if old is not None:
             old.disconnect()
         return detail

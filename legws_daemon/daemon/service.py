@@ -411,6 +411,7 @@ class DaemonService:
         assert c is not None
         state = rec.state if rec is not None else c.last_state
         self._status_seq += 1
+        rejections = self.inbox.counts()
         data: dict[str, Any] = {
             "schema": 1,
             "robot": self.profile.robot,
@@ -428,8 +429,8 @@ class DaemonService:
             "deadman": rec is not None and rec.joystick is None,
             "tick": c.ticks,
             "overruns": self.ticker.overruns,
-            "rejected": self.inbox.rejected,
-            "rejections": self.inbox.counts(),
+            "rejected": sum(rejections.values()),
+            "rejections": rejections,
             "operator": self.inbox.operator(),
             "slack": slack,
             "decision": c.decisions,
@@ -538,6 +539,10 @@ class DaemonService:
             self._after_tick.append(self._prepare_next)
         return done
 
+    def _off_loop(self, fn: Callable[..., object], *args: object) -> None:
+        """Run ``fn(*args)`` on the preparer's thread, handed over after this tick's work."""
+        self._after_tick.append(functools.partial(self._preparer.submit, fn, *args))
+
     def _hand_over(self) -> None:
         """Give the preparer its work for this tick (the tick's own work is done)."""
         work, self._after_tick = self._after_tick, []
@@ -570,17 +575,17 @@ class DaemonService:
                 load.pending.finish({"ok": False, "command": command, "error": str(err)})
             return 1
         if load.cancelled is not None:
-            self._after_tick.append(lambda: self._preparer.submit(prepared.discard))
+            self._off_loop(prepared.discard)
             return 1
         try:
             detail, old = c.install(prepared)
         except LegwsError as err:
-            self._after_tick.append(lambda: self._preparer.submit(prepared.discard))
+            self._off_loop(prepared.discard)
             load.pending.finish({"ok": False, "command": command, "error": str(err)})
             return 1
         load.pending.finish({"ok": True, "command": command, **detail})
         if old is not None:
-            self._after_tick.append(lambda: self._preparer.submit(_dispose, old))
+            self._off_loop(_dispose, old)
         return 1
 
     def _cancel_loads(self, why: str) -> None:
@@ -624,7 +629,7 @@ class DaemonService:
             self._deadman = why
             self._last_deadman_event = now
             self._emit(Deadman(why is not None, why))
-        totals = self.inbox.counts()
+        totals = self.inbox.counts() if report.rejections else {}
         for reason, tally in report.rejections.items():
             before = self._rejections_unreported.get(reason)
             count = tally.count + (before.count if before is not None else 0)
