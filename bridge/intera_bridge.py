@@ -13,6 +13,16 @@ eclipse-zenoh``) and implements the bridge contract of ``docs/bridge.md``:
   deadman), then the arm holds its position. A command with a non-finite or over-limit
   value, or any other invalid field, is rejected and stops the arm. Nothing moves while
   the robot is disabled or e-stopped.
+* Its own limits, whatever it is sent (the profile's ``[bridge]`` and ``[workspace]``:
+  flags, or ``--profile PATH``): commands beyond a rate are refused and stop the arm;
+  joint speeds are scaled down to a cap; a command moves the arm at most ``max_ttl``; the
+  endpoint's speed, predicted from Intera's measured ``Limb.endpoint_velocity()``, is held
+  to a cap; a step whose predicted endpoint (``endpoint_pose()`` + velocity x period)
+  leaves the workspace box (+ margin) stops the arm (:class:`EndpointGuard`). The
+  state's ``limited`` lists what was enforced.
+* ``legws/<robot>/stop/*`` (subscribed): any sample stops the arm and latches; commands
+  are ignored until a valid ``legws/<robot>/bridge/resume``. The state's ``stopped_by``
+  names the role (the key's last chunk).
 
 Standalone on purpose: it imports only rospy, intera_interface, zenoh and the standard
 library. The message checks and the deadman are plain functions and classes, tested in
@@ -22,6 +32,7 @@ Usage (see bridge/README.md)::
 
     python3 intera_bridge.py                              # loopback: connect tcp/127.0.0.1:7447
     python3 intera_bridge.py --zenoh-config robot.json5   # the real network
+    python3 intera_bridge.py --profile sawyer.toml        # limits from a legws profile
 """
 
 # zip(strict=...) needs Python 3.10; the robot's PC may run ROS Noetic's Python 3.8.
@@ -36,12 +47,17 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import intera_interface
 import rospy
 import zenoh
+
+try:  # Python >= 3.11: --profile reads a legws hardware profile
+    import tomllib
+except ImportError:  # ROS Noetic's Python 3.8: give the limits as flags
+    tomllib = None  # type: ignore[assignment]
 
 SCHEMA = 1
 #: Intera's joint names: the order of every joint vector on the wire.
@@ -65,6 +81,39 @@ STATE_RATE_HZ = 100.0
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 GRIPPER_REQUESTS = ("open", "closed")
 _COMMAND_FIELDS = frozenset({"schema", "seq", "stamp", "mode", "dq", "ttl", "gripper"})
+_STOP_FIELDS = frozenset({"schema", "stamp", "source", "reason"})
+_RESUME_FIELDS = frozenset({"schema", "seq", "stamp"})
+#: The roles that stop the robot on ``legws/<robot>/stop/<role>`` (another key: "unknown").
+STOP_ROLES = ("operator", "observer", "safety", "bridge", "daemon")
+#: The limits the bridge enforces itself, as the state's ``limited`` names them.
+LIMITS = ("joint_speed", "ee_speed", "workspace", "ttl", "rate")
+
+# The bridge's own limits: the defaults of a legws profile's [bridge] and [workspace]
+# tables (legws_daemon/formats/profile.py); --profile or the flags set others.
+#: Each joint's speed at most this (and at most its specification), rad/s.
+JOINT_SPEED_CAP = 0.8
+#: The endpoint's measured linear speed at most this, m/s.
+EE_SPEED_CAP = 0.2
+#: The box the endpoint stays in (base frame, m): x, y, z ranges ...
+WORKSPACE = ((0.20, 0.95), (-0.55, 0.55), (0.0, 0.60))
+#: ... grown by this, m.
+WORKSPACE_MARGIN = 0.02
+#: A command moves the arm at most this long after its receipt, s.
+TTL_CAP = 0.2
+#: Commands per second at most ...
+COMMAND_RATE_HZ = 60.0
+#: ... and this many more in a burst (the token bucket's depth).
+COMMAND_BURST = 5
+#: The farthest the endpoint is from any joint axis (the Sawyer's reach, a tool), m: a
+#: motion not measured yet moves the endpoint at most this x the sum of its joint speeds.
+REACH = 1.5
+#: A command this parallel (cosine) to the joint velocities applied is predicted from the
+#: measured endpoint velocity.
+PARALLEL = 0.99
+#: A motion not measured yet may carry the endpoint this far out of the box (+ margin), m.
+PROBE = 0.0005
+#: Outside the box (+ margin) by more than this less PROBE, nothing new moves, m.
+OUTSIDE_LIMIT = 0.005
 
 
 class CommandError(ValueError):
@@ -141,6 +190,298 @@ def parse_command(payload: bytes) -> Command:
     return Command(seq, stamp, dq, ttl, gripper)
 
 
+def _text(value: Any, field: str, longest: int) -> None:
+    if value is not None and (not isinstance(value, str) or len(value) > longest):
+        raise CommandError(field, f"expected a string of at most {longest} characters or null")
+
+
+def _json_object(payload: bytes, fields: frozenset[str]) -> dict[str, Any]:
+    """A JSON object of ``schema`` 1 with no other fields than ``fields``."""
+    if len(payload) > MAX_PAYLOAD:
+        raise CommandError("payload", f"{len(payload)} bytes exceed {MAX_PAYLOAD}")
+    try:
+        data = json.loads(payload)
+    except (ValueError, RecursionError) as err:
+        raise CommandError("payload", f"not JSON: {type(err).__name__}") from None
+    if not isinstance(data, dict):
+        raise CommandError("payload", "expected a JSON object")
+    unknown = sorted(str(k) for k in data if k not in fields)
+    if unknown:
+        raise CommandError(unknown[0], "unknown field")
+    if "schema" not in data:
+        raise CommandError("schema", "missing")
+    if data["schema"] != SCHEMA:
+        raise CommandError("schema", f"unsupported schema {data['schema']!r}; expected {SCHEMA}")
+    return data
+
+
+def check_stop(payload: bytes) -> None:
+    """Validate a stop payload (empty: no detail); raises :class:`CommandError`. A stop
+    stops whatever its payload: this only decides whether it is counted as invalid."""
+    if not payload:
+        return
+    data = _json_object(payload, _STOP_FIELDS)
+    if data.get("stamp") is not None:
+        _number(data["stamp"], "stamp")
+    _text(data.get("source"), "source", 64)
+    _text(data.get("reason"), "reason", 200)
+
+
+def check_resume(payload: bytes) -> None:
+    """Validate a resume payload ``{"schema": 1, "seq", "stamp"}``; raises CommandError."""
+    data = _json_object(payload, _RESUME_FIELDS)
+    for name in ("seq", "stamp"):
+        if name not in data:
+            raise CommandError(name, "missing")
+    seq = data["seq"]
+    if isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= MAX_SEQ:
+        raise CommandError("seq", f"expected an integer in [0, 2^63 - 1], got {seq!r}")
+    _number(data["stamp"], "stamp")
+
+
+def stop_role(key: str) -> str:
+    """The role of a stop key (its last chunk), ``unknown`` for any other."""
+    role = key.rsplit("/", 1)[-1]
+    return role if role in STOP_ROLES else "unknown"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The limits the bridge enforces itself (a legws profile's ``[bridge]`` and
+    ``[workspace]``; the defaults are the profile's)."""
+
+    joint_speed_cap: float = JOINT_SPEED_CAP  # rad/s, each joint (and its specification)
+    ee_speed_cap: float = EE_SPEED_CAP  # m/s, the endpoint's measured speed
+    workspace: tuple[tuple[float, float], ...] = WORKSPACE  # x, y, z ranges, base frame, m
+    workspace_margin: float = WORKSPACE_MARGIN  # m, the box grows by this
+    max_ttl: float = TTL_CAP  # s
+    command_rate_hz: float = COMMAND_RATE_HZ  # commands/s
+    burst: int = COMMAND_BURST  # commands beyond the rate in a burst
+
+    def __post_init__(self) -> None:
+        """The profile's ranges; a ValueError names the field."""
+        ranges = (
+            ("joint_speed_cap", self.joint_speed_cap, 0.0, max(SPEED_LIMITS), False),
+            ("ee_speed_cap", self.ee_speed_cap, 0.0, 2.0, False),
+            ("workspace_margin", self.workspace_margin, 0.0, 0.2, True),
+            ("max_ttl", self.max_ttl, 0.0, MAX_TTL, False),
+            ("command_rate_hz", self.command_rate_hz, 0.0, 1000.0, False),
+        )
+        for name, value, lo, hi, closed in ranges:
+            number = float(value)
+            above = number >= lo if closed else number > lo
+            if not (math.isfinite(number) and above and number <= hi):
+                opening = "[" if closed else "("
+                raise ValueError(f"{name} must be in {opening}{lo:g}, {hi:g}], got {value!r}")
+        if isinstance(self.burst, bool) or not isinstance(self.burst, int) or self.burst < 1:
+            raise ValueError(f"burst must be an integer >= 1, got {self.burst!r}")
+        if len(self.workspace) != 3:
+            raise ValueError("workspace must have x, y and z ranges")
+        for axis, (lo, hi) in zip("xyz", self.workspace):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ValueError(f"workspace {axis} must be [low, high] with low < high")
+
+    def joint_caps(self) -> list[float]:
+        """Each joint's speed cap: the lower of ``joint_speed_cap`` and its specification."""
+        return [min(self.joint_speed_cap, limit) for limit in SPEED_LIMITS]
+
+    def box(self) -> tuple[list[float], list[float]]:
+        """The workspace grown by the margin: (lower, upper) corners."""
+        m = self.workspace_margin
+        return [lo - m for lo, _ in self.workspace], [hi + m for _, hi in self.workspace]
+
+    def describe(self) -> str:
+        box = " ".join(f"{axis} [{lo:g}, {hi:g}]" for axis, (lo, hi) in zip("xyz", self.workspace))
+        return (
+            f"joint speed <= {self.joint_speed_cap:g} rad/s, EE speed <= {self.ee_speed_cap:g} "
+            f"m/s, EE in {box} m + {self.workspace_margin:g} m, ttl <= {self.max_ttl:g} s, "
+            f"<= {self.command_rate_hz:g} commands/s (burst {self.burst})"
+        )
+
+
+_PROFILE_BRIDGE_KEYS = (
+    "joint_speed_cap",
+    "ee_speed_cap",
+    "workspace_margin",
+    "max_ttl",
+    "command_rate_hz",
+)
+
+
+def _profile_number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {value!r}")
+    return float(value)
+
+
+def profile_limits(path: str) -> Limits:
+    """The limits of a legws hardware profile (``[bridge]``, ``[workspace]``; what it
+    leaves out keeps the default). Raises ValueError (or OSError) naming the problem."""
+    if tomllib is None:
+        raise ValueError("--profile needs Python >= 3.11 (tomllib); give the limits as flags")
+    with open(path, "rb") as f:
+        try:
+            doc = tomllib.load(f)
+        except tomllib.TOMLDecodeError as err:
+            raise ValueError(f"{path}: not TOML: {err}") from None
+    values: dict[str, Any] = {}
+    bridge = doc.get("bridge", {})
+    if not isinstance(bridge, dict):
+        raise ValueError(f"{path}: [bridge] must be a table")
+    for key, value in bridge.items():
+        if key not in _PROFILE_BRIDGE_KEYS:
+            raise ValueError(f"{path}: bridge.{key}: unknown field")
+        values[key] = _profile_number(value, f"{path}: bridge.{key}")
+    workspace = doc.get("workspace", {})
+    if not isinstance(workspace, dict):
+        raise ValueError(f"{path}: [workspace] must be a table")
+    ranges = []
+    for i, axis in enumerate("xyz"):
+        pair = workspace.get(axis, WORKSPACE[i])
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise ValueError(f"{path}: workspace.{axis}: expected [low, high]")
+        ranges.append(tuple(_profile_number(v, f"{path}: workspace.{axis}") for v in pair))
+    unknown = sorted(set(workspace) - {"x", "y", "z"})
+    if unknown:
+        raise ValueError(f"{path}: workspace.{unknown[0]}: unknown field")
+    values["workspace"] = tuple(ranges)
+    try:
+        return Limits(**values)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+
+
+def cap_speeds(dq: Sequence[float], caps: Sequence[float]) -> tuple[list[float], bool]:
+    """``dq`` scaled down uniformly (direction kept) so no joint is over its cap; and
+    whether it was."""
+    ratio = max(abs(v) / cap for v, cap in zip(dq, caps))
+    if ratio <= 1.0:
+        return [float(v) for v in dq], False
+    return [max(-cap, min(cap, v / ratio)) for v, cap in zip(dq, caps)], True
+
+
+class TokenBucket:
+    """``rate_hz`` tokens a second, at most ``burst`` saved (full at the start)."""
+
+    def __init__(self, rate_hz: float, burst: int) -> None:
+        self.rate_hz = rate_hz
+        self.burst = burst
+        self._tokens = float(burst)
+        self._time: float | None = None
+
+    def take(self, now: float) -> bool:
+        """One token for a command arriving at ``now``; ``False``: none left."""
+        if self._time is not None and now > self._time:
+            self._tokens = min(float(self.burst), self._tokens + (now - self._time) * self.rate_hz)
+        if self._time is None or now > self._time:
+            self._time = now
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            return True
+        return False
+
+
+def box_distance(p: Sequence[float], lower: Sequence[float], upper: Sequence[float]) -> float:
+    """The distance from ``p`` to the box (0 inside)."""
+    return math.sqrt(sum(max(lo - x, x - hi, 0.0) ** 2 for x, lo, hi in zip(p, lower, upper)))
+
+
+class EndpointGuard:
+    """The endpoint rules, on Intera's measured endpoint state, once per tick.
+
+    The measured endpoint velocity is that of the joint velocities applied at the previous
+    tick. A new command *parallel* to those (cosine >= :data:`PARALLEL`; the daemon's
+    commands change slowly) is predicted from it, in proportion to its size; any other
+    (the first tick of a motion, a new direction) is judged by the worst case,
+    :data:`REACH` x the sum of its joint speeds, until the next tick measures it.
+
+    * **EE speed**: the predicted speed over the cap scales the command down to it
+      (``ee_speed``). An unmeasured command's first tick is not slowed: the cap holds
+      from the tick that measures it (the robot's own acceleration limits bound that tick).
+    * **Workspace** (the box grown by the margin): a predicted position one period ahead
+      that leaves the box, or, outside it, is farther from it, stops the arm (``workspace``).
+      An unmeasured command moves the endpoint at most to the box's face, or
+      :data:`PROBE` past it, in its first tick (``workspace`` when that slows it); outside
+      the box by more than :data:`OUTSIDE_LIMIT` - :data:`PROBE`, nothing new moves.
+    """
+
+    def __init__(self, limits: Limits, period: float) -> None:
+        self.cap = limits.ee_speed_cap
+        self.lower, self.upper = limits.box()
+        self.period = period
+
+    def inside(self, p: Sequence[float]) -> bool:
+        return all(lo <= x <= hi for x, lo, hi in zip(p, self.lower, self.upper))
+
+    def distance(self, p: Sequence[float]) -> float:
+        """From ``p`` to the box (0 inside), m."""
+        return box_distance(p, self.lower, self.upper)
+
+    def room(self, p: Sequence[float]) -> float:
+        """From ``p`` (inside) to the box's nearest face, m."""
+        return min(min(x - lo, hi - x) for x, lo, hi in zip(p, self.lower, self.upper))
+
+    def limit(
+        self,
+        dq: Sequence[float],
+        applied: Sequence[float],
+        position: Sequence[float],
+        linear: Sequence[float],
+    ) -> tuple[list[float] | None, list[str]]:
+        """``dq`` within the endpoint rules (``None``: the arm stops) and the limits
+        enforced, given the joint velocities ``applied`` at the previous tick and the
+        endpoint's measured ``position`` and ``linear`` velocity."""
+        enforced = []
+        size, before = _norm(dq), _norm(applied)
+        parallel = size > 0.0 and before > 0.0
+        if parallel:
+            parallel = sum(a * b for a, b in zip(dq, applied)) >= PARALLEL * size * before
+        if parallel:  # predicted from the measurement
+            velocity = [size / before * v for v in linear]
+            speed = _norm(velocity)
+            scale = 1.0 if speed <= self.cap else self.cap / speed
+            if scale < 1.0:
+                enforced.append("ee_speed")
+            predicted = [p + scale * v * self.period for p, v in zip(position, velocity)]
+            if not self.inside(predicted) and (
+                self.inside(position) or self.distance(predicted) > self.distance(position)
+            ):
+                return None, [*enforced, "workspace"]
+            return [scale * v for v in dq], enforced
+        worst = REACH * sum(abs(v) for v in dq)  # not measured yet: the worst case, m/s
+        scale = 1.0
+        if self.inside(position):
+            allowed = max(self.room(position), PROBE)
+        elif self.distance(position) + PROBE <= OUTSIDE_LIMIT:
+            allowed = PROBE
+        else:
+            return None, ["workspace"]
+        travel = scale * worst * self.period
+        if travel > allowed:
+            scale *= allowed / travel
+            enforced.append("workspace")
+        return [scale * v for v in dq], enforced
+
+
+def _norm(v: Sequence[float]) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
+def endpoint_state(limb: Any) -> tuple[list[float], list[float]] | None:
+    """Intera's endpoint position and linear velocity (base frame), or ``None`` when the
+    robot has not reported them (yet) or they are not finite."""
+    try:
+        p = limb.endpoint_pose()["position"]
+        v = limb.endpoint_velocity()["linear"]
+        position = [float(p.x), float(p.y), float(p.z)]
+        linear = [float(v.x), float(v.y), float(v.z)]
+    except (KeyError, AttributeError, TypeError, ValueError):
+        return None
+    if not all(math.isfinite(x) for x in position + linear):
+        return None
+    return position, linear
+
+
 def guard_limits(q: Sequence[float], dq: Sequence[float]) -> list[float]:
     """``dq`` with the joints at (or past) a position limit not driven further out."""
     out = []
@@ -157,10 +498,11 @@ class Deadman:
         self._command: Command | None = None
         self._expires = 0.0
 
-    def accept(self, command: Command, now: float) -> None:
-        """A valid command replaces the current one; it lives ``ttl`` seconds from ``now``."""
+    def accept(self, command: Command, now: float, ttl_cap: float = MAX_TTL) -> None:
+        """A valid command replaces the current one; it lives ``ttl`` seconds from ``now``
+        (at most ``ttl_cap``)."""
         self._command = command
-        self._expires = now + command.ttl
+        self._expires = now + min(command.ttl, ttl_cap)
 
     def clear(self) -> None:
         """Stop: a rejected command, a disabled robot or a shutdown."""
@@ -185,6 +527,8 @@ def state_message(
     gripper: str,
     enabled: bool,
     estop: bool,
+    stopped_by: str | None = None,
+    limited: Sequence[str] = (),
 ) -> bytes:
     """The wire form of one state; raises ValueError for non-finite measurements."""
     doc = {
@@ -196,6 +540,8 @@ def state_message(
         "gripper": gripper,
         "enabled": bool(enabled),
         "estop": bool(estop),
+        "stopped_by": stopped_by,
+        "limited": [name for name in LIMITS if name in limited],
     }
     return json.dumps(doc, allow_nan=False).encode()
 
@@ -240,17 +586,24 @@ class GripperDriver:
 
 
 class SawyerBridge:
-    """The bridge's work: commands in (a zenoh thread), state out and velocities applied
-    (:meth:`tick`, the ROS loop at 100 Hz).
+    """The bridge's work: commands, stops and resumes in (zenoh threads), state out and
+    velocities applied (:meth:`tick`, the ROS loop at 100 Hz).
+
+    The rules, in order. On a command: the contract's validation (rejected: the arm stops),
+    the rate (refused: the arm stops), the stop latch and shutdown (ignored), the joint
+    speed cap (scaled), the ttl cap. Every tick: the deadman, the joint position limits,
+    the endpoint speed (scaled), the workspace (the arm stops).
 
     Args:
         session: an open zenoh session (closed by the caller).
-        robot: the robot name: keys under ``legws/<robot>/bridge/``.
+        robot: the robot name: keys under ``legws/<robot>/``.
         limb: ``intera_interface.Limb('right')``.
         gripper: the gripper driver.
         enabler: ``intera_interface.RobotEnable`` (its ``state()`` says enabled / e-stop).
-        clock: monotonic seconds, for the deadman.
+        clock: monotonic seconds, for the deadman and the rate.
         wall: the clock of the ``stamp`` fields.
+        limits: the bridge's own limits (default: the profile defaults).
+        period: the tick period, s (the workspace rule predicts one period ahead).
     """
 
     def __init__(
@@ -263,31 +616,62 @@ class SawyerBridge:
         *,
         clock: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
+        limits: Limits | None = None,
+        period: float = 1.0 / STATE_RATE_HZ,
     ) -> None:
         self.state_key = f"legws/{robot}/bridge/state"
         self.command_key = f"legws/{robot}/bridge/command"
+        self.resume_key = f"legws/{robot}/bridge/resume"
+        self.stop_key = f"legws/{robot}/stop/*"
         self.limb = limb
         self.gripper = gripper
         self.enabler = enabler
         self.clock = clock
         self.wall = wall
+        self.limits = limits if limits is not None else Limits()
         self.deadman = Deadman()
+        self.bucket = TokenBucket(self.limits.command_rate_hz, self.limits.burst)
+        self.endpoint = EndpointGuard(self.limits, period)
+        self.joint_caps = self.limits.joint_caps()
         self.rejected = 0
-        self.accepted = 0
-        self._lock = threading.Lock()  # the deadman and the gripper request
+        self.accepted = 0  # valid commands (also those refused or ignored)
+        self.stops = 0
+        self.invalid_stops = 0
+        self.resumes = 0
+        self.rejected_resumes = 0
+        self.stopped_by: str | None = None
+        self.counts = dict.fromkeys(LIMITS, 0)  # per limit, times enforced
+        self._limited: set[str] = set()  # since the previous state message
+        self._lock = threading.Lock()  # the deadman, the latch, the limits, the gripper request
         self._motion = threading.Lock()  # the limb's commands (tick vs. halt at shutdown)
         self._gripper_request: str | None = None
         self._moving = False
+        self._applied = [0.0] * len(JOINT_NAMES)  # the joint velocities sent last, rad/s
         self._halted = False
         self._seq = 0
         self._publisher = session.declare_publisher(self.state_key)
-        self._subscriber = session.declare_subscriber(self.command_key, self._on_command)
+        self._subscribers = [
+            session.declare_subscriber(self.command_key, self._on_command),
+            session.declare_subscriber(self.stop_key, self._on_stop),
+            session.declare_subscriber(self.resume_key, self._on_resume),
+        ]
+
+    def _report(self, limit: str) -> None:
+        """Count an enforced limit (the lock held)."""
+        self.counts[limit] += 1
+        self._limited.add(limit)
 
     def _on_command(self, sample: zenoh.Sample) -> None:
         self.handle_command(sample.payload.to_bytes(), self.clock())
 
+    def _on_stop(self, sample: zenoh.Sample) -> None:
+        self.handle_stop(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _on_resume(self, sample: zenoh.Sample) -> None:
+        self.handle_resume(sample.payload.to_bytes())
+
     def handle_command(self, payload: bytes, now: float) -> None:
-        """Accept a valid command; a rejected one stops the arm."""
+        """Accept a valid command within the limits; a rejected or refused one stops the arm."""
         try:
             command = parse_command(payload)
         except CommandError as err:
@@ -298,14 +682,56 @@ class SawyerBridge:
             return
         with self._lock:
             self.accepted += 1
-            if self._halted:
+            if not self.bucket.take(now):
+                self.deadman.clear()
+                self._report("rate")
                 return
-            self.deadman.accept(command, now)
+            if self._halted or self.stopped_by is not None:
+                return
+            dq, capped = cap_speeds(command.dq, self.joint_caps)
+            if capped:
+                self._report("joint_speed")
+                command = replace(command, dq=tuple(dq))
+            if command.ttl > self.limits.max_ttl:
+                self._report("ttl")
+            self.deadman.accept(command, now, self.limits.max_ttl)
             if command.gripper is not None:
                 self._gripper_request = command.gripper
 
+    def handle_stop(self, key: str, payload: bytes) -> None:
+        """Any sample on a stop key stops the arm and latches (its payload is only checked
+        to count the invalid ones)."""
+        try:
+            check_stop(payload)
+            valid = True
+        except CommandError:
+            valid = False
+        role = stop_role(key)
+        with self._lock:
+            self.stops += 1
+            if not valid:
+                self.invalid_stops += 1
+            self.deadman.clear()
+            if self.stopped_by is None:
+                self.stopped_by = role
+        rospy.logwarn_throttle(1.0, f"legws bridge: stopped by {role} ({key})")
+
+    def handle_resume(self, payload: bytes) -> None:
+        """A valid resume clears the latched stop (no command comes back)."""
+        try:
+            check_resume(payload)
+        except CommandError as err:
+            with self._lock:
+                self.rejected_resumes += 1
+            rospy.logwarn_throttle(1.0, f"legws bridge: resume rejected: {err}")
+            return
+        with self._lock:
+            self.resumes += 1
+            self.stopped_by = None
+
     def tick(self) -> None:
-        """Apply the live command (or hold still), drive the gripper, publish the state."""
+        """Apply the live command within the limits (or hold still), drive the gripper,
+        publish the state."""
         now = self.clock()
         angles = self.limb.joint_angles()
         speeds = self.limb.joint_velocities()
@@ -314,26 +740,52 @@ class SawyerBridge:
         q = [float(angles[name]) for name in JOINT_NAMES]
         dq = [float(speeds[name]) for name in JOINT_NAMES]
         enabled, estop = robot_status(self.enabler.state())
+        endpoint = endpoint_state(self.limb)
         with self._motion:
             with self._lock:
                 velocities = None
-                if not self._halted:
+                if not self._halted and self.stopped_by is None:
                     velocities = self.deadman.velocities(now, q, enabled and not estop)
+                if endpoint is not None:
+                    if velocities is not None and any(velocities):
+                        velocities, enforced = self.endpoint.limit(
+                            velocities, self._applied, *endpoint
+                        )
+                        for limit in enforced:
+                            self._report(limit)
+                        if velocities is None:  # the workspace: the arm stops
+                            self.deadman.clear()
+                elif velocities is not None:
+                    velocities = None  # no endpoint state to judge the step by: hold
+                    rospy.logwarn_throttle(1.0, "legws bridge: no endpoint state; holding")
                 request, self._gripper_request = self._gripper_request, None
+                stopped_by = self.stopped_by
+                limited, self._limited = tuple(self._limited), set()
             if velocities is not None:
                 self.limb.set_joint_velocities(dict(zip(JOINT_NAMES, velocities)))
                 self._moving = True
+                self._applied = velocities
             elif self._moving:
                 self._hold()
         if request is not None and request != self.gripper.requested and enabled and not estop:
             self.gripper.command(request)
         try:
             payload = state_message(
-                self._seq, self.wall(), q, dq, self.gripper.status(), enabled, estop
+                self._seq,
+                self.wall(),
+                q,
+                dq,
+                self.gripper.status(),
+                enabled,
+                estop,
+                stopped_by,
+                limited,
             )
         except ValueError as err:
             rospy.logerr_throttle(1.0, f"legws bridge: state not published: {err}")
             return
+        if limited:
+            rospy.logwarn_throttle(1.0, f"legws bridge: limits enforced: {', '.join(limited)}")
         self._seq += 1
         self._publisher.put(payload)
 
@@ -342,6 +794,7 @@ class SawyerBridge:
         self.limb.set_joint_velocities(dict.fromkeys(JOINT_NAMES, 0.0))
         self.limb.exit_control_mode()
         self._moving = False
+        self._applied = [0.0] * len(JOINT_NAMES)
 
     def halt(self) -> None:
         """Stop for good (shutdown): zero velocities, no further command is applied."""
@@ -355,21 +808,69 @@ class SawyerBridge:
     def close(self) -> None:
         """Halt and undeclare; the session is closed by its owner."""
         self.halt()
-        for entity in (self._subscriber, self._publisher):
+        entities: list[Any] = [*self._subscribers, self._publisher]
+        for entity in entities:
             with contextlib.suppress(zenoh.ZError):  # a closed session: nothing left
-                entity.undeclare()  # type: ignore[no-untyped-call]
+                entity.undeclare()
 
 
 def zenoh_config(path: str | None, connect: Sequence[str], listen: Sequence[str]) -> zenoh.Config:
-    """A JSON5 file for the real network, else a loopback peer without multicast scouting."""
+    """A JSON5 file for the real network, else a loopback peer without multicast scouting
+    or gossip, dialling again every 0.1-0.5 s (the daemon waits 3 s for it at start-up)."""
     if path is not None:
         return zenoh.Config.from_file(path)
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps("peer"))
     config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    retry = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
+    config.insert_json5("connect/retry", json.dumps(retry))
     return config
+
+
+def _config_value(config: zenoh.Config, key: str) -> Any:
+    try:
+        return json.loads(config.get_json(key))
+    except Exception:  # a key this zenoh does not know: unset
+        return None
+
+
+def _config_endpoints(config: zenoh.Config, which: str) -> list[str]:
+    value = _config_value(config, which + "/endpoints")
+    if isinstance(value, dict):  # zenoh's per-mode form
+        value = value.get(_config_value(config, "mode") or "peer", [])
+    return [str(e) for e in value] if isinstance(value, list) else []
+
+
+def authentication_problem(config: zenoh.Config) -> str | None:
+    """What makes ``config`` unauthenticated, or ``None`` (the same rule as the daemon's
+    ``legws_daemon/transport/security.py``): TLS endpoints only, mutual TLS or
+    user/password, and an access control denying by default."""
+    endpoints = _config_endpoints(config, "listen") + _config_endpoints(config, "connect")
+    if not endpoints:
+        return "it has no listen or connect endpoint"
+    plain = [e for e in endpoints if e.split("/", 1)[0] not in ("tls", "quic")]
+    if plain:
+        return f"endpoint {plain[0]} is not TLS (use tls/HOST:PORT)"
+    protocols = _config_value(config, "transport/link/protocols")
+    if isinstance(protocols, list) and set(protocols) - {"tls", "quic"}:
+        return f"transport/link/protocols allows {sorted(set(protocols) - {'tls', 'quic'})}"
+    mtls = _config_value(config, "transport/link/tls/enable_mtls") is True
+    usrpwd = bool(
+        _config_value(config, "transport/auth/usrpwd/dictionary_file")
+        or _config_value(config, "transport/auth/usrpwd/user")
+    )
+    if not (mtls or usrpwd):
+        return "no authentication (transport/link/tls/enable_mtls or transport/auth/usrpwd)"
+    if _config_value(config, "mode") == "client":
+        return None
+    if _config_value(config, "access_control/enabled") is not True:
+        return "access_control is not enabled"
+    if _config_value(config, "access_control/default_permission") != "deny":
+        return 'access_control/default_permission is not "deny"'
+    return None
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
@@ -387,7 +888,47 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     parser.add_argument("--rate", type=float, default=STATE_RATE_HZ, help="state rate, Hz")
     parser.add_argument(
+        "--insecure-transport",
+        action="store_true",
+        help="run on a transport without authentication and access control (a bench test): "
+        "anyone who reaches it can command the arm within the bridge's limits",
+    )
+    parser.add_argument(
         "--no-enable", action="store_true", help="do not enable the robot at start-up"
+    )
+    limits = parser.add_argument_group(
+        "limits", "the bridge's own limits (default: a legws profile's defaults)"
+    )
+    limits.add_argument(
+        "--profile",
+        metavar="PATH",
+        help="a legws hardware profile (.toml): its [bridge] and [workspace] (Python >= 3.11)",
+    )
+    limits.add_argument(
+        "--joint-speed-cap", type=float, help=f"rad/s per joint (default {JOINT_SPEED_CAP:g})"
+    )
+    limits.add_argument(
+        "--ee-speed-cap", type=float, help=f"endpoint speed, m/s (default {EE_SPEED_CAP:g})"
+    )
+    limits.add_argument(
+        "--workspace",
+        type=float,
+        nargs=6,
+        metavar=("X0", "X1", "Y0", "Y1", "Z0", "Z1"),
+        help="the endpoint's box, base frame, m (default "
+        + " ".join(f"{v:g}" for pair in WORKSPACE for v in pair)
+        + ")",
+    )
+    limits.add_argument("--workspace-margin", type=float, help=f"m (default {WORKSPACE_MARGIN:g})")
+    limits.add_argument(
+        "--max-ttl",
+        type=float,
+        help=f"a command moves the arm at most this long, s (default {TTL_CAP:g})",
+    )
+    limits.add_argument(
+        "--command-rate",
+        type=float,
+        help=f"commands/s at most, {COMMAND_BURST} more in a burst (default {COMMAND_RATE_HZ:g})",
     )
     args = parser.parse_args(list(argv))
     if args.zenoh_config and (args.connect or args.listen):
@@ -396,7 +937,28 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         parser.error(f"--rate must be in [1, 1000] Hz, got {args.rate:g}")
     if args.connect is None:
         args.connect = [] if args.listen else [DEFAULT_CONNECT]
+    try:
+        args.limits = limits_from_args(args)
+    except (OSError, ValueError) as err:
+        parser.error(_first_line(err))
     return args
+
+
+def limits_from_args(args: argparse.Namespace) -> Limits:
+    """The profile's limits (or the defaults), with the flags given on top."""
+    limits = profile_limits(args.profile) if args.profile else Limits()
+    flags = {
+        "joint_speed_cap": args.joint_speed_cap,
+        "ee_speed_cap": args.ee_speed_cap,
+        "workspace_margin": args.workspace_margin,
+        "max_ttl": args.max_ttl,
+        "command_rate_hz": args.command_rate,
+    }
+    changes: dict[str, Any] = {k: v for k, v in flags.items() if v is not None}
+    if args.workspace is not None:
+        w = args.workspace
+        changes["workspace"] = ((w[0], w[1]), (w[2], w[3]), (w[4], w[5]))
+    return replace(limits, **changes)
 
 
 def open_gripper() -> GripperDriver:
@@ -431,7 +993,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         config = zenoh_config(args.zenoh_config, args.connect, args.listen)
     except Exception as err:  # zenoh raises its own error types for bad JSON5 or keys
         return _fail(f"invalid zenoh configuration: {_first_line(err)}")
+    problem = authentication_problem(config)
+    if problem is not None and not args.insecure_transport:
+        return _fail(
+            f"the transport is not authenticated: {problem}; pass --zenoh-config with the "
+            "bridge.json5 of `legws secure init`, or --insecure-transport for a bench test"
+        )
     rospy.init_node("legws_bridge")
+    if problem is not None:
+        rospy.logwarn(f"legws bridge: INSECURE TRANSPORT: {problem}")
     try:
         enabler = intera_interface.RobotEnable(intera_interface.CHECK_VERSION)
         if not args.no_enable:
@@ -445,10 +1015,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as err:
         return _fail(f"cannot open a zenoh session: {_first_line(err)}")
     try:
-        bridge = SawyerBridge(session, args.robot, limb, gripper, enabler)
+        bridge = SawyerBridge(
+            session, args.robot, limb, gripper, enabler, limits=args.limits, period=1.0 / args.rate
+        )
         try:
             rospy.on_shutdown(bridge.halt)  # zero velocities while ROS can still send them
             rospy.loginfo(f"legws bridge: {bridge.state_key} at {args.rate:g} Hz")
+            rospy.loginfo(f"legws bridge: limits: {args.limits.describe()}")
             rate = rospy.Rate(args.rate)
             while not rospy.is_shutdown():
                 bridge.tick()

@@ -289,6 +289,9 @@ class Controller:
                 state = self.adapter.read_state()
             except LegwsError as err:
                 self._to_fault(f"read_state: {err}")
+        if state is not None and state.stopped_by is not None and self.mode != Mode.STOPPED:
+            # the robot side holds a stop the daemon did not hear (or from before it started)
+            self.stop(state.stopped_by, "the robot side reports it")
         if state is not None:
             self.last_state = state
             if self.mode == Mode.TELEOP:
@@ -506,11 +509,7 @@ class Controller:
         """
         match request.command:
             case "stop":
-                self.modes.to(Mode.STOPPED)
-                self.assistant = None
-                with contextlib.suppress(LegwsError):
-                    self.adapter.halt()
-                self.emit(Stop(self.mode.value))
+                self.stop("operator", "the command key")
                 return {"mode": self.mode.value}
             case "reset":
                 return self._reset()
@@ -523,6 +522,18 @@ class Controller:
             case _:
                 assert_never(request.command)
 
+    def stop(self, by: str, source: str | None = None, reason: str | None = None) -> None:
+        """Stop: zero velocity, the robot side told to hold the stop, mode ``stopped`` until
+        the operator's ``reset``. ``by`` is the authenticated role that asked."""
+        self.modes.to(Mode.STOPPED)
+        self.assistant = None
+        try:
+            self.adapter.stop_by(by)
+        except LegwsError:
+            with contextlib.suppress(LegwsError):
+                self.adapter.halt()
+        self.emit(Stop(self.mode.value, by, source, reason))
+
     def _reset(self) -> dict[str, Any]:
         """Clear a stop or fault and start the task again: put back what the robot holds
         (or set it down: :mod:`.recovery`), go home, objects back at the layout (on the
@@ -533,6 +544,7 @@ class Controller:
             InfeasibleError: the robot holds an object it can set down nowhere without
                 dropping it from too high (refused once; see :mod:`.recovery`).
         """
+        self.adapter.resume()  # the one party that starts the robot again: the operator
         state = self._read_state_safely()
         if state is None:
             raise HardwareError(f"the robot is still failing: {self.fault or 'no state'}")

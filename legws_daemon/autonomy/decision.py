@@ -4,6 +4,7 @@ observer inferring which one the user is going for."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -97,7 +98,9 @@ class Inference:
         if state is not None:
             self.hold = state.ee_rotation
             with contextlib.suppress(InputError):  # the EE sits on a goal: start from home
-                goals = goal_set(stage.targets, Pose(state.ee_position, state.ee_quaternion))
+                # the same goals seen from the EE (their orientations converted once, off the
+                # control loop when the stage was prepared)
+                goals = dataclasses.replace(goals, x0=Pose(state.ee_position, state.ee_quaternion))
         self.observer = IntentObserver(goals, self.params)
 
     def stop(self) -> None:

@@ -165,8 +165,20 @@ class Reset(Event):
 
 @dataclass(frozen=True, slots=True)
 class Stop(Event):
+    """The robot stopped: ``by`` is the authenticated role that stopped it (operator,
+    observer, safety, bridge — from the key it came on — or ``daemon``), ``source`` and
+    ``reason`` what the sender said (unauthenticated detail)."""
+
     kind: ClassVar[EventKind] = "stop"
     mode: str
+    by: str = "operator"
+    source: str | None = None
+    reason: str | None = None
+
+    def text(self) -> str:
+        said = f" ({self.source})" if self.source else ""
+        why = f": {self.reason}" if self.reason else ""
+        return f"stop by {self.by}{said}{why}"
 
 
 # --- the operator's input ----------------------------------------------------------------
@@ -258,6 +270,21 @@ class TelemetryProblem(Event):
     errors: int
     dropped: int
     control: str = "continues"
+
+
+@dataclass(frozen=True, slots=True)
+class InsecureTransport(Event):
+    """A daemon that drives a real arm runs on a transport without authentication
+    (``--insecure-transport``): anyone who reaches the port can steer it."""
+
+    kind: ClassVar[EventKind] = "warning"
+    insecure_transport: str
+
+    def text(self) -> str:
+        return (
+            f"INSECURE TRANSPORT: {self.insecure_transport}; any process that reaches the "
+            "port can steer the robot, command its bridge and fake its state (bench test only)"
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,6 +18,7 @@ import click
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import (
+    COMMAND_BURST,
     ProfileSpec,
     TransportSpec,
     endpoint_problem,
@@ -25,7 +26,18 @@ from legws_daemon.formats.profile import (
 )
 from legws_daemon.scene.catalog import load_scene
 
-#: ``PROTOCOL/HOST:PORT``, the form of the profile's endpoints.
+
+def limits_line(profile: ProfileSpec) -> str:
+    """The limits a bridge on ``profile`` enforces, in one line."""
+    b, ws = profile.bridge, profile.workspace
+    box = " ".join(
+        f"{axis} [{lo:g}, {hi:g}]" for axis, (lo, hi) in zip("xyz", (ws.x, ws.y, ws.z), strict=True)
+    )
+    return (
+        f"limits: joint speed <= {b.joint_speed_cap:g} rad/s, EE speed <= {b.ee_speed_cap:g} "
+        f"m/s, EE in {box} m + {b.workspace_margin:g} m, ttl <= {b.max_ttl:g} s, "
+        f"<= {b.command_rate_hz:g} commands/s (burst {COMMAND_BURST})"
+    )
 
 
 def bridge_transport(
@@ -58,7 +70,8 @@ def bridge_group() -> None:
     "profile_name",
     required=True,
     help="Hardware profile, by name (hw_profiles/NAME.toml, e.g. sawyer) or as a .toml path: "
-    "robot name (zenoh keys) and transport.",
+    "robot name (zenoh keys), transport, and the limits the bridge enforces ([bridge], "
+    "[workspace]).",
 )
 @click.option(
     "--scene",
@@ -95,7 +108,9 @@ def fake_cmd(
     """Run a fake Sawyer bridge until SIGINT or SIGTERM.
 
     It publishes joint states on legws/<robot>/bridge/state and integrates the joint
-    velocity commands from legws/<robot>/bridge/command (docs/bridge.md).
+    velocity commands from legws/<robot>/bridge/command within the profile's [bridge]
+    limits and [workspace] box; any message on legws/<robot>/stop/* stops it until a
+    resume on legws/<robot>/bridge/resume (docs/bridge.md).
     """
     profile = load_profile_named(profile_name)
     if zenoh_config is not None and (listen or connect):
@@ -116,6 +131,15 @@ def fake_cmd(
         )
 
     from legws_daemon.hardware.fake_bridge import FakeBridge
+    from legws_daemon.transport.security import authentication_problem
+
+    problem = authentication_problem(config)
+    if problem is not None:  # a fake moves nothing: said, not refused (the real one refuses)
+        click.echo(
+            f"fake bridge: INSECURE TRANSPORT: {problem}; any process that reaches it can "
+            "command this arm within its limits",
+            err=True,
+        )
 
     stop = threading.Event()
 
@@ -126,16 +150,28 @@ def fake_cmd(
     try:
         with (
             open_session(config) as session,
-            FakeBridge(session, profile.robot, sc, rate_hz=rate) as fake,
+            FakeBridge(
+                session,
+                profile.robot,
+                sc,
+                rate_hz=rate,
+                limits=profile.bridge,
+                workspace=profile.workspace,
+            ) as fake,
         ):
             click.echo(
                 f"fake bridge for '{profile.robot}' at {rate:g} Hz on {fake.state_key} and "
                 f"{fake.command_key} ({where or 'no endpoints'}); SIGINT or SIGTERM stops it"
             )
+            click.echo(limits_line(profile))
             while not stop.wait(0.2):
                 pass
-            received, rejected = fake.received, fake.rejected
+            received, rejected, limited = fake.received, fake.rejected, fake.limited
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-    click.echo(f"fake bridge stopped: {received} commands received, {rejected} rejected")
+    enforced = ", ".join(f"{name} {n}" for name, n in limited.items() if n) or "none"
+    click.echo(
+        f"fake bridge stopped: {received} commands received, {rejected} rejected; "
+        f"limits enforced: {enforced}"
+    )

@@ -22,6 +22,7 @@ from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.transport.security import authentication_problem
 from legws_daemon.transport.session import config_from_file, config_from_spec
 
 
@@ -71,6 +72,23 @@ def require_motion_allowed(spec: ProfileSpec, allow_motion: bool) -> None:
         f"profile '{spec.name}' drives the real arm (adapter '{spec.adapter}'): the robot "
         "will move under joystick and autonomous commands; make sure the workspace is clear "
         "and the e-stop is in reach, then pass --allow-motion to start it"
+    )
+
+
+def require_secure_transport(
+    spec: ProfileSpec, problem: str | None, insecure: bool, where: str
+) -> bool:
+    """Refuse a real arm on an unauthenticated transport unless ``--insecure-transport``;
+    returns whether it runs insecure (said loudly in status, events and the log)."""
+    if spec.adapter == "sim" or problem is None:
+        return False
+    if insecure:
+        return True
+    raise click.UsageError(
+        f"profile '{spec.name}' drives the real arm but its transport ({where}) is not "
+        f"authenticated: {problem}; run `legws secure init DIR` and pass --zenoh-config "
+        "DIR/daemon.json5 (mutual TLS, passwords, access control), or --insecure-transport "
+        "for a bench test nobody else can reach"
     )
 
 
@@ -143,6 +161,12 @@ def install_stop_handlers(stop: threading.Event) -> None:
     help="Required for a profile that drives real hardware (adapter other than sim, e.g. "
     "sawyer, even with fallback_to_sim): the arm will move.",
 )
+@click.option(
+    "--insecure-transport",
+    is_flag=True,
+    help="Let a real arm's daemon run on a transport without authentication and access "
+    "control (a bench test nobody else can reach); status and log say so.",
+)
 def daemon_cmd(
     profile: str,
     scene: str | None,
@@ -156,6 +180,7 @@ def daemon_cmd(
     duration: float | None,
     trace_file: Path | None,
     allow_motion: bool,
+    insecure_transport: bool,
 ) -> int:
     """Run the shared-autonomy daemon: joystick over zenoh in, the robot out.
 
@@ -191,6 +216,10 @@ def daemon_cmd(
     if cost is not None:
         params = params.with_cost(cost)
     zcfg = config_from_file(zenoh_config) if zenoh_config else config_from_spec(spec.transport)
+    problem = authentication_problem(zcfg)
+    where = str(zenoh_config) if zenoh_config else "the profile's [transport]"
+    # said in the log and as an event when the daemon starts, and in every status
+    insecure = require_secure_transport(spec, problem, insecure_transport, where)
     stop = threading.Event()
     install_stop_handlers(stop)
     with ExitStack() as stack:
@@ -213,5 +242,7 @@ def daemon_cmd(
             graph=graph,
             plan=plan,
             plan_loader=cached_catalog_plan,
+            transport_problem=problem,
+            insecure_transport=insecure,
         )
         return DaemonService(config).run(stop)

@@ -26,6 +26,7 @@ from legws_daemon.cli.recording import recording_group
 from legws_daemon.cli.render import render_cmd
 from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.cli.scenes import scenes_cmd
+from legws_daemon.cli.secure import secure_group
 from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.cli.taskgraph import taskgraph_group
 from legws_daemon.errors import LegwsError
@@ -54,6 +55,7 @@ cli.add_command(recording_group)
 cli.add_command(demo_cmd)
 cli.add_command(plan_cmd)
 cli.add_command(taskgraph_group)
+cli.add_command(secure_group)
 
 
 def _fail(message: str) -> int:

@@ -56,6 +56,7 @@ from legws_daemon.autonomy.events import (
     Fallback,
     Fault,
     InputRejected,
+    InsecureTransport,
     OperatorChanged,
     Overrun,
     Shutdown,
@@ -68,10 +69,12 @@ from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
+from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
+from legws_daemon.formats.bridge_messages import StopMessage, bridge_keys, parse_stop, stop_role
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
@@ -242,6 +245,12 @@ class GuardedAdapter(Adapter):
     def grip(self, closed: bool) -> None:
         self._call("grip", self.inner.grip, closed)
 
+    def stop_by(self, by: str) -> None:
+        self._call("stop_by", self.inner.stop_by, by)
+
+    def resume(self) -> None:
+        self._call("resume", self.inner.resume)
+
     def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         poses: dict[str, tuple[FloatArray, FloatArray]] = self._call(
             "object_poses", self.inner.object_poses
@@ -272,6 +281,10 @@ class DaemonConfig:
     )
     #: ``load_taskgraph`` with ``plan: "auto"`` (the CLI gives the plan cache's)
     plan_loader: Callable[[TaskGraph, Scene], Plan] | None = None
+    #: what the transport lacks to be authenticated (``None``: it is authenticated)
+    transport_problem: str | None = None
+    #: a real arm's daemon started on an unauthenticated transport (``--insecure-transport``)
+    insecure_transport: bool = False
 
 
 @dataclass
@@ -313,11 +326,15 @@ class DaemonService:
         self._last_deadman_event = -np.inf
         self._last_rejection_event: dict[str, float] = {}
         self._rejections_unreported: dict[str, InputRejected] = {}
+        #: closed while a tick runs: the load preparer and command callbacks pause then
+        self.gate = LoopGate()
         self.commands: queue.Queue[_PendingCommand] = queue.Queue(maxsize=COMMAND_QUEUE)
         #: loads taken up, waiting for the preparer; the one being prepared
         self._loads: deque[_PendingCommand] = deque()
         self._load: _Load | None = None
-        self._preparer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="legws-load")
+        self._preparer = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="legws-load", initializer=self.gate.enter_thread
+        )
         #: work for the preparer's thread, handed over when the tick's own work is done (so
         #: that a tick never shares the interpreter with a load being built or freed)
         self._after_tick: list[Callable[[], object]] = []
@@ -338,7 +355,8 @@ class DaemonService:
         self.worker: TelemetryWorker | None = None
         if config.telemetry is not None:
             self.worker = TelemetryWorker(
-                check=config.telemetry.check, check_every=TELEMETRY_CHECK_INTERVAL
+                check=config.telemetry.check,
+                check_every=TELEMETRY_CHECK_INTERVAL,
             )
         self._last_telemetry_warning = -np.inf
         self._telemetry_unreported = 0
@@ -349,6 +367,9 @@ class DaemonService:
         self._objects: dict[str, ObjectPose] = {}
         self.objects_rejected = 0
         self.objects_error: str | None = None
+        #: stops heard on ``legws/<robot>/stop/<role>``, for the loop: (role, message, error)
+        self._stops: deque[tuple[str, StopMessage | None, str | None]] = deque(maxlen=64)
+        self.stops_invalid = 0
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -407,7 +428,7 @@ class DaemonService:
             self.worker.submit(tel.log_text, tick, time.monotonic() - self._t0, severity, text)
 
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
-        c = self.controller
+        c, cfg = self.controller, self.config
         assert c is not None
         state = rec.state if rec is not None else c.last_state
         self._status_seq += 1
@@ -435,6 +456,8 @@ class DaemonService:
             "slack": slack,
             "decision": c.decisions,
             "targets": {t.name: t.position.tolist() for t in c.stage.targets},
+            "transport": "authenticated" if cfg.transport_problem is None else "unauthenticated",
+            "insecure_transport": cfg.insecure_transport,
         }
         if state is not None:
             data["ee"] = {
@@ -449,6 +472,7 @@ class DaemonService:
         """zenoh thread: validate and hand over to the loop; never waits for it (a zenoh
         thread that waits holds up the transport). The loop, or the load preparer, replies
         when the command is done; ``status`` and bad requests are answered here at once."""
+        self.gate.wait()  # validated and answered between ticks: a burst shares no tick
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
             request = parse(CommandRequest, payload, self.keys["command"])
@@ -493,19 +517,48 @@ class DaemonService:
         with self._objects_lock:
             self._objects.update(poses)
 
+    def _on_stop(self, sample: zenoh.Sample) -> None:
+        """zenoh thread: a stop on ``legws/<robot>/stop/<role>``; the loop carries it out
+        first thing in its next tick. Any sample stops, even one that does not validate."""
+        key = str(sample.key_expr)
+        role = stop_role(key)
+        if role == "daemon":
+            return  # its own word to the bridge (sawyer adapter), heard back
+        try:
+            message: StopMessage | None = parse_stop(sample.payload.to_bytes(), key)
+            error = None
+        except InputError as err:
+            message, error = None, str(err)
+            self.stops_invalid += 1
+        self._stops.append((role, message, error))
+
+    def _run_stops(self) -> bool:
+        """Carry out the stops heard since the last tick (loads before them are cancelled)."""
+        c = self.controller
+        if not self._stops or c is None:
+            return False
+        while self._stops:
+            role, message, error = self._stops.popleft()
+            self._cancel_loads(f"cancelled: a stop by {role} came after it")
+            source = message.source if message is not None else None
+            reason = message.reason if message is not None else f"invalid stop message: {error}"
+            c.stop(role, source, reason)
+        return True
+
     def _apply_objects(self) -> None:
         with self._objects_lock:
             poses, self._objects = self._objects, {}
         if poses and self.controller is not None:
             self.controller.observe(poses)
 
-    def _run_commands(self) -> int:
+    def _run_commands(self, install: bool = True) -> int:
         """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
-        installed counts as one); returns how many. Loads are prepared off the loop, one at
-        a time, in order; a ``stop`` cancels the loads before it (a load must not undo it)."""
+        installed counts as one; only when ``install``); returns how many. Loads are
+        prepared off the loop, one at a time, in order; a ``stop`` cancels the loads before
+        it (a load must not undo it)."""
         c = self.controller
         assert c is not None
-        done = self._install_load()
+        done = self._install_load() if install else 0
         while done < COMMANDS_PER_TICK:
             try:
                 pending = self.commands.get_nowait()
@@ -763,6 +816,11 @@ class DaemonService:
             )
             queryable = session.declare_queryable(self.keys["command"], self._on_query)
             objects = session.declare_subscriber(self.keys["objects"], self._on_objects)
+            stops = session.declare_subscriber(
+                bridge_keys(self.profile.robot)["stop"], self._on_stop
+            )
+            if cfg.insecure_transport:
+                self._emit(InsecureTransport(cfg.transport_problem or "unauthenticated"))
             log.info(
                 "robot %s on %s at %g Hz (deadman %g s); keys legws/%s/{joystick,status,events,"
                 "command}",
@@ -784,7 +842,7 @@ class DaemonService:
                 _quietly("shutdown event", self._emit,
                          Shutdown(controller.ticks, self.ticker.overruns))  # fmt: skip
                 _quietly("last status", self._publish_status, status_pub, None, None)
-                for entity in (subscriber, queryable, objects):
+                for entity in (subscriber, queryable, objects, stops):
                     _quietly("undeclare", entity.undeclare)
                 self._fail_pending()
                 self._close_telemetry()
@@ -814,9 +872,23 @@ class DaemonService:
         end = None if self.config.duration is None else time.monotonic() + self.config.duration
         ticker = self.ticker
         ticker.restart()
+        try:
+            self._ticks(stop, status_pub, end, status_every)
+        finally:
+            self.gate.open()  # nothing waits for a loop that has ended
+
+    def _ticks(
+        self, stop: threading.Event, status_pub: Any, end: float | None, status_every: int
+    ) -> None:
+        c, ticker = self.controller, self.ticker
+        assert c is not None
         while not stop.is_set() and (end is None or time.monotonic() < end):
             now = ticker.begin()
-            commands = self._run_commands()
+            self.gate.close()
+            self._run_stops()
+            # a prepared load is swapped in on a tick that publishes no status (each costs
+            # ~1-2 ms; together they would make the longest ticks)
+            commands = self._run_commands(install=(c.ticks + 1) % status_every != 0)
             self._apply_objects()
             sample, why = self.inbox.poll(now)
             rec = c.tick(sample.operator if sample is not None else None)
@@ -831,6 +903,7 @@ class DaemonService:
             self._log_tick(rec, slack)
             self._report_telemetry()
             self._trace(rec, now, commands)
+            self.gate.open()
             self._hand_over()
             if ticker.end():
                 self._overrun_warning()

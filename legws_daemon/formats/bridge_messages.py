@@ -46,6 +46,13 @@ GripperState = Literal["open", "closed", "moving", "unknown"]
 GripperRequest = Literal["open", "closed"]
 
 
+#: The authenticated roles that may stop the robot (``legws/<robot>/stop/<role>``).
+StopRole = Literal["operator", "observer", "safety", "bridge", "daemon"]
+STOP_ROLES: tuple[str, ...] = ("operator", "observer", "safety", "bridge", "daemon")
+#: A limit the bridge enforced itself (``BridgeState.limited``).
+Limit = Literal["joint_speed", "ee_speed", "workspace", "ttl", "rate"]
+
+
 class BridgeState(_Message):
     """``legws/<robot>/bridge/state``: what the robot measures (bridge -> daemon, ≥ 100 Hz).
 
@@ -59,6 +66,11 @@ class BridgeState(_Message):
     gripper: GripperState
     enabled: StrictBool  # the robot is enabled (motors powered)
     estop: StrictBool  # an emergency stop is engaged
+    #: a stop from this role is latched: no motion until the daemon's resume (None: none;
+    #: ``unknown``: a stop on a key of no known role, which stops all the same)
+    stopped_by: StopRole | Literal["unknown"] | None = None
+    #: the limits the bridge enforced since its previous state message
+    limited: tuple[Limit, ...] = ()
 
 
 class BridgeCommand(_Message):
@@ -86,10 +98,58 @@ class BridgeCommand(_Message):
         return self
 
 
+class StopMessage(_Message):
+    """``legws/<robot>/stop/<role>``: stop the robot (anyone authenticated -> daemon, bridge).
+
+    The key names the role (the access control lets each role publish on its own key only);
+    the payload only says more. Any sample on a stop key stops, even one whose payload does
+    not validate.
+    """
+
+    stamp: Finite | None = None  # the sender's clock, s
+    source: Annotated[str, Field(max_length=64)] | None = None  # who, in the sender's words
+    reason: Annotated[str, Field(max_length=200)] | None = None
+
+
+class ResumeMessage(_Message):
+    """``legws/<robot>/bridge/resume``: clear a latched stop (the daemon only -> bridge)."""
+
+    seq: Seq
+    stamp: Finite
+
+
 def bridge_keys(robot: str) -> dict[str, str]:
-    """The bridge's key expressions of one robot (``legws/<robot>/bridge/...``)."""
+    """The bridge's key expressions of one robot (``legws/<robot>/bridge/...`` and the
+    stop keys ``legws/<robot>/stop/*``)."""
     base = f"legws/{robot}/bridge"
-    return {"state": f"{base}/state", "command": f"{base}/command"}
+    return {
+        "state": f"{base}/state",
+        "command": f"{base}/command",
+        "resume": f"{base}/resume",
+        "stop": f"legws/{robot}/stop/*",
+    }
+
+
+def stop_key(robot: str, role: str) -> str:
+    """The key on which ``role`` stops ``robot``."""
+    return f"legws/{robot}/stop/{role}"
+
+
+def stop_role(key: str) -> str:
+    """The role of a stop key (its last chunk); ``unknown`` when not a known role."""
+    role = key.rsplit("/", 1)[-1]
+    return role if role in STOP_ROLES else "unknown"
+
+
+def parse_stop(payload: bytes | str, source: str) -> StopMessage:
+    """Validate a stop payload (empty: no detail)."""
+    if not payload:
+        return StopMessage.model_validate({"schema": 1})
+    return parse(StopMessage, payload, source)
+
+
+def parse_resume(payload: bytes | str, source: str) -> ResumeMessage:
+    return parse(ResumeMessage, payload, source)
 
 
 def parse_state(payload: bytes | str, source: str) -> BridgeState:

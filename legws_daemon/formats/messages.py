@@ -122,6 +122,10 @@ class StatusMessage(_Message):
     slack: Finite | None = None  # certificate seen from the current EE pose
     decision: Seq = 0  # counts the decisions of the run (a new stage, or a restart)
     targets: dict[Label, Vec3] = {}  # goal positions of the current decision (base frame, m)
+    #: the zenoh transport: authenticated (TLS, mutual TLS or user/password, access control)
+    transport: Literal["authenticated", "unauthenticated"] = "unauthenticated"
+    #: a real arm runs on an unauthenticated transport (``--insecure-transport``)
+    insecure_transport: StrictBool = False
 
 
 EventKind = Literal[

@@ -118,6 +118,29 @@ class SawyerSpec(_Model):
     command: Literal["joint_velocity", "ee_velocity"] = "joint_velocity"
 
 
+class BridgeLimitsSpec(_Model):
+    """Limits the robot-side bridge enforces itself, whatever it is sent (``[bridge]``).
+
+    The daemon keeps to the same values, so they act only on a faulty or hostile sender.
+    """
+
+    #: each joint's speed at most this (and at most its specification), rad/s
+    joint_speed_cap: Annotated[float, Strict(), Field(gt=0, le=4.545)] = 0.8
+    #: the endpoint's linear speed at most this, m/s (measured by the robot)
+    ee_speed_cap: Speed = 0.2
+    #: the endpoint stays inside ``[workspace]`` grown by this, m (motion outward is refused)
+    workspace_margin: Annotated[float, Strict(), Field(ge=0.0, le=0.2)] = 0.02
+    #: a command moves the arm at most this long after its receipt, s
+    max_ttl: Annotated[float, Strict(), Field(gt=0, le=1.0)] = 0.2
+    #: commands per second at most (a burst of :data:`COMMAND_BURST` more); beyond, the
+    #: command is refused and the arm stops
+    command_rate_hz: Rate = 60.0
+
+
+#: Commands the bridge accepts in a burst beyond its rate (token bucket depth).
+COMMAND_BURST = 5
+
+
 class TransportSpec(_Model):
     """zenoh settings used when no --zenoh-config file is given: loopback peer, no scouting."""
 
@@ -151,6 +174,7 @@ class ProfileSpec(_Model):
     workspace: WorkspaceBox = WorkspaceBox()
     sim: SimSpec = SimSpec()
     sawyer: SawyerSpec = SawyerSpec()
+    bridge: BridgeLimitsSpec = BridgeLimitsSpec()
     transport: TransportSpec = TransportSpec()
     can: CanSpec = CanSpec()
 
@@ -162,6 +186,24 @@ class ProfileSpec(_Model):
             raise field_error(
                 ("control", "deadman_timeout"),
                 f"shorter than one control period ({1.0 / self.control.rate_hz:g} s)",
+            )
+        fastest = max(self.control.v_max, self.control.assist_speed)
+        if self.bridge.ee_speed_cap < fastest:
+            raise field_error(
+                ("bridge", "ee_speed_cap"),
+                f"below the daemon's own top speed {fastest:g} m/s (control.v_max, "
+                "control.assist_speed): the bridge would cut every fast command",
+            )
+        if self.bridge.command_rate_hz < self.control.rate_hz:
+            raise field_error(
+                ("bridge", "command_rate_hz"),
+                f"below the control rate {self.control.rate_hz:g} Hz",
+            )
+        if self.bridge.max_ttl < 2.0 / self.control.rate_hz:
+            raise field_error(
+                ("bridge", "max_ttl"),
+                f"shorter than two control periods ({2.0 / self.control.rate_hz:g} s): "
+                "the daemon's commands would expire between ticks",
             )
         return self
 

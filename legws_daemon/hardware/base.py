@@ -51,18 +51,22 @@ class RobotState:
     stamp: float  # monotonic seconds of the measurement
     links: LinkPoses
     gripper_closed: bool = False
+    #: the robot side holds a stop from this role (no motion until :meth:`Adapter.resume`)
+    stopped_by: str | None = None
     ee_quaternion: FloatArray = field(init=False)  # (4,) [w, x, y, z]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ee_quaternion", matrix_to_quat(self.ee_rotation))
 
 
-def model_state(model: World, stamp: float, gripper_closed: bool) -> RobotState:
+def model_state(
+    model: World, stamp: float, gripper_closed: bool, stopped_by: str | None = None
+) -> RobotState:
     """The state of a kinematic model at its current configuration."""
     positions, rotations = model.link_poses()
     return RobotState(
         model.q, model.ee_position(), model.ee_rotation(), stamp,
-        LinkPoses(positions, rotations), gripper_closed,
+        LinkPoses(positions, rotations), gripper_closed, stopped_by,
     )  # fmt: skip
 
 
@@ -112,6 +116,10 @@ class Adapter(ABC):
         self.box = Box.of(profile.workspace)
         self.dt = 1.0 / profile.control.rate_hz
         self.v_max = max(profile.control.v_max, profile.control.assist_speed)
+        #: joint speeds at most (rad/s): the specification's, capped as the bridge caps them
+        self.speed_limits = np.minimum(
+            np.asarray(JOINT_SPEED_LIMITS, dtype=np.float64), profile.bridge.joint_speed_cap
+        )
         self.w_max = MAX_EE_ANGULAR_SPEED
         self.table_height = scene.workspace.table_height
 
@@ -151,6 +159,19 @@ class Adapter(ABC):
     @abstractmethod
     def halt(self) -> None:
         """Command zero velocity now, without a state (the state may be what failed)."""
+
+    def stop_by(self, by: str) -> None:
+        """A stop from ``by`` (a role): halt now and tell the robot side, which holds the
+        stop until :meth:`resume` (the stand-in has no robot side: halting is all)."""
+        self.halt()
+
+    def resume(self) -> None:
+        """Clear the robot side's stop (or a latched implausible state) before a reset.
+
+        Raises:
+            HardwareError: the robot side still holds its stop.
+        """
+        return  # the stand-in holds no stop
 
     def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         """Measured object poses, name -> (position, quaternion ``[w, x, y, z]``).
@@ -209,7 +230,7 @@ class Adapter(ABC):
         arm = model.arm
         qd = clamp_joint_velocity(
             state.q, qdot, self.dt, arm.lower + LIMIT_MARGIN, arm.upper - LIMIT_MARGIN,
-            JOINT_SPEED_LIMITS,
+            self.speed_limits,
         )  # fmt: skip
         ee_velocity = np.zeros(3)
         if qd.any():

@@ -1,11 +1,15 @@
 """A fake robot-side bridge: the bridge contract (``docs/bridge.md``) without a robot.
 
 It plays the part of ``bridge/intera_bridge.py`` for tests and for trying the ``sawyer``
-profile on a desk: a thread integrates the commanded joint velocities at its own rate
-(clipped to the joint speed and position limits, zero once a command's ttl expires, zero
-after a rejected command) and publishes the joint state, its heartbeat. Faults can be
-injected: a lost heartbeat (:meth:`FakeBridge.stop_publishing`), an emergency stop
-(:meth:`FakeBridge.set_estop`), a disabled robot (:meth:`FakeBridge.set_enabled`).
+profile on a desk: a thread integrates the commanded joint velocities at its own rate and
+publishes the joint state, its heartbeat. Like a real bridge it enforces its own limits
+whatever it is sent (:class:`~legws_daemon.safety.bridge_guard.BridgeGuard`: the command
+rate, joint speed, ttl, the endpoint's speed and workspace, checked on every integration
+step with the forward kinematics of its own joints), stops on any sample on
+``legws/<robot>/stop/*`` until a resume on ``legws/<robot>/bridge/resume``, and reports
+both in its state (``stopped_by``, ``limited``). Faults can be injected: a lost heartbeat
+(:meth:`FakeBridge.stop_publishing`), an emergency stop (:meth:`FakeBridge.set_estop`), a
+disabled robot (:meth:`FakeBridge.set_enabled`).
 """
 
 from __future__ import annotations
@@ -24,21 +28,24 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
     JOINT_SPEED_LIMITS,
-    BridgeCommand,
     BridgeState,
     GripperState,
+    Limit,
     bridge_keys,
     parse_command,
+    parse_resume,
+    parse_stop,
+    stop_role,
 )
 from legws_daemon.formats.messages import dump
+from legws_daemon.formats.profile import BridgeLimitsSpec, WorkspaceBox
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.world import World
+from legws_daemon.safety.bridge_guard import BridgeGuard
 from legws_daemon.scene.scene import Scene
 
 #: Time the fake gripper takes to open or close, s.
 GRIPPER_TIME = 0.2
-
-_SPEED_LIMITS = np.asarray(JOINT_SPEED_LIMITS, dtype=np.float64)
 
 
 class FakeBridge:
@@ -46,15 +53,30 @@ class FakeBridge:
 
     Args:
         session: an open zenoh session (the caller owns it and closes it).
-        robot: the robot name: keys under ``legws/<robot>/bridge/``.
+        robot: the robot name: keys under ``legws/<robot>/bridge/`` and the stop keys
+            ``legws/<robot>/stop/*``.
         scene: the scene whose EE home pose gives the default start configuration.
         q0: start joint angles (7,), rad; default: the scene's home configuration.
-        rate_hz: integration and state publication rate.
+        rate_hz: integration and state publication rate; the limits are checked on every
+            integration step, at most one period long.
+        limits: the limits it enforces (a profile's ``[bridge]``; default: the profile
+            defaults).
+        workspace: the box the endpoint stays in, grown by ``limits.workspace_margin``
+            (a profile's ``[workspace]``; default: the profile default).
 
     Attributes:
         rejected: commands that failed validation (each one stopped the arm).
-        received: valid commands received (those ignored while disabled included).
+        received: valid commands received (those ignored while disabled, stopped or over
+            the rate included).
         last_rejection: the message of the latest rejection, or ``None``.
+        stops: samples received on the stop keys (each one stopped the arm).
+        invalid_stops: of those, the ones whose payload did not validate.
+        resumes: valid resume messages received.
+        rejected_resumes: resume messages that did not validate (the latch stays).
+        limits, workspace: as given (or the defaults).
+        guard: the limits at work (:class:`~legws_daemon.safety.bridge_guard.BridgeGuard`).
+        stopped_by, limited: properties: the latched stop's role; per limit, the times it
+            was enforced.
     """
 
     def __init__(
@@ -65,6 +87,8 @@ class FakeBridge:
         *,
         q0: ArrayLike | None = None,
         rate_hz: float = 200.0,
+        limits: BridgeLimitsSpec | None = None,
+        workspace: WorkspaceBox | None = None,
     ) -> None:
         if not 1.0 <= rate_hz <= 1000.0:
             raise InputError(f"must be in [1, 1000] Hz, got {rate_hz:g}", field="rate_hz")
@@ -83,14 +107,34 @@ class FakeBridge:
         keys = bridge_keys(robot)
         self.state_key = keys["state"]
         self.command_key = keys["command"]
+        self.stop_key = keys["stop"]
+        self.resume_key = keys["resume"]
         self.period = 1.0 / rate_hz
+        self.limits = limits if limits is not None else BridgeLimitsSpec()
+        self.workspace = workspace if workspace is not None else WorkspaceBox()
+
+        def ee_position(q: FloatArray) -> FloatArray:  # called under the lock only
+            world.set_q(q)
+            return world.ee_position()
+
+        self.guard = BridgeGuard(
+            self.limits,
+            self.workspace,
+            ee_position,
+            lower=self.lower,
+            upper=self.upper,
+            speed_limits=JOINT_SPEED_LIMITS,
+        )
         self.rejected = 0
         self.received = 0
         self.last_rejection: str | None = None
+        self.stops = 0
+        self.invalid_stops = 0
+        self.resumes = 0
+        self.rejected_resumes = 0
         self._lock = threading.Lock()
         self._q = np.array(start, dtype=np.float64)
         self._t = time.monotonic()  # integrated up to this time
-        self._command: tuple[BridgeCommand, float] | None = None  # (command, receive time)
         self._gripper_target: Literal["open", "closed"] = "open"
         self._gripper_done = 0.0  # monotonic time the gripper reaches its target
         self._enabled = True
@@ -99,16 +143,21 @@ class FakeBridge:
         self._seq = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._subscriber: zenoh.Subscriber[None] | None = None
+        self._subscribers: list[zenoh.Subscriber[None]] = []
         self._publisher: zenoh.Publisher | None = None
 
     # --- life cycle ---------------------------------------------------------------
     def start(self) -> None:
-        """Subscribe to commands and start integrating and publishing (idempotent)."""
+        """Subscribe to commands, stops and resumes, and start integrating and publishing
+        (idempotent)."""
         if self._thread is not None:
             return
         self._publisher = self._session.declare_publisher(self.state_key)
-        self._subscriber = self._session.declare_subscriber(self.command_key, self._on_command)
+        self._subscribers = [
+            self._session.declare_subscriber(self.command_key, self._on_command),
+            self._session.declare_subscriber(self.stop_key, self._on_stop),
+            self._session.declare_subscriber(self.resume_key, self._on_resume),
+        ]
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="fake-bridge", daemon=True)
         self._thread.start()
@@ -121,11 +170,11 @@ class FakeBridge:
             if self._thread.is_alive():
                 raise LegwsError("the fake bridge thread did not stop within 5 s")
             self._thread = None
-        for entity in (self._subscriber, self._publisher):
+        for entity in (*self._subscribers, self._publisher):
             if entity is not None:
                 with contextlib.suppress(zenoh.ZError):  # a closed session: nothing left
                     entity.undeclare()  # type: ignore[no-untyped-call]
-        self._subscriber = None
+        self._subscribers = []
         self._publisher = None
 
     def __enter__(self) -> FakeBridge:
@@ -157,7 +206,7 @@ class FakeBridge:
             self._estop = engaged
             if engaged:
                 self._enabled = False
-                self._command = None
+                self.guard.clear()
 
     def set_enabled(self, enabled: bool) -> None:
         """Enable or disable the robot; enabling is refused while the e-stop is engaged."""
@@ -167,7 +216,7 @@ class FakeBridge:
             self._advance(time.monotonic())
             self._enabled = enabled
             if not enabled:
-                self._command = None
+                self.guard.clear()
 
     # --- observation --------------------------------------------------------------
     @property
@@ -182,12 +231,26 @@ class FakeBridge:
         with self._lock:
             return self._gripper_state(time.monotonic())
 
+    @property
+    def stopped_by(self) -> str | None:
+        """The role whose stop is latched (``None``: none)."""
+        with self._lock:
+            return self.guard.stopped_by
+
+    @property
+    def limited(self) -> dict[Limit, int]:
+        """Per limit, how many times it was enforced since the start."""
+        with self._lock:
+            self._advance(time.monotonic())
+            return dict(self.guard.counts)
+
     def _gripper_state(self, now: float) -> GripperState:
         return "moving" if now < self._gripper_done else self._gripper_target
 
     # --- the bridge's work ----------------------------------------------------------
     def _on_command(self, sample: zenoh.Sample) -> None:
-        """zenoh callback: a valid command replaces the current one; an invalid one stops."""
+        """zenoh callback: a valid command within the rate replaces the current one (as
+        the guard allows); an invalid one, or one over the rate, stops."""
         now = time.monotonic()
         try:
             command = parse_command(sample.payload.to_bytes(), self.command_key)
@@ -196,36 +259,67 @@ class FakeBridge:
                 self._advance(now)
                 self.rejected += 1
                 self.last_rejection = str(err)
-                self._command = None
+                self.guard.clear()
             return
         with self._lock:
             self._advance(now)
             self.received += 1
+            if not self.guard.admit(now):
+                return  # over the rate: refused, the arm stopped
             if not self._enabled or self._estop:
                 return  # never moves while disabled or e-stopped
-            self._command = (command, now)
+            if self.guard.accept(command.dq, command.ttl, now) != "accepted":
+                return  # a latched stop: nothing moves, the gripper neither
             if command.gripper is not None and command.gripper != self._gripper_target:
                 self._gripper_target = command.gripper
                 self._gripper_done = now + GRIPPER_TIME
 
+    def _on_stop(self, sample: zenoh.Sample) -> None:
+        """zenoh callback: any sample on a stop key stops and latches, valid or not."""
+        now = time.monotonic()
+        key = str(sample.key_expr)
+        try:
+            parse_stop(sample.payload.to_bytes(), key)
+            valid = True
+        except InputError:
+            valid = False
+        with self._lock:
+            self._advance(now)
+            self.stops += 1
+            if not valid:
+                self.invalid_stops += 1
+            self.guard.stop(stop_role(key))
+
+    def _on_resume(self, sample: zenoh.Sample) -> None:
+        """zenoh callback: a valid resume message clears a latched stop."""
+        now = time.monotonic()
+        try:
+            parse_resume(sample.payload.to_bytes(), self.resume_key)
+        except InputError:
+            with self._lock:
+                self.rejected_resumes += 1
+            return
+        with self._lock:
+            self._advance(now)
+            self.resumes += 1
+            self.guard.resume()
+
     def _advance(self, now: float) -> None:
-        """Integrate the current command from the last integration time to ``now``.
+        """Integrate the live command from the last integration time to ``now``, in steps
+        of at most one period, each one checked by the guard.
 
         Called with the lock held, before anything changes the command or the robot's
         state, so the motion is exact piecewise: a command acts from its receipt until it
-        is replaced, rejected or expired.
+        is replaced, rejected, refused or expired.
         """
-        start, self._t = self._t, max(self._t, now)
-        if self._command is None or now <= start:
-            return
-        command, received = self._command
-        expires = received + command.ttl
-        active = min(now, expires) - start
-        if active > 0.0 and self._enabled and not self._estop:
-            dq = np.clip(np.asarray(command.dq), -_SPEED_LIMITS, _SPEED_LIMITS)
-            self._q = np.clip(self._q + dq * active, self.lower, self.upper)
-        if now >= expires:
-            self._command = None  # the deadman: no fresh command, no motion
+        t, self._t = self._t, max(self._t, now)
+        while t < now and self.guard.live is not None:
+            end = min(now, t + self.period)
+            if self._enabled and not self._estop:
+                step = self.guard.step(self._q, t, end)
+                if step.duration > 0.0:
+                    self._q = np.clip(self._q + step.displacement, self.lower, self.upper)
+            t = end
 
     def _tick(self, now: float, previous: tuple[float, FloatArray]) -> tuple[bytes, FloatArray]:
         """Advance to ``now`` and build the state message (empty when not publishing)."""
@@ -243,6 +337,9 @@ class FakeBridge:
                     "gripper": self._gripper_state(now),
                     "enabled": self._enabled,
                     "estop": self._estop,
+                    "stopped_by": self.guard.stopped_by,
+                    # what was enforced since the previous message actually sent
+                    "limited": self.guard.take_limited() if self._publishing else (),
                 }
             )
             self._seq += 1

@@ -27,12 +27,18 @@ import zenoh
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
+    JOINT_LOWER,
+    JOINT_NAMES,
     JOINT_SPEED_LIMITS,
+    JOINT_UPPER,
     MAX_TTL,
     BridgeCommand,
     BridgeState,
+    ResumeMessage,
+    StopMessage,
     bridge_keys,
     parse_state,
+    stop_key,
 )
 from legws_daemon.formats.messages import dump
 from legws_daemon.formats.profile import ProfileSpec
@@ -50,8 +56,47 @@ STOP_REPEATS = 3
 STOP_SPACING = 0.01
 #: A command lives this many control periods on the bridge (its deadman), at most MAX_TTL.
 TTL_PERIODS = 2.0
+#: Plausibility of the measured state: between two joint states a joint moves at most its
+#: speed limit times the time between their receipts plus this (bursts after a delay), s.
+JUMP_JITTER = 0.02
+#: ... and the measured angles lie within the joint limits widened by this, rad.
+LIMIT_SLACK = 0.05
+#: ... and the EE within the workspace box grown by this, m (the bridge keeps it within
+#: ``bridge.workspace_margin`` of the box, 0.02 m by default).
+PLAUSIBLE_MARGIN = 0.05
+#: How long :meth:`SawyerAdapter.resume` waits for the bridge to clear its stop, s.
+RESUME_TIMEOUT = 0.5
 
 _SPEED_LIMITS = np.asarray(JOINT_SPEED_LIMITS, dtype=np.float64)
+_LOWER = np.asarray(JOINT_LOWER, dtype=np.float64)
+_UPPER = np.asarray(JOINT_UPPER, dtype=np.float64)
+
+
+def implausible_jump(
+    q0: FloatArray | tuple[float, ...], q1: FloatArray | tuple[float, ...], elapsed: float
+) -> str | None:
+    """What makes the step ``q0 -> q1`` in ``elapsed`` seconds impossible for the arm (a
+    joint faster than its specification), or ``None``."""
+    allowed = _SPEED_LIMITS * (max(elapsed, 0.0) + JUMP_JITTER)
+    moved = np.abs(np.asarray(q1, dtype=np.float64) - np.asarray(q0, dtype=np.float64))
+    over = np.flatnonzero(moved > allowed)
+    if over.size == 0:
+        return None
+    i = int(over[0])
+    return (
+        f"{JOINT_NAMES[i]} moved {moved[i]:.3f} rad in {elapsed:.3f} s between two joint "
+        f"states (at most {_SPEED_LIMITS[i]:g} rad/s)"
+    )
+
+
+def implausible_angles(q: FloatArray | tuple[float, ...]) -> str | None:
+    """A measured angle outside the joint limits (widened by LIMIT_SLACK), or ``None``."""
+    qa = np.asarray(q, dtype=np.float64)
+    over = np.flatnonzero((qa < _LOWER - LIMIT_SLACK) | (qa > _UPPER + LIMIT_SLACK))
+    if over.size == 0:
+        return None
+    i = int(over[0])
+    return f"{JOINT_NAMES[i]} at {qa[i]:.3f} rad is outside its range [{_LOWER[i]}, {_UPPER[i]}]"
 
 
 @register("sawyer")
@@ -85,14 +130,21 @@ class SawyerAdapter(Adapter):
         keys = bridge_keys(profile.robot)
         self.state_key = keys["state"]
         self.command_key = keys["command"]
+        self.resume_key = keys["resume"]
+        self.stop_key = stop_key(profile.robot, "daemon")
         self.ttl = min(TTL_PERIODS * self.dt, MAX_TTL)
         self.rejected = 0
         self.last_rejection: str | None = None
+        #: why the bridge's state stopped being believed (latched until :meth:`resume`)
+        self.implausible: str | None = None
         self._lock = threading.Lock()
         self._latest: tuple[BridgeState, float] | None = None  # (message, monotonic receipt)
         self._first = threading.Event()
         self._subscriber: zenoh.Subscriber[None] | None = None
         self._publisher: zenoh.Publisher | None = None
+        self._signals: zenoh.Publisher | None = None  # resume
+        self._stopper: zenoh.Publisher | None = None
+        self._resume_seq = 0
         self._fk: World | None = None  # the kinematic model (the control thread's)
         self._ik: MinkVelocityIK | None = None
         self._seq = 0
@@ -119,12 +171,15 @@ class SawyerAdapter(Adapter):
             # imported here: mink and qpsolvers add ~0.25 s to the import, for this adapter only
             from legws_daemon.robot.mink_ik import MinkVelocityIK
 
-            self._ik = MinkVelocityIK(self._fk)
+            self._ik = MinkVelocityIK(self._fk, speed_limits=self.speed_limits)
         with self._lock:
             self._latest = None
+            self.rejected = 0
         self._first.clear()
         try:
             self._publisher = self._session.declare_publisher(self.command_key)
+            self._signals = self._session.declare_publisher(self.resume_key)
+            self._stopper = self._session.declare_publisher(self.stop_key)
             self._subscriber = self._session.declare_subscriber(self.state_key, self._on_state)
         except zenoh.ZError as err:
             self._undeclare()
@@ -136,10 +191,14 @@ class SawyerAdapter(Adapter):
             self._undeclare()
             with self._lock:
                 rejected, last = self.rejected, self.last_rejection
-            detail = f"; {rejected} invalid message(s) rejected, last: {last}" if rejected else ""
+            if rejected:  # a bridge is there, and wrong: never a reason to fall back
+                raise HardwareError(
+                    f"no valid joint state on '{self.state_key}' within bridge_timeout "
+                    f"{timeout:g} s: {rejected} invalid message(s) rejected, last: {last}"
+                )
             raise BridgeTimeoutError(
-                f"no valid joint state on '{self.state_key}' within bridge_timeout "
-                f"{timeout:g} s: is the bridge running and connected?{detail}"
+                f"no joint state on '{self.state_key}' within bridge_timeout "
+                f"{timeout:g} s: is the bridge running and connected?"
             )
 
     def disconnect(self) -> None:
@@ -158,13 +217,15 @@ class SawyerAdapter(Adapter):
         self._undeclare()
 
     def _undeclare(self) -> None:
-        for entity in (self._subscriber, self._publisher):
+        for entity in (self._subscriber, self._publisher, self._signals, self._stopper):
             if entity is not None:
                 # a closed session has undeclared everything already
                 with contextlib.suppress(zenoh.ZError):
                     entity.undeclare()  # type: ignore[no-untyped-call]
         self._subscriber = None
         self._publisher = None
+        self._signals = None
+        self._stopper = None
 
     # --- state --------------------------------------------------------------------
     def _on_state(self, sample: zenoh.Sample) -> None:
@@ -178,6 +239,12 @@ class SawyerAdapter(Adapter):
                 self.last_rejection = str(err)
             return
         with self._lock:
+            previous = self._latest
+            problem = implausible_angles(msg.q)
+            if problem is None and previous is not None:
+                problem = implausible_jump(previous[0].q, msg.q, received - previous[1])
+            if problem is not None and self.implausible is None:
+                self.implausible = problem
             self._latest = (msg, received)
         self._first.set()
 
@@ -186,7 +253,12 @@ class SawyerAdapter(Adapter):
         if not self.connected:
             raise LegwsError("the sawyer adapter is not connected")
         with self._lock:
-            latest = self._latest
+            latest, implausible = self._latest, self.implausible
+        if implausible is not None:
+            raise HardwareError(
+                f"implausible joint state from the bridge: {implausible}; the arm is stopped "
+                "(reset to believe the bridge again)"
+            )
         if latest is None:
             raise HardwareError(f"no joint state received on '{self.state_key}'")
         msg, received = latest
@@ -227,7 +299,19 @@ class SawyerAdapter(Adapter):
         msg, received = self._fresh()
         model = self._model()
         model.set_q(np.array(msg.q, dtype=np.float64))
-        return model_state(model, received, msg.gripper == "closed")
+        state = model_state(model, received, msg.gripper == "closed", msg.stopped_by)
+        p = state.ee_position
+        lo, hi = self.box.lower - PLAUSIBLE_MARGIN, self.box.upper + PLAUSIBLE_MARGIN
+        if np.any(p < lo) or np.any(p > hi):
+            problem = (
+                f"the EE at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m is outside the workspace "
+                f"box grown by {PLAUSIBLE_MARGIN:g} m, where the bridge keeps it"
+            )
+            with self._lock:
+                if self.implausible is None:
+                    self.implausible = problem
+            raise HardwareError(f"implausible joint state from the bridge: {problem}")
+        return state
 
     # --- commands -----------------------------------------------------------------
     def _command(
@@ -249,18 +333,66 @@ class SawyerAdapter(Adapter):
             target = R if hold is None else np.asarray(hold, dtype=np.float64)
             twist = np.concatenate([velocity, ORIENTATION_GAIN * small_rotation_error(R, target)])
             dq = self._solver().joint_velocity(state.q, twist, self.dt)
-            # the contract's limits (bridge_messages); the IK keeps to the same values
-            dq = np.clip(dq, -_SPEED_LIMITS, _SPEED_LIMITS)
+            # the bridge's caps; the IK keeps to the same values (rounding aside)
+            dq = self._within_speed(dq)
         # a zero command moves nothing: no orientation correction, no null-space drift
         self._publish(dq)
 
     def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
         """Publish joint velocities the envelope has already clamped."""
-        self._publish(np.clip(qdot, -_SPEED_LIMITS, _SPEED_LIMITS))
+        self._publish(self._within_speed(qdot))
+
+    def _within_speed(self, dq: FloatArray) -> FloatArray:
+        """``dq`` scaled down (direction kept) to the joint speed caps."""
+        ratio = float(np.max(np.abs(dq) / self.speed_limits, initial=0.0))
+        return dq / ratio if ratio > 1.0 else dq
 
     def halt(self) -> None:
         """Publish zero joint velocities now, without reading the state (e.g. on a fault)."""
         self._publish(np.zeros(7))
+
+    def stop_by(self, by: str) -> None:
+        """Halt now and have the bridge hold a stop (``legws/<robot>/stop/daemon``)."""
+        self.halt()
+        if self._stopper is None:
+            raise LegwsError("the sawyer adapter is not connected")
+        message = StopMessage.model_validate(
+            {"schema": 1, "stamp": time.time(), "source": by[:64], "reason": None}
+        )
+        self._stopper.put(dump(message))
+
+    def resume(self) -> None:
+        """Believe the bridge again and have it clear its stop; waits up to
+        :data:`RESUME_TIMEOUT` for a joint state that shows no stop.
+
+        Raises:
+            HardwareError: the bridge still reports a stop (or sends nothing).
+        """
+        if self._signals is None:
+            raise LegwsError("the sawyer adapter is not connected")
+        with self._lock:
+            self.implausible = None
+            latest = self._latest
+        if latest is not None and latest[0].stopped_by is None:
+            return
+        sent = time.monotonic()
+        message = ResumeMessage.model_validate(
+            {"schema": 1, "seq": self._resume_seq, "stamp": time.time()}
+        )
+        self._resume_seq += 1
+        self._signals.put(dump(message))
+        deadline = sent + RESUME_TIMEOUT
+        while time.monotonic() < deadline:
+            time.sleep(0.005)
+            with self._lock:
+                latest = self._latest
+            if latest is not None and latest[1] > sent and latest[0].stopped_by is None:
+                return
+        holder = latest[0].stopped_by if latest is not None else None
+        raise HardwareError(
+            f"the bridge still holds the stop from {holder or 'nobody (no joint state)'} "
+            f"{RESUME_TIMEOUT:g} s after the resume"
+        )
 
     def grip(self, closed: bool) -> None:
         """Request the gripper state; sent now (with zero joint velocities) and with every

@@ -81,6 +81,7 @@ class MinkVelocityIK:
         posture: ArrayLike = READY_POSTURE,
         posture_cost: float = POSTURE_COST,
         margin: float = LIMIT_MARGIN,
+        speed_limits: ArrayLike = JOINT_SPEED_LIMITS,
     ) -> None:
         model = world.model
         arm = world.arm
@@ -113,9 +114,11 @@ class MinkVelocityIK:
         )
         self._posture = mink.PostureTask(model, cost=posture_cost)
         self._position_limit = mink.ConfigurationLimit(model, min_distance_from_limits=margin)
+        speeds = np.asarray(speed_limits, dtype=np.float64)
+        if speeds.shape != (_N,) or not np.all(np.isfinite(speeds)) or np.any(speeds <= 0):
+            raise LegwsError(f"speed_limits must be {_N} positive rad/s, got {speeds.tolist()}")
         self._velocity_limit = mink.VelocityLimit(
-            model,
-            {PREFIX + j: float(v) for j, v in zip(ARM_JOINTS, JOINT_SPEED_LIMITS, strict=True)},
+            model, {PREFIX + j: float(v) for j, v in zip(ARM_JOINTS, speeds, strict=True)}
         )
         self._tasks = [self._frame, self._posture]
         self._limits = [self._position_limit, self._velocity_limit]
@@ -123,7 +126,7 @@ class MinkVelocityIK:
         self.lower = lower
         self.upper = upper
         #: Joint speed limits the answer keeps to (rad/s).
-        self.speed_limits = np.array(JOINT_SPEED_LIMITS, dtype=np.float64)
+        self.speed_limits = speeds
         # ConfigurationLimit reads its bounds from these arrays on every call; they are
         # widened in place to the current angle of a joint outside the band
         self._band_lower: FloatArray = self._position_limit.lower

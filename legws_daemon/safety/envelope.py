@@ -126,9 +126,13 @@ def clamp_joint_velocity(
     qd = _finite_vector(qdot, n)
     if qq is None or qd is None or not (dt > 0 and math.isfinite(dt)):
         return zero
-    ratio = float(np.max(np.abs(qd) / vmax))
-    if ratio > 1.0:
-        qd = qd / ratio
+    peak = float(np.max(np.abs(qd)))
+    if peak > 0.0:
+        # as a unit vector first: a huge request (1e308) must not overflow to inf and zero
+        unit = qd / peak
+        ratio = float(np.max(np.abs(unit) / vmax))  # the limit is reached at 1 / ratio
+        if peak * ratio > 1.0:
+            qd = unit / ratio
     nxt = qq + qd * dt
     out = qd.copy()
     over = nxt > hi

@@ -34,6 +34,13 @@ def keys(robot: str) -> dict[str, str]:
     }
 
 
+#: Retry period of connect endpoints, ms: first and longest. zenoh's default back-off grows
+#: to 4 s, longer than the daemon waits for its bridge (``sawyer.bridge_timeout``, 3 s), so
+#: a bridge started before the daemon could miss it; capped, it dials twice a second.
+RETRY_INIT_MS = 100
+RETRY_MAX_MS = 500
+
+
 def config_from_spec(spec: TransportSpec) -> zenoh.Config:
     """A zenoh configuration from a profile's transport table."""
     cfg = zenoh.Config()
@@ -43,6 +50,9 @@ def config_from_spec(spec: TransportSpec) -> zenoh.Config:
     cfg.insert_json5("scouting/gossip/enabled", "false")
     cfg.insert_json5("listen/endpoints", json.dumps(list(spec.listen)))
     cfg.insert_json5("connect/endpoints", json.dumps(list(spec.connect)))
+    retry = {"period_init_ms": RETRY_INIT_MS, "period_max_ms": RETRY_MAX_MS,
+             "period_increase_factor": 2}  # fmt: skip
+    cfg.insert_json5("connect/retry", json.dumps(retry))
     return cfg
 
 

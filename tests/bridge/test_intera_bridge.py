@@ -1,8 +1,9 @@
 """The robot-side Intera bridge, imported with fake ``rospy``/``intera_interface`` modules.
 
-Only the hardware edge is faked (ROS and the Intera SDK); zenoh is real (a session
-without endpoints, or two loopback peers), and what the bridge publishes is checked with
-the daemon's own validator.
+Only the hardware edge is faked (ROS and the Intera SDK): the fake limb follows the
+velocities it is sent at once, and reports its endpoint from legws's kinematic model of
+the Sawyer. zenoh is real (a session without endpoints, or two loopback peers), and what
+the bridge publishes is checked with the daemon's own validator.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ import sys
 import threading
 import time
 import types
+import typing
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import zenoh
 from hypothesis import given, settings
@@ -29,11 +32,20 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats import bridge_messages as contract
 from legws_daemon.formats.bridge_messages import BridgeCommand, BridgeState, parse_state
 from legws_daemon.formats.messages import dump
-from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.formats.profile import (
+    COMMAND_BURST,
+    BridgeLimitsSpec,
+    TransportSpec,
+    WorkspaceBox,
+    load_profile,
+)
+from legws_daemon.robot.world import World
+from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.net import free_port
 
 BRIDGE = Path(__file__).parents[2] / "bridge" / "intera_bridge.py"
+PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 HOME_Q = [-0.16, -1.30, -0.19, 1.73, 0.06, 1.14, -0.19]
 COMMAND = {
     "schema": 1,
@@ -47,27 +59,91 @@ COMMAND = {
 
 
 # --- the fake hardware edge ---------------------------------------------------------
-class FakeLimb:
-    """``intera_interface.Limb``: joint state in, every command recorded."""
+class Kinematics:
+    """legws's model of the Sawyer (the same description as the robot's): the fake
+    limb's endpoint. One model for all limbs, behind a lock."""
 
-    def __init__(self, side: str = "right") -> None:
+    _lock = threading.Lock()
+    _world: World | None = None
+
+    @classmethod
+    def endpoint(cls, q: list[float], dq: list[float]) -> tuple[np.ndarray, np.ndarray]:
+        """The endpoint's position and linear velocity (base frame) at ``q``, ``dq``."""
+        with cls._lock:
+            if cls._world is None:
+                cls._world = World(load_scene("desk"), visual=False)
+            cls._world.set_q(q)
+            return cls._world.ee_position(), cls._world.jacobian()[:3] @ np.asarray(dq)
+
+
+def vector(v: np.ndarray) -> types.SimpleNamespace:
+    """A ``geometry_msgs`` Point / Vector3 look-alike."""
+    return types.SimpleNamespace(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+class FakeLimb:
+    """``intera_interface.Limb``: an arm that follows the joint velocities it is sent at
+    once (integrated on the given clock), its endpoint from the kinematic model; every
+    command recorded."""
+
+    def __init__(self, side: str = "right", clock: Callable[[], float] = time.monotonic) -> None:
         assert side == "right"
         self.q = list(HOME_Q)
+        self.v = [0.0] * 7  # the joint velocities being applied
+        self.clock = clock
+        self.endpoint_known = True  # False: Intera has no endpoint state yet ({})
         self.calls: list[tuple[str, dict[str, float] | None]] = []
+        self._t = clock()
         self._lock = threading.Lock()
 
+    def _advance(self) -> None:
+        now = self.clock()
+        if now > self._t:
+            self.q = [q + v * (now - self._t) for q, v in zip(self.q, self.v, strict=True)]
+            self._t = now
+
     def joint_angles(self) -> dict[str, float]:
-        return {f"right_j{i}": v for i, v in enumerate(self.q)}
+        with self._lock:
+            self._advance()
+            return {f"right_j{i}": v for i, v in enumerate(self.q)}
 
     def joint_velocities(self) -> dict[str, float]:
-        return {f"right_j{i}": 0.0 for i in range(7)}
+        with self._lock:
+            return {f"right_j{i}": v for i, v in enumerate(self.v)}
+
+    def endpoint_pose(self) -> dict[str, types.SimpleNamespace]:
+        with self._lock:
+            self._advance()
+            if not self.endpoint_known:
+                return {}
+            p, _ = Kinematics.endpoint(self.q, self.v)
+            quaternion = types.SimpleNamespace(x=0.0, y=1.0, z=0.0, w=0.0)
+            return {"position": vector(p), "orientation": quaternion}
+
+    def endpoint_velocity(self) -> dict[str, types.SimpleNamespace]:
+        with self._lock:
+            self._advance()
+            if not self.endpoint_known:
+                return {}
+            _, v = Kinematics.endpoint(self.q, self.v)
+            return {"linear": vector(v), "angular": vector(np.zeros(3))}
+
+    def ee(self) -> tuple[np.ndarray, np.ndarray]:
+        """The endpoint's position and linear velocity now (for the tests' checks)."""
+        with self._lock:
+            self._advance()
+            return Kinematics.endpoint(self.q, self.v)
 
     def set_joint_velocities(self, velocities: dict[str, float]) -> None:
         with self._lock:
+            self._advance()
+            self.v = [float(velocities[f"right_j{i}"]) for i in range(7)]
             self.calls.append(("velocities", dict(velocities)))
 
     def exit_control_mode(self) -> None:
         with self._lock:
+            self._advance()
+            self.v = [0.0] * 7  # Intera's position hold
             self.calls.append(("exit_control_mode", None))
 
     def recorded(self) -> list[tuple[str, dict[str, float] | None]]:
@@ -357,11 +433,20 @@ class Clock:
 
 
 def make_bridge(
-    b: types.ModuleType, session: zenoh.Session
+    b: types.ModuleType, session: zenoh.Session, limits: Any = None
 ) -> tuple[Any, FakeLimb, FakeEnable, FakeGripper, Clock]:
-    limb, enable, gripper, clock = FakeLimb(), FakeEnable(), FakeGripper(), Clock()
+    clock = Clock()
+    limb, enable, gripper = FakeLimb(clock=clock), FakeEnable(), FakeGripper()
     bridge = b.SawyerBridge(
-        session, "sawyer", limb, b.GripperDriver(gripper), enable, clock=clock, wall=clock
+        session,
+        "sawyer",
+        limb,
+        b.GripperDriver(gripper),
+        enable,
+        clock=clock,
+        wall=clock,
+        limits=limits,
+        period=0.01,
     )
     return bridge, limb, enable, gripper, clock
 
@@ -431,7 +516,9 @@ def test_never_moves_when_disabled_or_estopped(
 def test_joints_at_a_limit_are_not_driven_further(
     bridge_module: types.ModuleType, session: zenoh.Session
 ) -> None:
-    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    # this pose has the endpoint at x = 0.17 m, outside the default box: a wider one here
+    wide = bridge_module.Limits(workspace=((-1.0, 1.0), (-1.0, 1.0), (-0.5, 1.0)))
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session, wide)
     limb.q[0] = contract.JOINT_UPPER[0]
     limb.q[3] = contract.JOINT_LOWER[3] + 0.005
     bridge.handle_command(payload(dq=[0.1, 0.1, 0, -0.2, 0, 0, 0]), clock.now)
@@ -484,6 +571,307 @@ def test_no_gripper_reports_unknown(bridge_module: types.ModuleType) -> None:
     assert driver.status() == "unknown"
 
 
+# --- the bridge's own limits -------------------------------------------------------
+def test_default_limits_are_the_profiles(bridge_module: types.ModuleType) -> None:
+    b = bridge_module
+    spec, box = BridgeLimitsSpec(), WorkspaceBox()
+    limits = b.Limits()
+    assert set(b._PROFILE_BRIDGE_KEYS) == set(BridgeLimitsSpec.model_fields)
+    for name in BridgeLimitsSpec.model_fields:
+        assert getattr(limits, name) == getattr(spec, name), name
+    assert limits.workspace == (box.x, box.y, box.z)
+    assert limits.burst == COMMAND_BURST
+    assert b.parse_args([]).limits == limits
+    assert b.STOP_ROLES == contract.STOP_ROLES
+    assert typing.get_args(contract.Limit) == b.LIMITS
+    assert limits.joint_caps() == [min(0.8, s) for s in contract.JOINT_SPEED_LIMITS]
+
+
+def test_limits_from_a_profile_and_flags(bridge_module: types.ModuleType, tmp_path: Path) -> None:
+    b = bridge_module
+    profile = load_profile(PROFILE)
+    ws = profile.workspace
+    expected = b.Limits(
+        **profile.bridge.model_dump(), workspace=(ws.x, ws.y, ws.z), burst=COMMAND_BURST
+    )
+    assert b.parse_args(["--profile", str(PROFILE)]).limits == expected
+    args = b.parse_args(
+        ["--profile", str(PROFILE), "--max-ttl", "0.1", "--ee-speed-cap", "0.3",
+         "--workspace", "0.3", "0.8", "-0.4", "0.4", "0.05", "0.5"]
+    )  # fmt: skip
+    assert args.limits.max_ttl == 0.1
+    assert args.limits.ee_speed_cap == 0.3
+    assert args.limits.workspace == ((0.3, 0.8), (-0.4, 0.4), (0.05, 0.5))
+    assert args.limits.joint_speed_cap == profile.bridge.joint_speed_cap
+    unknown = tmp_path / "unknown.toml"
+    unknown.write_text("[bridge]\njoint_speed = 0.5\n")
+    text = tmp_path / "text.toml"
+    text.write_text('[bridge]\nmax_ttl = "long"\n')
+    for argv in (
+        ["--joint-speed-cap", "0"],
+        ["--joint-speed-cap", "5"],
+        ["--max-ttl", "2"],
+        ["--command-rate", "nan"],
+        ["--workspace-margin", "-0.1"],
+        ["--workspace", "1", "0", "-1", "1", "0", "1"],
+        ["--profile", str(tmp_path / "missing.toml")],
+        ["--profile", str(unknown)],
+        ["--profile", str(text)],
+    ):
+        with pytest.raises(SystemExit) as info:
+            b.parse_args(argv)
+        assert info.value.code == 2, argv
+
+
+def test_without_tomllib_the_profile_flag_says_so(
+    bridge_module: types.ModuleType, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(bridge_module, "tomllib", None)  # ROS Noetic's Python 3.8
+    with pytest.raises(ValueError, match=r"Python >= 3\.11"):
+        bridge_module.profile_limits(str(PROFILE))
+
+
+def test_joint_speeds_are_capped_uniformly(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    # the wrist: right_j6 over its cap, the endpoint slow (it sits on right_j6's axis)
+    bridge.handle_command(payload(dq=[0.0, 0.0, 0.0, 0.0, 0.0, -0.4, 1.6]), clock.now)
+    bridge.tick()
+    assert velocities(limb)[-1] == pytest.approx([0.0, 0.0, 0.0, 0.0, 0.0, -0.2, 0.8])
+    bridge.handle_command(payload(seq=2), clock.now)  # within the caps: unchanged
+    bridge.tick()
+    assert velocities(limb)[-1] == COMMAND["dq"]
+    assert wait_for(lambda: len(states.snapshot()) == 2)
+    assert [s.limited for s in states.snapshot()] == [("joint_speed",), ()]
+    assert bridge.counts["joint_speed"] == 1
+    bridge.close()
+
+
+def test_a_command_moves_the_arm_at_most_max_ttl(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    bridge.handle_command(payload(ttl=1.0), clock.now)
+    for t in (0.0, 0.1, 0.19):
+        clock.now = t
+        bridge.tick()
+    assert velocities(limb) == [COMMAND["dq"]] * 3
+    clock.now = 0.2  # max_ttl, not the command's 1 s
+    bridge.tick()
+    assert limb.recorded()[-1][0] == "exit_control_mode"
+    assert wait_for(lambda: len(states.snapshot()) == 4)
+    assert states.snapshot()[0].limited == ("ttl",)
+    bridge.close()
+
+
+def test_commands_over_the_rate_are_refused_and_stop_the_arm(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    for seq in range(COMMAND_BURST):  # a burst: accepted
+        bridge.handle_command(payload(seq=seq), clock.now)
+    bridge.tick()
+    assert velocities(limb)[-1] == COMMAND["dq"]
+    bridge.handle_command(payload(seq=5), clock.now)  # one more at once: refused
+    clock.now = 0.005
+    bridge.tick()
+    assert limb.recorded()[-1][0] == "exit_control_mode"
+    clock.now = 1.0 / 60.0  # a token back
+    bridge.handle_command(payload(seq=6), clock.now)
+    bridge.tick()
+    assert velocities(limb)[-1] == COMMAND["dq"]
+    assert wait_for(lambda: len(states.snapshot()) == 3)
+    assert [s.limited for s in states.snapshot()] == [(), ("rate",), ()]
+    assert bridge.counts["rate"] == 1
+    assert bridge.accepted == 7  # every valid command is counted
+    bridge.close()
+
+
+def test_the_measured_endpoint_speed_is_held_to_the_cap(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    """The base joint at 0.8 rad/s swings the endpoint at ~0.44 m/s: the first tick is a
+    tick behind the measurement; from the next one the arm is scaled to 0.2 m/s."""
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    speeds = []
+    for k in range(20):
+        if k % 5 == 0:
+            bridge.handle_command(payload(seq=k, dq=[0.8, 0, 0, 0, 0, 0, 0], ttl=0.1), clock.now)
+        bridge.tick()
+        speeds.append(float(np.linalg.norm(limb.ee()[1])))
+        clock.now += 0.01
+    assert speeds[0] == pytest.approx(0.44, abs=0.02)  # not measured yet
+    assert max(speeds[1:]) <= 0.2 * (1 + 1e-3)
+    assert min(speeds[1:]) >= 0.2 * 0.99  # scaled to the cap, not below
+    applied = velocities(limb)
+    assert all(v[1:] == [0.0] * 6 for v in applied)  # the direction kept
+    assert wait_for(lambda: len(states.snapshot()) == 20)
+    got = states.snapshot()
+    assert got[0].limited == ()
+    assert all(s.limited == ("ee_speed",) for s in got[1:])
+    bridge.close()
+
+
+def test_a_predicted_step_out_of_the_workspace_stops_the_arm(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    """The endpoint 1 cm from the box's (+ margin) face, pushed out at 0.1 m/s: it stops
+    at the face; each new push out moves it at most a tick's travel; back in is allowed."""
+    b = bridge_module
+    p0, _ = FakeLimb().ee()
+    face = float(p0[0]) + 0.01
+    limits = b.Limits(workspace=((0.2, face - 0.02), (-0.55, 0.55), (0.0, 0.6)))
+    bridge, limb, _, _, clock = make_bridge(b, session, limits)
+    world = World(load_scene("desk"), visual=False)
+    world.set_q(HOME_Q)
+    out = list(np.linalg.pinv(world.jacobian()[:3]) @ np.array([0.1, 0.0, 0.0]))
+    x = []
+    for k in range(40):
+        if k % 2 == 0:  # a command every other tick (50 Hz)
+            bridge.handle_command(payload(seq=k, dq=out, ttl=0.2), clock.now)
+        bridge.tick()
+        clock.now += 0.01
+        x.append(float(limb.ee()[0][0]))
+    assert bridge.counts["workspace"] >= 1
+    assert max(x) <= face + 0.1 * 0.01 + 1e-4  # at most one tick of travel past the face
+    assert x[-1] == pytest.approx(max(x), abs=1e-6)  # stopped, not drifting on
+    assert limb.recorded()[-1][0] == "exit_control_mode"
+    back = [-v for v in out]
+    for k in range(5):
+        bridge.handle_command(payload(seq=100 + k, dq=back, ttl=0.2), clock.now)
+        bridge.tick()
+        clock.now += 0.02
+    assert limb.ee()[0][0] < x[-1] - 0.005
+    bridge.close()
+
+
+@pytest.mark.parametrize("pattern", ["same", "in-and-out"])
+def test_pushing_out_again_and_again_stays_within_a_bound(
+    bridge_module: types.ModuleType, session: zenoh.Session, pattern: str
+) -> None:
+    """A sender that keeps pushing out (a fresh command after every stop, or one out and
+    one in): each motion not yet measured may pass the face by PROBE; outside by
+    OUTSIDE_LIMIT less PROBE, nothing new moves. 5 s of it at 60 commands/s."""
+    b = bridge_module
+    p0, _ = FakeLimb().ee()
+    face = float(p0[0]) + 0.01
+    limits = b.Limits(workspace=((0.2, face - 0.02), (-0.55, 0.55), (0.0, 0.6)))
+    bridge, limb, _, _, clock = make_bridge(b, session, limits)
+    world = World(load_scene("desk"), visual=False)
+    world.set_q(HOME_Q)
+    inverse = np.linalg.pinv(world.jacobian()[:3])
+    x = []
+    for k in range(300):
+        push = [0.2, 0.0, 0.0] if pattern == "same" or k % 2 else [-0.05, 0.0, 0.0]
+        bridge.handle_command(payload(seq=k, dq=list(inverse @ push), ttl=0.2), clock.now)
+        bridge.tick()
+        clock.now += 1.0 / 60.0
+        x.append(float(limb.ee()[0][0]))
+    assert max(x) <= face + b.OUTSIDE_LIMIT + 1e-4
+    assert bridge.counts["workspace"] > 100
+    bridge.close()
+
+
+def test_no_endpoint_state_no_motion(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    limb.endpoint_known = False  # Intera's endpoint_pose() is {} until the robot reports
+    bridge.handle_command(payload(), clock.now)
+    bridge.tick()
+    assert limb.recorded() == []
+    assert wait_for(lambda: len(states.snapshot()) == 1)  # the heartbeat goes on
+    bridge.close()
+
+
+def test_a_stop_latches_until_a_valid_resume(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    resume = json.dumps({"schema": 1, "seq": 1, "stamp": 5.0}).encode()
+    bridge.handle_command(payload(ttl=0.2), clock.now)
+    bridge.tick()
+    assert velocities(limb)[-1] == COMMAND["dq"]
+    bridge.handle_stop("legws/sawyer/stop/observer", b"")
+    clock.now = 0.01
+    bridge.tick()
+    assert limb.recorded()[-1][0] == "exit_control_mode"
+    n = len(limb.recorded())
+    bridge.handle_command(payload(seq=2, ttl=0.2, gripper="closed"), clock.now)  # ignored
+    bridge.handle_stop("legws/sawyer/stop/operator", b"{not json")  # stops all the same
+    bridge.handle_resume(b'{"schema": 1, "seq": -1, "stamp": 0}')  # invalid: still latched
+    bridge.tick()
+    assert len(limb.recorded()) == n
+    assert (bridge.stops, bridge.invalid_stops, bridge.rejected_resumes) == (2, 1, 1)
+    assert bridge.stopped_by == "observer"  # the first stop's role
+    bridge.handle_resume(resume)
+    bridge.tick()  # no command comes back
+    assert len(limb.recorded()) == n
+    bridge.handle_command(payload(seq=3, ttl=0.2), clock.now)
+    bridge.tick()
+    assert velocities(limb)[-1] == COMMAND["dq"]
+    bridge.handle_stop("legws/sawyer/stop/intruder", b"")  # no known role: stops too
+    bridge.tick()
+    assert wait_for(lambda: len(states.snapshot()) == 6)
+    got = states.snapshot()
+    assert [s.stopped_by for s in got] == [None, "observer", "observer", None, None, "unknown"]
+    assert [s.gripper for s in got] == ["unknown"] * 6  # the ignored request did nothing
+    assert states.errors == []
+    bridge.close()
+
+
+def test_stops_and_resumes_arrive_over_zenoh(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    bridge, _, _, _, _ = make_bridge(bridge_module, session)
+    session.put(contract.stop_key("sawyer", "safety"), b'{"schema": 1, "reason": "test"}')
+    assert wait_for(lambda: bridge.stopped_by == "safety")
+    session.put("legws/sawyer/bridge/resume", b'{"schema": 1, "seq": 0, "stamp": 1.5}')
+    assert wait_for(lambda: bridge.stopped_by is None)
+    assert (bridge.stops, bridge.resumes) == (1, 1)
+    bridge.close()
+
+
+_TEXTS = st.text(min_size=60, max_size=205) | st.text(max_size=3)
+
+
+@settings(max_examples=1500, deadline=None)
+@given(
+    st.dictionaries(
+        st.sampled_from(["schema", "seq", "stamp", "source", "reason", "x"]),
+        _SCALARS | _TEXTS | st.lists(_SCALARS, max_size=2),
+    ),
+    st.sampled_from([{}, {"schema": 1}, {"schema": 1, "seq": 3, "stamp": 1.0}]),
+    st.booleans(),
+)
+def test_stop_and_resume_checks_agree_with_the_contract(
+    bridge_module: types.ModuleType, doc: dict[str, object], base: dict[str, object], raw: bool
+) -> None:
+    b = bridge_module
+    data = json.dumps({**base, **doc}).encode() if not raw else json.dumps(doc).encode()[:7]
+    for ours, theirs in (
+        (contract.parse_stop, b.check_stop),
+        (contract.parse_resume, b.check_resume),
+    ):
+        ok_ours = ok_theirs = True
+        try:
+            ours(data, "fuzz")
+        except InputError:
+            ok_ours = False
+        try:
+            theirs(data)
+        except b.CommandError:
+            ok_theirs = False
+        assert ok_ours == ok_theirs, (ours.__name__, data)
+
+
 # --- main: arguments, the ROS loop, a clean exit -------------------------------------
 def test_bad_arguments_exit_2(bridge_module: types.ModuleType) -> None:
     for argv in (["--zenoh-config", "x.json5", "--connect", "tcp/127.0.0.1:1"], ["--rate", "0"]):
@@ -514,7 +902,10 @@ def test_main_publishes_applies_and_exits_cleanly(monkeypatch: pytest.MonkeyPatc
         sender = threading.Thread(target=send_commands)
         sender.start()
         try:
-            code = b.main(["--robot", "arm", "--connect", f"tcp/127.0.0.1:{port}", "__ns:=x"])
+            code = b.main(
+                ["--robot", "arm", "--connect", f"tcp/127.0.0.1:{port}", "--insecure-transport",
+                 "__ns:=x"]
+            )  # fmt: skip
         finally:
             stop.set()
             sender.join(timeout=5.0)
@@ -548,10 +939,36 @@ def test_main_fails_in_one_line(
     assert isinstance(b.zenoh_config(str(good), [], []), zenoh.Config)
     for argv, needle in (
         (["--zenoh-config", str(bad)], "invalid zenoh configuration"),
-        (["--zenoh-config", str(good)], "cannot reach the robot: Robot is E-Stopped"),
+        (["--zenoh-config", str(good)], "the transport is not authenticated"),
+        (
+            ["--zenoh-config", str(good), "--insecure-transport"],
+            "cannot reach the robot: Robot is E-Stopped",
+        ),
     ):
         capsys.readouterr()
         assert b.main(argv) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"intera_bridge.py: error: {needle}")
         assert err.count("\n") == 1
+
+
+def test_refuses_an_unauthenticated_transport(
+    bridge_module: types.ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Before ROS or the robot: one line, exit 2 — the loopback default is not
+    authenticated; the files of `legws secure init` are, by the same rule as the daemon's."""
+    from legws_daemon.cli.main import run as legws
+    from legws_daemon.transport.security import authentication_problem
+
+    port = free_port()
+    assert bridge_module.main(["--connect", f"tcp/127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "not authenticated: endpoint tcp/127.0.0.1:" in err and "--insecure-transport" in err
+    assert legws(["secure", "init", str(tmp_path / "dep"), "--port", str(port)]) == 0
+    for name in ("bridge", "daemon", "operator"):
+        config = zenoh.Config.from_file(str(tmp_path / "dep" / f"{name}.json5"))
+        assert bridge_module.authentication_problem(config) is None
+    plain = bridge_module.zenoh_config(None, [f"tcp/127.0.0.1:{port}"], [])
+    assert bridge_module.authentication_problem(plain) == authentication_problem(plain)
+    assert json.loads(plain.get_json("scouting/gossip/enabled")) is False

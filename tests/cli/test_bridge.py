@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from legws_daemon.cli.bridge import bridge_group, bridge_transport
+from legws_daemon.cli.bridge import bridge_group, bridge_transport, limits_line
 from legws_daemon.cli.main import cli as legws_cli
 from legws_daemon.formats.bridge_messages import bridge_keys
 from legws_daemon.formats.profile import TransportSpec, load_profile
@@ -121,6 +121,17 @@ def test_serves_the_sawyer_adapter_and_stops_on_a_signal(signum: int) -> None:
     assert "fake bridge for 'sawyer'" in out
     assert f"connect tcp/127.0.0.1:{port}" in out
     assert "fake bridge stopped" in out
+    # the profile's [bridge] limits and [workspace] box, printed at the start
+    assert limits_line(load_profile(PROFILE)) in out.splitlines()
+    assert "limits enforced: none" in out  # the adapter kept to them
+
+
+def test_the_limits_line_names_every_limit() -> None:
+    line = limits_line(load_profile(PROFILE))
+    assert line == (
+        "limits: joint speed <= 0.8 rad/s, EE speed <= 0.2 m/s, EE in x [0.3, 0.9] "
+        "y [-0.5, 0.5] z [0.02, 0.55] m + 0.02 m, ttl <= 0.2 s, <= 60 commands/s (burst 5)"
+    )
 
 
 def test_the_command_module_loads_neither_zenoh_nor_mujoco() -> None:

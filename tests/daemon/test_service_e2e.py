@@ -222,7 +222,7 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
         time.sleep(1.0)
         daemon = start(
             ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90",
-             "--allow-motion"],
+             "--allow-motion", "--insecure-transport"],
             tmp_path / "daemon.log",
         )  # fmt: skip
         spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
@@ -233,6 +233,8 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
             assert s0 is not None
             assert s0["adapter"] == "sawyer"
             assert s0["fallback"] is False
+            # a real arm on the loopback default: said in every status and as an event
+            assert (s0["transport"], s0["insecure_transport"]) == ("unauthenticated", True)
             p0 = np.array(s0["ee"]["position"])
             for seq in range(50):
                 msg = {"schema": 1, "seq": seq, "stamp": 0.0, "axes": [0.0, 0.0, -0.8]}
@@ -258,6 +260,7 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
             code, _ = stop(daemon)
             assert code == 0
         stop(bridge)
+    assert "INSECURE TRANSPORT: endpoint tcp/127.0.0.1:" in (tmp_path / "daemon.log").read_text()
 
 
 def test_silent_bridge_falls_back_to_the_stand_in_when_the_profile_asks(tmp_path: Path) -> None:
@@ -271,7 +274,7 @@ def test_silent_bridge_falls_back_to_the_stand_in_when_the_profile_asks(tmp_path
     )  # fmt: skip
     daemon = start(
         ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "60",
-         "--allow-motion"],
+         "--allow-motion", "--insecure-transport"],
         tmp_path / "daemon.log",
     )  # fmt: skip
     try:

@@ -58,6 +58,8 @@ def test_contract_constants_match_the_kinematic_model(desk: Scene) -> None:
     assert bridge_keys("sawyer") == {
         "state": "legws/sawyer/bridge/state",
         "command": "legws/sawyer/bridge/command",
+        "resume": "legws/sawyer/bridge/resume",
+        "stop": "legws/sawyer/stop/*",
     }
 
 

@@ -88,3 +88,30 @@ def test_bad_endpoints_say_what_is_wrong(tmp_path: Path, endpoint: str, why: str
     with pytest.raises(InputError, match=r"transport\.listen\[0\]") as info:
         load_profile(path)
     assert why in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("edit", "field", "why"),
+    [
+        (("ee_speed_cap = 0.2", "ee_speed_cap = 0.05"), "bridge.ee_speed_cap", "top speed"),
+        (("command_rate_hz = 60.0", "command_rate_hz = 10.0"), "bridge.command_rate_hz", "rate"),
+        (("max_ttl = 0.2", "max_ttl = 0.05"), "bridge.max_ttl", "two control periods"),
+        (("joint_speed_cap = 0.8", "joint_speed_cap = 5.0"), "bridge.joint_speed_cap", ""),
+        (("workspace_margin = 0.02", "workspace_margin = -0.1"), "bridge.workspace_margin", ""),
+    ],
+)
+def test_bridge_limits_agree_with_the_control_table(
+    tmp_path: Path, edit: tuple[str, str], field: str, why: str
+) -> None:
+    """The bridge's own limits must leave the daemon's commands alone: a cap below the
+    daemon's top speed, a rate below the control rate or a command life shorter than two
+    periods would cut every command; each is one line naming the field."""
+    text = (PROFILES / "sawyer.toml").read_text()
+    assert edit[0] in text
+    path = tmp_path / "p.toml"
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(InputError) as info:
+        load_profile(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: {field}") and why in message
+    assert "\n" not in message

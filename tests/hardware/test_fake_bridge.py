@@ -23,7 +23,9 @@ from legws_daemon.formats.bridge_messages import (
     BridgeState,
     bridge_keys,
     parse_state,
+    stop_key,
 )
+from legws_daemon.formats.profile import ProfileSpec, WorkspaceBox
 from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
 from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
@@ -64,6 +66,11 @@ class StateLog:
     def last(self) -> BridgeState:
         with self._lock:
             return self.states[-1]
+
+    def limited(self) -> set[str]:
+        """Every limit any state reported."""
+        with self._lock:
+            return {limit for state in self.states for limit in state.limited}
 
 
 def command(dq: list[float], ttl: float, seq: int = 0, gripper: str | None = None) -> bytes:
@@ -123,11 +130,13 @@ def test_integrates_a_command_until_its_ttl(desk: Scene) -> None:
     with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
         log = connected(daemon, fake)
         q0 = fake.q
-        daemon.put(KEYS["command"], command(joint0(0.5), ttl=0.2, seq=1))
+        # 0.3 rad/s: the endpoint (0.55 m out) moves 0.17 m/s, under the bridge's 0.2 m/s
+        daemon.put(KEYS["command"], command(joint0(0.3), ttl=0.2, seq=1))
         assert wait_for(lambda: fake.received >= 2)
         time.sleep(0.35)  # past the ttl: the deadman has stopped the joint
         q1 = fake.q
-        assert q1[0] - q0[0] == pytest.approx(0.5 * 0.2, abs=3e-3)
+        assert q1[0] - q0[0] == pytest.approx(0.3 * 0.2, abs=3e-3)
+        assert fake.limited == dict.fromkeys(fake.limited, 0)  # nothing was over a limit
         np.testing.assert_allclose(q1[1:], q0[1:], atol=1e-12)
         time.sleep(0.1)
         np.testing.assert_array_equal(fake.q, q1)  # no motion without a fresh command
@@ -226,3 +235,99 @@ def test_close_stops_publishing(desk: Scene) -> None:
         assert log.count() == n
         fake.close()  # idempotent
         assert not robot.is_closed()  # the caller owns the session
+
+
+# --- the bridge's own limits, stops and resumes --------------------------------------
+def test_defaults_are_the_profile_defaults(desk: Scene) -> None:
+    with peers() as (_, robot):
+        fake = FakeBridge(robot, "sawyer", desk)
+        assert fake.limits == ProfileSpec.model_fields["bridge"].default
+        assert fake.workspace == ProfileSpec.model_fields["workspace"].default
+        assert fake.stop_key == "legws/sawyer/stop/*"
+        assert fake.resume_key == "legws/sawyer/bridge/resume"
+        assert fake.stopped_by is None
+        assert fake.limited == dict.fromkeys(fake.limited, 0)
+
+
+def test_a_hostile_command_is_held_to_the_limits_and_reported(desk: Scene) -> None:
+    """right_j0 at 1.5 rad/s for 1 s: capped to 0.8 rad/s, and then to the endpoint's
+    0.2 m/s (0.55 m from the axis: ~0.36 rad/s), for max_ttl 0.2 s, not 1 s."""
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        q0 = fake.q
+        world = World(desk, visual=False)
+        world.set_q(q0)
+        p0 = world.ee_position()
+        daemon.put(KEYS["command"], command(joint0(1.5), ttl=1.0, seq=1))
+        time.sleep(0.4)
+        q1 = fake.q
+        world.set_q(q1)
+        travelled = 0.2 * 0.2  # the endpoint at 0.2 m/s for 0.2 s, along an arc
+        radius = float(np.hypot(*p0[:2]))
+        assert q1[0] - q0[0] == pytest.approx(travelled / radius, rel=0.02)
+        np.testing.assert_allclose(q1[1:], q0[1:], atol=1e-12)
+        assert np.linalg.norm(world.ee_position() - p0) <= travelled
+        counts = fake.limited
+        assert counts["joint_speed"] == 1 and counts["ttl"] == 1 and counts["ee_speed"] > 30
+        assert wait_for(lambda: log.limited() == {"joint_speed", "ee_speed", "ttl"})
+        assert log.errors == []
+
+
+def test_any_stop_latches_until_a_valid_resume(desk: Scene) -> None:
+    resume = json.dumps({"schema": 1, "seq": 0, "stamp": 1.0}).encode()
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk) as fake:
+        log = connected(daemon, fake)
+        start = float(fake.q[0])
+        daemon.put(KEYS["command"], command(joint0(0.3), ttl=0.2))
+        assert wait_for(partial(moved, fake, start))
+        daemon.put(stop_key("sawyer", "operator"), b"{not json")  # stops all the same
+        assert wait_for(lambda: fake.stopped_by == "operator")
+        assert wait_for(lambda: log.last().stopped_by == "operator")
+        held = fake.q
+        daemon.put(KEYS["command"], command(joint0(0.3), ttl=0.2, gripper="closed"))
+        daemon.put(stop_key("sawyer", "safety"), b"")
+        daemon.put(KEYS["resume"], b'{"schema": 1, "seq": 0}')  # no stamp: not a resume
+        time.sleep(0.2)
+        np.testing.assert_array_equal(fake.q, held)
+        assert fake.gripper == "open"  # the ignored command did not move the gripper either
+        assert (fake.stops, fake.invalid_stops, fake.rejected_resumes) == (2, 1, 1)
+        assert fake.stopped_by == "operator"  # the first stop's role
+        daemon.put(KEYS["resume"], resume)
+        assert wait_for(lambda: fake.stopped_by is None)
+        assert wait_for(lambda: log.last().stopped_by is None)
+        time.sleep(0.05)
+        np.testing.assert_array_equal(fake.q, held)  # no command comes back
+        daemon.put(KEYS["command"], command(joint0(0.3), ttl=0.2))
+        assert wait_for(partial(moved, fake, float(held[0])))
+        daemon.put("legws/sawyer/stop/somebody", b"")  # not a known role: stops too
+        assert wait_for(lambda: log.last().stopped_by == "unknown")
+        assert fake.resumes == 1
+        assert log.errors == []
+
+
+def test_a_workspace_step_out_stops_the_arm(desk: Scene) -> None:
+    """A box whose face is 5 mm (+ the 2 cm margin) beyond the endpoint in x: pushed out,
+    the arm stops inside; pulled back, it moves."""
+    q0 = None
+    with peers() as (daemon, robot):
+        probe = FakeBridge(robot, "sawyer", desk)
+        q0 = probe.q
+    world = World(desk, visual=False)
+    world.set_q(q0)
+    p0 = world.ee_position()
+    box = WorkspaceBox(x=(0.2, float(p0[0]) + 0.005), y=(-0.55, 0.55), z=(0.0, 0.6))
+    out = list(np.linalg.pinv(world.jacobian()[:3]) @ np.array([0.1, 0.0, 0.0]))
+    with peers() as (daemon, robot), FakeBridge(robot, "sawyer", desk, workspace=box) as fake:
+        log = connected(daemon, fake)
+        for seq in range(40):  # 0.8 s at 50 Hz: 8 cm if nothing stopped it
+            daemon.put(KEYS["command"], command(out, ttl=0.1, seq=seq))
+            time.sleep(0.02)
+        world.set_q(fake.q)
+        x = float(world.ee_position()[0])
+        assert p0[0] + 0.02 < x <= box.x[1] + 0.02  # it came to the face, not past it
+        assert fake.limited["workspace"] > 0
+        assert wait_for(lambda: "workspace" in log.limited())
+        daemon.put(KEYS["command"], command([-v for v in out], ttl=0.1, seq=99))
+        time.sleep(0.15)
+        world.set_q(fake.q)
+        assert world.ee_position()[0] < x - 0.005

@@ -218,8 +218,10 @@ def test_invalid_states_are_counted_and_ignored(desk: Scene) -> None:
         thread = threading.Thread(target=publish_garbage)
         thread.start()
         try:
-            with pytest.raises(BridgeTimeoutError, match="invalid message"):
+            # a bridge that answers wrongly is there: never a reason to fall back to the sim
+            with pytest.raises(HardwareError, match="invalid message") as info:
                 adapter.connect()
+            assert not isinstance(info.value, BridgeTimeoutError)
         finally:
             stop.set()
             thread.join(timeout=5.0)

@@ -275,7 +275,7 @@ def test_bridge_killed_and_restarted_fault_then_reset_recovers(tmp_path: Path) -
         time.sleep(1.0)
         daemon = start(
             ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "120",
-             "--allow-motion"],
+             "--allow-motion", "--insecure-transport"],
             tmp_path / "daemon.log",
         )  # fmt: skip
         with monitor(port, "sawyer") as m, stick(port, "sawyer") as pub:

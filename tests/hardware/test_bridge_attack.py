@@ -1,0 +1,214 @@
+"""A foreign peer attacks the fake bridge on the default, unauthenticated loopback transport.
+
+The red-team finding: any peer that reaches the bridge could publish joint commands and
+drive all seven joints to their limits in 2 s. Now the bridge enforces its own limits
+(``[bridge]`` of hw_profiles/sawyer.toml), whatever it is sent. Three real zenoh peers on
+loopback (scouting off, a free port, always closed): the bridge listens; the attacker and
+an observer connect to it. The fake arm's joints are sampled all along, with the times
+around each sample, so every speed bound is checked against the wall clock.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from legws_daemon.errors import InputError
+from legws_daemon.formats.bridge_messages import (
+    JOINT_SPEED_LIMITS,
+    BridgeState,
+    bridge_keys,
+    parse_state,
+    stop_key,
+)
+from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
+from legws_daemon.hardware.fake_bridge import FakeBridge
+from legws_daemon.robot.world import World
+from legws_daemon.safety.bridge_guard import grown
+from legws_daemon.scene.catalog import load_scene
+from legws_daemon.transport.session import config_from_spec, open_session
+from tests.hardware.helpers import wait_for
+from tests.net import free_port
+
+PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
+KEYS = bridge_keys("sawyer")
+SPEC = np.asarray(JOINT_SPEED_LIMITS)
+
+
+@contextmanager
+def three_peers() -> Iterator[tuple[zenoh.Session, zenoh.Session, zenoh.Session]]:
+    """(the bridge's session, listening on a free loopback port; the attacker's and an
+    observer's, connecting to it), all closed after."""
+    port = free_port()
+    listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
+    dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    with (
+        open_session(config_from_spec(listen)) as bridge,
+        open_session(config_from_spec(dial)) as attacker,
+        open_session(config_from_spec(dial)) as observer,
+    ):
+        yield bridge, attacker, observer
+
+
+class Samples:
+    """``fake.q`` sampled every millisecond on a thread, with the monotonic time before and
+    after each read (the bridge integrated to some instant in between)."""
+
+    def __init__(self, fake: FakeBridge) -> None:
+        self.fake = fake
+        self.rows: list[tuple[float, np.ndarray, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.001):
+            before = time.monotonic()
+            q = self.fake.q
+            self.rows.append((before, q, time.monotonic()))
+
+    def __enter__(self) -> Samples:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+class StateLog:
+    """The union of the ``limited`` fields, and the states, of the bridge's state stream."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.limited: set[str] = set()
+        self.states: list[BridgeState] = []
+        self.errors: list[str] = []
+        self._lock = threading.Lock()
+        self.subscriber = session.declare_subscriber(KEYS["state"], self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        try:
+            state = parse_state(sample.payload.to_bytes(), KEYS["state"])
+        except InputError as err:
+            with self._lock:
+                self.errors.append(str(err))
+            return
+        with self._lock:
+            self.states.append(state)
+            self.limited.update(state.limited)
+
+    def last(self) -> BridgeState:
+        with self._lock:
+            return self.states[-1]
+
+
+def command(seq: int, dq: list[float], ttl: float, gripper: str | None = None) -> bytes:
+    doc = {
+        "schema": 1,
+        "seq": seq,
+        "stamp": time.time(),
+        "mode": "joint_velocity",
+        "dq": dq,
+        "ttl": ttl,
+        "gripper": gripper,
+    }
+    return json.dumps(doc).encode()
+
+
+def flood(
+    session: zenoh.Session, seconds: float, hz: float, dq: Callable[[int], list[float]]
+) -> int:
+    """Publish hostile commands (ttl 1 s, the gripper toggled each time) at ``hz`` for
+    ``seconds``; the number sent."""
+    start = time.monotonic()
+    n = 0
+    while time.monotonic() - start < seconds:
+        session.put(KEYS["command"], command(n, dq(n), 1.0, ("open", "closed")[n % 2]))
+        n += 1
+        time.sleep(max(0.0, start + n / hz - time.monotonic()))
+    return n
+
+
+def check_samples(
+    rows: list[tuple[float, np.ndarray, float]], fake: FakeBridge, profile: ProfileSpec
+) -> None:
+    """Between any two samples no joint moved faster than its cap; every sampled endpoint
+    is inside the workspace box grown by the margin."""
+    caps = fake.guard.joint_speed_cap
+    for (before, q0, _), (_, q1, after) in itertools.pairwise(rows):
+        assert np.all(np.abs(q1 - q0) <= caps * (after - before) + 1e-12), (q0, q1, after - before)
+    world = World(load_scene("desk"), visual=False)
+    box = grown(profile.workspace, profile.bridge.workspace_margin)
+    for _, q, _ in rows:
+        world.set_q(q)
+        assert box.contains(world.ee_position(), tol=1e-9), world.ee_position()
+
+
+@pytest.mark.slow
+def test_a_foreign_peer_cannot_drive_the_arm_past_the_bridge_limits() -> None:
+    profile = load_profile(PROFILE)
+    desk = load_scene("desk")
+    world = World(desk, visual=False)
+    with three_peers() as (bridge_session, attacker, observer):
+        fake = FakeBridge(
+            bridge_session, "sawyer", desk, limits=profile.bridge, workspace=profile.workspace
+        )
+        with fake, Samples(fake) as samples:
+            log = StateLog(observer)
+            assert wait_for(lambda: len(log.states) > 0), "the observer hears no state"
+            assert wait_for(
+                lambda: flood(attacker, 0.05, 100, lambda n: [0.0] * 7) > 0 and fake.received > 0
+            )
+            world.set_q(fake.q)
+            # every joint at its full specification speed (the contract lets that in), the
+            # signs that carry the endpoint down, into the table
+            outward = np.sign(np.linalg.pinv(world.jacobian()[:3]) @ [0.0, 0.0, -1.0]) * SPEC
+            q_start = fake.q
+
+            # 1. a flood at 500 Hz for 2 s: refused beyond 60/s (and each refusal stops)
+            sent = flood(attacker, 2.0, 500.0, lambda n: list(outward))
+            assert sent > 800
+            counts = fake.limited
+            assert counts["rate"] > 0.5 * sent  # most of them refused
+            assert counts["joint_speed"] > 0 and counts["ttl"] > 0
+            assert fake.received == pytest.approx(sent, abs=sent // 10 + 10)
+
+            # 2. under the rate (50 Hz): capped in speed, stopped at the workspace's edge
+            flood(attacker, 2.0, 50.0, lambda n: list(outward))
+            assert fake.limited["workspace"] > 0
+            assert wait_for(
+                lambda: {"rate", "joint_speed", "ee_speed", "ttl", "workspace"} <= log.limited
+            )
+
+            # 3. an observer's stop: nothing moves until the resume, whatever is sent
+            observer.put(stop_key("sawyer", "observer"), b"")
+            assert wait_for(lambda: fake.stopped_by == "observer")
+            assert wait_for(lambda: log.last().stopped_by == "observer")
+            held = fake.q
+            inward = list(-outward * 0.1)
+            flood(attacker, 0.5, 50.0, lambda n: inward)
+            attacker.put(KEYS["resume"], b'{"schema": 1}')  # not a valid resume
+            flood(attacker, 0.2, 50.0, lambda n: inward)
+            np.testing.assert_array_equal(fake.q, held)
+            assert fake.stopped_by == "observer"
+            assert fake.rejected_resumes == 1
+
+            resume = json.dumps({"schema": 1, "seq": 0, "stamp": time.time()}).encode()
+            observer.put(KEYS["resume"], resume)
+            assert wait_for(lambda: fake.stopped_by is None)
+            assert wait_for(lambda: log.last().stopped_by is None)
+            flood(attacker, 0.3, 50.0, lambda n: inward)  # back toward the box: allowed
+            assert not np.array_equal(fake.q, held)
+        check_samples(samples.rows, fake, profile)
+        assert len(samples.rows) > 2000
+        assert log.errors == []
+        # how far it got: nowhere near the joint limits in 4 s
+        assert np.all(np.abs(samples.rows[-1][1] - q_start) < 0.8 * 4.5)
