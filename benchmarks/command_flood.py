@@ -55,9 +55,13 @@ def client(port: int) -> zenoh.Session:
     return zenoh.open(config)
 
 
-def one_run(tmp: Path, queries: int, waves: int, client_nice: int = 0) -> dict[str, Any]:
+def one_run(
+    tmp: Path, queries: int, waves: int, client_nice: int = 0, realtime: int = 0
+) -> dict[str, Any]:
     port = free_port()
     text = (REPO / "hw_profiles" / "sim.toml").read_text()
+    assert "realtime_priority = 0" in text
+    text = text.replace("realtime_priority = 0", f"realtime_priority = {realtime}")
     profile = tmp / f"flood-{port}.toml"
     profile.write_text(text.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}"))
     trace = tmp / f"trace-{port}.jsonl"
@@ -69,15 +73,21 @@ def one_run(tmp: Path, queries: int, waves: int, client_nice: int = 0) -> dict[s
     )  # fmt: skip
     status: list[float] = []
     replies: list[tuple[str, float]] = []
-    times: dict[str, float] = {}
+    span: dict[str, float] = {}
+    granted: dict[str, int] = {}
     lock = threading.Lock()
 
     def run_flood() -> None:
         session = client(port)
         try:
-            sub = session.declare_subscriber(
-                f"legws/{ROBOT}/status", lambda s: status.append(time.monotonic())
-            )
+
+            def on_status(sample: zenoh.Sample) -> None:
+                status.append(time.monotonic())
+                granted["realtime_priority"] = json.loads(sample.payload.to_bytes()).get(
+                    "realtime_priority", 0
+                )
+
+            sub = session.declare_subscriber(f"legws/{ROBOT}/status", on_status)
             deadline = time.monotonic() + 60
             while len(status) < 20:
                 if time.monotonic() > deadline or daemon.poll() is not None:
@@ -101,14 +111,14 @@ def one_run(tmp: Path, queries: int, waves: int, client_nice: int = 0) -> dict[s
                 with lock:
                     replies.append((outcome, time.monotonic() - t0))
 
-            times["start"] = time.monotonic()
+            span["start"] = time.monotonic()
             for _ in range(waves):
                 threads = [threading.Thread(target=ask, args=(i,)) for i in range(queries)]
                 for t in threads:
                     t.start()
                 for t in threads:
                     t.join(180)
-            times["end"] = time.monotonic() + 1.0
+            span["end"] = time.monotonic() + 1.0
             time.sleep(2.0)
             sub.undeclare()  # type: ignore[no-untyped-call]
         finally:
@@ -128,9 +138,9 @@ def one_run(tmp: Path, queries: int, waves: int, client_nice: int = 0) -> dict[s
         runner.join()
     else:
         run_flood()
-    if "end" not in times:
+    if "end" not in span:
         raise SystemExit("the flood did not finish")
-    start, end = times["start"], times["end"]
+    start, end = span["start"], span["end"]
     rows = [json.loads(line) for line in trace.read_text().splitlines() if line.strip()]
     flood = [r for r in rows if start <= r["begin"] <= end]
     work = np.array([r["work"] for r in flood]) * 1000
@@ -160,6 +170,7 @@ def one_run(tmp: Path, queries: int, waves: int, client_nice: int = 0) -> dict[s
         "without_commands_ms_p99": round(float(np.percentile(plain, 99)), 2),
         "status_min_per_1s": min(windows) if windows else 0,
         "status_longest_gap_s": round(float(np.max(np.diff(times))), 3),
+        "loop_realtime_priority": granted.get("realtime_priority", 0),
         "replies": outcomes,
         "slowest_reply_s": round(max(d for _, d in replies), 2),
     }
@@ -178,11 +189,19 @@ def main() -> None:
         help="run the flooding client at this nice value (the daemon stays at 0): 10 plays a "
         "client on another machine, which takes no CPU from the daemon",
     )
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=0,
+        help="the profile's control.realtime_priority (SCHED_FIFO for the loop; 0: normal)",
+    )
     args = parser.parse_args()
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.repeats):
-            run = one_run(Path(tmp), args.queries, args.waves, args.client_nice)
+            run = one_run(
+                Path(tmp), args.queries, args.waves, args.client_nice, args.realtime_priority
+            )
             print(f"run {i + 1}: {json.dumps(run)}", flush=True)
             runs.append(run)
     summary = {
@@ -190,8 +209,10 @@ def main() -> None:
             f"./dev bench command_flood --queries {args.queries} --waves {args.waves} "
             f"--repeats {args.repeats}"
             + (f" --client-nice {args.client_nice}" if args.client_nice else "")
+            + (f" --realtime-priority {args.realtime_priority}" if args.realtime_priority else "")
         ),
         "client_nice": args.client_nice,
+        "realtime_priority": args.realtime_priority,
         "runs": runs,
         "tick_ms_p99_median": float(np.median([r["tick_ms_p99"] for r in runs])),
         "tick_ms_max_worst": max(r["tick_ms_max"] for r in runs),

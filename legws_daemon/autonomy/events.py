@@ -288,6 +288,16 @@ class InsecureTransport(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class RealtimeRefused(Event):
+    """The profile asks for real-time scheduling of the loop and the system refused it:
+    the loop runs at normal priority (longer ticks when the CPU is busy)."""
+
+    kind: ClassVar[EventKind] = "warning"
+    realtime: str
+    control: str = "continues at normal priority"
+
+
+@dataclass(frozen=True, slots=True)
 class TraceFailed(Event):
     kind: ClassVar[EventKind] = "warning"
     trace: str

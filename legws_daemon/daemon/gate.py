@@ -62,8 +62,10 @@ class LoopGate:
 
     def enter_thread(self) -> None:
         """Make the calling thread a background thread: paused at its calls while the gate
-        is closed. (Not a lower scheduling priority: a low-priority thread holding a lock
-        the loop needs would hold up the loop whenever the CPU is busy.)"""
+        is closed. Its scheduling stays what it inherited: started by a real-time loop it
+        runs at the loop's priority (:mod:`~legws_daemon.daemon.scheduling` says why), and
+        never below normal (a low-priority thread holding a lock the loop needs would hold
+        up the loop whenever the CPU is busy)."""
         waited = [-1]  # the closing this thread last waited in
 
         def hook(frame: FrameType, event: str, arg: Any) -> None:

@@ -59,6 +59,7 @@ from legws_daemon.autonomy.events import (
     InsecureTransport,
     OperatorChanged,
     Overrun,
+    RealtimeRefused,
     Shutdown,
     Started,
     TelemetryProblem,
@@ -71,6 +72,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
+from legws_daemon.daemon.scheduling import current_priority, enter_realtime
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
@@ -370,6 +372,8 @@ class DaemonService:
         #: stops heard on ``legws/<robot>/stop/<role>``, for the loop: (role, message, error)
         self._stops: deque[tuple[str, StopMessage | None, str | None]] = deque(maxlen=64)
         self.stops_invalid = 0
+        #: the loop thread's SCHED_FIFO priority (0: normal scheduling)
+        self.realtime_priority = 0
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -458,6 +462,7 @@ class DaemonService:
             "targets": {t.name: t.position.tolist() for t in c.stage.targets},
             "transport": "authenticated" if cfg.transport_problem is None else "unauthenticated",
             "insecure_transport": cfg.insecure_transport,
+            "realtime_priority": self.realtime_priority,
         }
         if state is not None:
             data["ee"] = {
@@ -870,12 +875,22 @@ class DaemonService:
         control = self.profile.control
         status_every = max(1, round(control.rate_hz / control.status_rate_hz))
         end = None if self.config.duration is None else time.monotonic() + self.config.duration
+        self._enter_realtime()
         ticker = self.ticker
         ticker.restart()
         try:
             self._ticks(stop, status_pub, end, status_every)
         finally:
             self.gate.open()  # nothing waits for a loop that has ended
+
+    def _enter_realtime(self) -> None:
+        """The loop's thread on SCHED_FIFO if the profile asks (a ``warning`` when refused)."""
+        wanted = self.profile.control.realtime_priority
+        if wanted:
+            problem = enter_realtime(wanted)
+            if problem is not None:
+                self._emit(RealtimeRefused(problem))
+        self.realtime_priority = current_priority()
 
     def _ticks(
         self, stop: threading.Event, status_pub: Any, end: float | None, status_every: int

@@ -126,6 +126,8 @@ class StatusMessage(_Message):
     transport: Literal["authenticated", "unauthenticated"] = "unauthenticated"
     #: a real arm runs on an unauthenticated transport (``--insecure-transport``)
     insecure_transport: StrictBool = False
+    #: the control loop's SCHED_FIFO priority; 0: normal scheduling
+    realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
 
 
 EventKind = Literal[

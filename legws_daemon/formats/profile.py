@@ -89,6 +89,9 @@ class ControlSpec(_Model):
     #: a silent operator keeps the lease this much longer than the deadman timeout, s
     lease_grace: Annotated[float, Strict(), Field(ge=0.0, le=60.0, allow_inf_nan=False)] = 0.5
     status_rate_hz: Rate = 10.0
+    #: the control loop's thread on SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE or
+    #: an RLIMIT_RTPRIO this high, else it runs at normal priority and says so); 0: normal
+    realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
 
 
 class WorkspaceBox(_Model):
