@@ -8,7 +8,22 @@ joint angles into the EE pose, and an EE velocity into joint velocities with min
 differential IK (:class:`~legws_daemon.robot.mink_ik.MinkVelocityIK`: a QP whose joint speed
 and position limits are hard constraints, so the twist is tracked as well as they allow).
 A solver failure is not covered up by another method: the command raises, and the daemon
-halts the arm and reports the fault.
+halts the arm and reports the fault. Joint speeds keep to the bridge's own cap
+(``bridge.joint_speed_cap``), which the bridge enforces whatever it is sent.
+
+What it believes: only states that validate, and only plausible ones — a joint faster than
+its specification between two states, an angle outside its range or an EE outside the
+workspace box grown by :data:`PLAUSIBLE_MARGIN` makes every later read a
+:class:`~legws_daemon.errors.HardwareError` (a safe stop) until :meth:`SawyerAdapter.resume`,
+which the operator's ``reset`` calls. Who may publish states at all is the transport's access
+control (``legws secure init``: the bridge's identity only).
+
+Stops: :meth:`SawyerAdapter.stop_by` halts and has the bridge hold a stop
+(``legws/<robot>/stop/daemon``); the bridge also holds stops any authenticated role sends on
+its own stop key, and reports the holder in its state (``stopped_by``, passed on in
+:class:`~legws_daemon.hardware.base.RobotState`); :meth:`SawyerAdapter.resume` clears it.
+With nothing at all on the state key within ``bridge_timeout`` the bridge is absent
+(:class:`~legws_daemon.errors.BridgeTimeoutError`, the only case ``fallback_to_sim`` acts on).
 
 Thread safety: the state callback runs on a zenoh thread and only fills the newest-state
 slot (under a lock); every other method is meant for one control thread.
