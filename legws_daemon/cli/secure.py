@@ -72,7 +72,7 @@ def init_cmd(
     configuration, key and certificate plus certs/ca.pem; keep certs/ca-key.pem offline.
     """
     from legws_daemon.transport.access import CLIENT_ROLES, client_config, daemon_config
-    from legws_daemon.transport.pki import ROLES, Authority, host_name, write_private, write_public
+    from legws_daemon.transport.pki import ROLES, Authority, host_name, write_new
 
     for host in hosts:
         host_name(host)  # one line for a bad name
@@ -94,13 +94,13 @@ def init_cmd(
     root.chmod(0o700)
 
     ca = Authority.create(days)
-    write_public(certs / "ca.pem", ca.cert_pem)
-    write_private(certs / "ca-key.pem", ca.key_pem)
+    write_new(certs / "ca.pem", ca.cert_pem, 0o644)
+    write_new(certs / "ca-key.pem", ca.key_pem, 0o600)
     paths: dict[str, dict[str, str]] = {}
     for role in ROLES:
         identity = ca.issue(role, tuple(hosts) if role == "daemon" else (), days)
-        write_public(certs / f"{role}.pem", identity.cert_pem)
-        write_private(certs / f"{role}-key.pem", identity.key_pem)
+        write_new(certs / f"{role}.pem", identity.cert_pem, 0o644)
+        write_new(certs / f"{role}-key.pem", identity.key_pem, 0o600)
         paths[role] = {
             "ca": str(certs / "ca.pem"),
             "cert": str(certs / f"{role}.pem"),
@@ -108,7 +108,7 @@ def init_cmd(
         }
     passwords = {role: secrets.token_urlsafe(24) for role in CLIENT_ROLES}
     credentials = root / "credentials.txt"
-    write_private(credentials, "".join(f"{r}:{p}\n" for r, p in passwords.items()).encode())
+    write_new(credentials, "".join(f"{r}:{p}\n" for r, p in passwords.items()).encode(), 0o600)
 
     configs: dict[str, dict[str, object]] = {
         "daemon": daemon_config([listen], paths["daemon"], str(credentials))
@@ -120,7 +120,7 @@ def init_cmd(
             f"// legws {name}: written by `legws secure init` (do not share: it holds a "
             f"password or names the key).\n// Use: {USES[name].format(dir=root)}\n"
         )
-        write_private(root / f"{name}.json5", (header + json.dumps(config, indent=2)).encode())
+        write_new(root / f"{name}.json5", (header + json.dumps(config, indent=2)).encode(), 0o600)
 
     click.echo(f"legws secure init: a CA and {len(ROLES)} identities in {root}")
     click.echo(f"  daemon listens on {listen}; the others dial {connect}")

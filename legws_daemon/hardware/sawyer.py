@@ -60,7 +60,7 @@ from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, model_state, register
 from legws_daemon.robot.kinematics import ORIENTATION_GAIN, small_rotation_error
 from legws_daemon.robot.world import World
-from legws_daemon.safety.envelope import Box
+from legws_daemon.safety.envelope import Box, within_speed
 from legws_daemon.scene.scene import Scene
 
 if TYPE_CHECKING:
@@ -316,8 +316,7 @@ class SawyerAdapter(Adapter):
         model.set_q(np.array(msg.q, dtype=np.float64))
         state = model_state(model, received, msg.gripper == "closed", msg.stopped_by)
         p = state.ee_position
-        lo, hi = self.box.lower - PLAUSIBLE_MARGIN, self.box.upper + PLAUSIBLE_MARGIN
-        if np.any(p < lo) or np.any(p > hi):
+        if not self.box.contains(p, tol=PLAUSIBLE_MARGIN):
             problem = (
                 f"the EE at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m is outside the workspace "
                 f"box grown by {PLAUSIBLE_MARGIN:g} m, where the bridge keeps it"
@@ -349,18 +348,13 @@ class SawyerAdapter(Adapter):
             twist = np.concatenate([velocity, ORIENTATION_GAIN * small_rotation_error(R, target)])
             dq = self._solver().joint_velocity(state.q, twist, self.dt)
             # the bridge's caps; the IK keeps to the same values (rounding aside)
-            dq = self._within_speed(dq)
+            dq = within_speed(dq, self.speed_limits)
         # a zero command moves nothing: no orientation correction, no null-space drift
         self._publish(dq)
 
     def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
         """Publish joint velocities the envelope has already clamped."""
-        self._publish(self._within_speed(qdot))
-
-    def _within_speed(self, dq: FloatArray) -> FloatArray:
-        """``dq`` scaled down (direction kept) to the joint speed caps."""
-        ratio = float(np.max(np.abs(dq) / self.speed_limits, initial=0.0))
-        return dq / ratio if ratio > 1.0 else dq
+        self._publish(within_speed(qdot, self.speed_limits))
 
     def halt(self) -> None:
         """Publish zero joint velocities now, without reading the state (e.g. on a fault)."""

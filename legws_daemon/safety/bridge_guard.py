@@ -57,7 +57,7 @@ from legws_daemon.formats.bridge_messages import (
     Limit,
 )
 from legws_daemon.formats.profile import COMMAND_BURST, BridgeLimitsSpec, WorkspaceBox
-from legws_daemon.safety.envelope import Box, clamp_joint_velocity
+from legws_daemon.safety.envelope import Box, clamp_joint_velocity, within_speed
 
 #: Every limit, in the order the state message lists them.
 LIMITS: tuple[Limit, ...] = get_args(Limit)
@@ -218,9 +218,9 @@ class BridgeGuard:
         if v.shape != (7,) or not np.all(np.isfinite(v)) or not (ttl > 0.0 and math.isfinite(ttl)):
             self._live = None  # the contract's validation lets none of this through
             return "ignored"
-        ratio = float(np.max(np.abs(v) / self.joint_speed_cap))
-        if ratio > 1.0:
-            v = np.clip(v / ratio, -self.joint_speed_cap, self.joint_speed_cap)
+        capped = within_speed(v, self.joint_speed_cap)
+        if capped is not v:
+            v = capped
             self._report("joint_speed")
         if ttl > self.limits.max_ttl:
             self._report("ttl")

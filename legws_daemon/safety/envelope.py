@@ -113,6 +113,21 @@ def clamp_ee_velocity(
     return out
 
 
+def within_speed(qdot: FloatArray, qdot_max: FloatArray) -> FloatArray:
+    """Finite joint velocities scaled down uniformly (direction kept) so that each is within
+    its limit ``|qdot_i| <= qdot_max_i``; unchanged when they already are. Exact for any
+    finite request: it is scaled as a unit vector first, so 1e308 rad/s does not overflow."""
+    peak = float(np.max(np.abs(qdot), initial=0.0))
+    if peak == 0.0:
+        return qdot
+    unit = qdot / peak
+    ratio = float(np.max(np.abs(unit) / qdot_max))  # the limits are reached at 1 / ratio
+    if peak * ratio <= 1.0:
+        return qdot
+    # the clip only removes rounding above a limit
+    return np.asarray(np.clip(unit / ratio, -qdot_max, qdot_max), dtype=np.float64)
+
+
 def clamp_joint_velocity(
     q: ArrayLike, qdot: object, dt: float, lower: ArrayLike, upper: ArrayLike, qdot_max: ArrayLike
 ) -> FloatArray:
@@ -126,13 +141,7 @@ def clamp_joint_velocity(
     qd = _finite_vector(qdot, n)
     if qq is None or qd is None or not (dt > 0 and math.isfinite(dt)):
         return zero
-    peak = float(np.max(np.abs(qd)))
-    if peak > 0.0:
-        # as a unit vector first: a huge request (1e308) must not overflow to inf and zero
-        unit = qd / peak
-        ratio = float(np.max(np.abs(unit) / vmax))  # the limit is reached at 1 / ratio
-        if peak * ratio > 1.0:
-            qd = unit / ratio
+    qd = within_speed(qd, vmax)
     nxt = qq + qd * dt
     out = qd.copy()
     over = nxt > hi

@@ -129,6 +129,21 @@ def _closed() -> dict[str, Any]:
     return {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
 
 
+def _tls_link(certs: dict[str, str], side: str) -> dict[str, Any]:
+    """TLS only, mutual: this party's key and certificate for the ``listen`` or ``connect``
+    side, the CA that verifies the other party."""
+    return {
+        "protocols": ["tls"],
+        "tls": {
+            "root_ca_certificate": certs["ca"],
+            f"{side}_private_key": certs["key"],
+            f"{side}_certificate": certs["cert"],
+            "enable_mtls": True,
+            "close_link_on_expiration": True,
+        },
+    }
+
+
 def daemon_config(listen: list[str], certs: dict[str, str], credentials: str) -> dict[str, Any]:
     """The daemon: peer, TLS only, mutual TLS + user/password, :func:`daemon_acl`.
 
@@ -143,16 +158,7 @@ def daemon_config(listen: list[str], certs: dict[str, str], credentials: str) ->
         "connect": {"endpoints": []},
         "scouting": _closed(),
         "transport": {
-            "link": {
-                "protocols": ["tls"],
-                "tls": {
-                    "root_ca_certificate": certs["ca"],
-                    "listen_private_key": certs["key"],
-                    "listen_certificate": certs["cert"],
-                    "enable_mtls": True,
-                    "close_link_on_expiration": True,
-                },
-            },
+            "link": _tls_link(certs, "listen"),
             "auth": {"usrpwd": {"dictionary_file": credentials}},
         },
         "access_control": daemon_acl(),
@@ -171,16 +177,7 @@ def client_config(
         "listen": {"endpoints": []},
         "scouting": _closed(),
         "transport": {
-            "link": {
-                "protocols": ["tls"],
-                "tls": {
-                    "root_ca_certificate": certs["ca"],
-                    "connect_private_key": certs["key"],
-                    "connect_certificate": certs["cert"],
-                    "enable_mtls": True,
-                    "close_link_on_expiration": True,
-                },
-            },
+            "link": _tls_link(certs, "connect"),
             "auth": {"usrpwd": {"user": role, "password": password}},
         },
     }
