@@ -1,16 +1,22 @@
-"""Shared pieces of the hardware tests: a pair of loopback zenoh peers, bounded polling."""
+"""Shared pieces of the hardware tests: a pair of loopback zenoh peers, bounded polling,
+a log of the bridge's state stream."""
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import zenoh
 
+from legws_daemon.errors import InputError
+from legws_daemon.formats.bridge_messages import BridgeState, bridge_keys, parse_state
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.net import free_port
+
+_STATE_KEY = bridge_keys("sawyer")["state"]
 
 
 @contextmanager
@@ -35,3 +41,36 @@ def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
             return True
         time.sleep(0.01)
     return condition()
+
+
+class StateLog:
+    """Every state message received on the daemon side, validated."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.states: list[BridgeState] = []
+        self.errors: list[str] = []
+        self._lock = threading.Lock()
+        self.subscriber = session.declare_subscriber(_STATE_KEY, self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        try:
+            state = parse_state(sample.payload.to_bytes(), _STATE_KEY)
+        except InputError as err:
+            with self._lock:
+                self.errors.append(str(err))
+            return
+        with self._lock:
+            self.states.append(state)
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.states)
+
+    def last(self) -> BridgeState:
+        with self._lock:
+            return self.states[-1]
+
+    def limited(self) -> set[str]:
+        """Every limit any state reported."""
+        with self._lock:
+            return {limit for state in self.states for limit in state.limited}

@@ -22,12 +22,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from legws_daemon.errors import InputError
 from legws_daemon.formats.bridge_messages import (
     JOINT_SPEED_LIMITS,
-    BridgeState,
     bridge_keys,
-    parse_state,
     stop_key,
 )
 from legws_daemon.formats.profile import ProfileSpec, TransportSpec, load_profile
@@ -36,7 +33,7 @@ from legws_daemon.robot.world import World
 from legws_daemon.safety.bridge_guard import grown
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
-from tests.hardware.helpers import wait_for
+from tests.hardware.helpers import StateLog, wait_for
 from tests.net import free_port
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
@@ -82,32 +79,6 @@ class Samples:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
-
-
-class StateLog:
-    """The union of the ``limited`` fields, and the states, of the bridge's state stream."""
-
-    def __init__(self, session: zenoh.Session) -> None:
-        self.limited: set[str] = set()
-        self.states: list[BridgeState] = []
-        self.errors: list[str] = []
-        self._lock = threading.Lock()
-        self.subscriber = session.declare_subscriber(KEYS["state"], self._on)
-
-    def _on(self, sample: zenoh.Sample) -> None:
-        try:
-            state = parse_state(sample.payload.to_bytes(), KEYS["state"])
-        except InputError as err:
-            with self._lock:
-                self.errors.append(str(err))
-            return
-        with self._lock:
-            self.states.append(state)
-            self.limited.update(state.limited)
-
-    def last(self) -> BridgeState:
-        with self._lock:
-            return self.states[-1]
 
 
 def command(seq: int, dq: list[float], ttl: float, gripper: str | None = None) -> bytes:
@@ -163,7 +134,7 @@ def test_a_foreign_peer_cannot_drive_the_arm_past_the_bridge_limits() -> None:
         )
         with fake, Samples(fake) as samples:
             log = StateLog(observer)
-            assert wait_for(lambda: len(log.states) > 0), "the observer hears no state"
+            assert wait_for(lambda: log.count() > 0), "the observer hears no state"
             assert wait_for(
                 lambda: flood(attacker, 0.05, 100, lambda n: [0.0] * 7) > 0 and fake.received > 0
             )
@@ -185,7 +156,7 @@ def test_a_foreign_peer_cannot_drive_the_arm_past_the_bridge_limits() -> None:
             flood(attacker, 2.0, 50.0, lambda n: list(outward))
             assert fake.limited["workspace"] > 0
             assert wait_for(
-                lambda: {"rate", "joint_speed", "ee_speed", "ttl", "workspace"} <= log.limited
+                lambda: {"rate", "joint_speed", "ee_speed", "ttl", "workspace"} <= log.limited()
             )
 
             # 3. an observer's stop: nothing moves until the resume, whatever is sent

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 import time
 from functools import partial
 from typing import Any
@@ -20,9 +19,7 @@ import zenoh
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
     JOINT_UPPER,
-    BridgeState,
     bridge_keys,
-    parse_state,
     stop_key,
 )
 from legws_daemon.formats.profile import ProfileSpec, WorkspaceBox
@@ -30,7 +27,7 @@ from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
 from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from tests.hardware.helpers import peers, wait_for
+from tests.hardware.helpers import StateLog, peers, wait_for
 
 KEYS = bridge_keys("sawyer")
 
@@ -38,39 +35,6 @@ KEYS = bridge_keys("sawyer")
 @pytest.fixture(scope="module")
 def desk() -> Scene:
     return load_scene("desk")
-
-
-class StateLog:
-    """Every state message received on the daemon side, validated."""
-
-    def __init__(self, session: zenoh.Session) -> None:
-        self.states: list[BridgeState] = []
-        self.errors: list[str] = []
-        self._lock = threading.Lock()
-        self.subscriber = session.declare_subscriber(KEYS["state"], self._on)
-
-    def _on(self, sample: zenoh.Sample) -> None:
-        try:
-            state = parse_state(sample.payload.to_bytes(), KEYS["state"])
-        except InputError as err:
-            with self._lock:
-                self.errors.append(str(err))
-            return
-        with self._lock:
-            self.states.append(state)
-
-    def count(self) -> int:
-        with self._lock:
-            return len(self.states)
-
-    def last(self) -> BridgeState:
-        with self._lock:
-            return self.states[-1]
-
-    def limited(self) -> set[str]:
-        """Every limit any state reported."""
-        with self._lock:
-            return {limit for state in self.states for limit in state.limited}
 
 
 def command(dq: list[float], ttl: float, seq: int = 0, gripper: str | None = None) -> bytes:
