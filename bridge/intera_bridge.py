@@ -43,6 +43,9 @@ import argparse
 import contextlib
 import json
 import math
+import os
+import re
+import stat
 import sys
 import threading
 import time
@@ -190,9 +193,27 @@ def parse_command(payload: bytes) -> Command:
     return Command(seq, stamp, dq, ttl, gripper)
 
 
+#: Characters no text of a message may hold (as legws_daemon.formats.validation): C0/C1
+#: controls but tab and line feed, line/paragraph separators, bidirectional controls.
+_UNSAFE_TEXT = re.compile(
+    "[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028\u2029\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069]"
+)
+
+
 def _text(value: Any, field: str, longest: int) -> None:
     if value is not None and (not isinstance(value, str) or len(value) > longest):
         raise CommandError(field, f"expected a string of at most {longest} characters or null")
+    if isinstance(value, str) and _UNSAFE_TEXT.search(value):
+        raise CommandError(field, "holds a control or bidirectional character")
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} appears twice")
+        out[key] = value
+    return out
 
 
 def _json_object(payload: bytes, fields: frozenset[str]) -> dict[str, Any]:
@@ -200,7 +221,7 @@ def _json_object(payload: bytes, fields: frozenset[str]) -> dict[str, Any]:
     if len(payload) > MAX_PAYLOAD:
         raise CommandError("payload", f"{len(payload)} bytes exceed {MAX_PAYLOAD}")
     try:
-        data = json.loads(payload)
+        data = json.loads(payload, object_pairs_hook=_unique_keys)
     except (ValueError, RecursionError) as err:
         raise CommandError("payload", f"not JSON: {type(err).__name__}") from None
     if not isinstance(data, dict):
@@ -314,11 +335,18 @@ def _profile_number(value: Any, where: str) -> float:
     return float(value)
 
 
+#: Largest hardware profile read (as legws_daemon.formats.files.LIMITS).
+MAX_PROFILE_BYTES = 256 * 1024
+
+
 def profile_limits(path: str) -> Limits:
     """The limits of a legws hardware profile (``[bridge]``, ``[workspace]``; what it
     leaves out keeps the default). Raises ValueError (or OSError) naming the problem."""
     if tomllib is None:
         raise ValueError("--profile needs Python >= 3.11 (tomllib); give the limits as flags")
+    st = os.stat(path)  # a device, FIFO or huge file is refused before it is opened
+    if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_PROFILE_BYTES:
+        raise ValueError(f"{path}: expected a regular file of at most {MAX_PROFILE_BYTES} bytes")
     with open(path, "rb") as f:
         try:
             doc = tomllib.load(f)
@@ -937,11 +965,31 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         parser.error(f"--rate must be in [1, 1000] Hz, got {args.rate:g}")
     if args.connect is None:
         args.connect = [] if args.listen else [DEFAULT_CONNECT]
+    for flag, endpoints in (("--connect", args.connect), ("--listen", args.listen)):
+        for endpoint in endpoints:
+            problem = endpoint_problem(endpoint)
+            if problem:
+                parser.error(f"{flag}: {problem}")
     try:
         args.limits = limits_from_args(args)
     except (OSError, ValueError) as err:
         parser.error(_first_line(err))
     return args
+
+
+_ENDPOINT = re.compile(
+    r"(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]*):([0-9]{1,5})"
+)
+
+
+def endpoint_problem(text: str) -> str | None:
+    """What is wrong with a zenoh endpoint PROTOCOL/HOST:PORT (as legws' profiles check it)."""
+    m = _ENDPOINT.fullmatch(text)
+    if m is None:
+        return f"expected PROTOCOL/HOST:PORT (tcp, udp, tls or quic), got {text[:80]!r}"
+    if not 1 <= int(m.group(3)) <= 65535:
+        return f"port {m.group(3)} is not in 1..65535"
+    return None
 
 
 def limits_from_args(args: argparse.Namespace) -> Limits:

@@ -14,9 +14,16 @@ def assets_cmd() -> None:
 
 
 @assets_cmd.command("fetch")
-@click.option("--force", is_flag=True, help="Download again even when already cached.")
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Download again and replace the cached folder (atomically), even when it is intact.",
+)
 def fetch_cmd(force: bool) -> None:
-    """Download the Sawyer model into the asset cache (once); print its folder."""
+    """Download the Sawyer model into the asset cache (once); print its folder.
+
+    A cached model that fails its integrity check is downloaded again too.
+    """
     if not force:
         try:
             click.echo(assets.sawyer_dir())
@@ -27,7 +34,7 @@ def fetch_cmd(force: bool) -> None:
         f"legws: downloading robosuite=={assets.ROBOSUITE_VERSION} with pip for its Sawyer model",
         err=True,
     )
-    click.echo(assets.fetch(force=force))
+    click.echo(assets.fetch(force=True))
 
 
 @assets_cmd.command("reachability")
@@ -59,12 +66,17 @@ def reachability_cmd(scene_name: str) -> None:
 
 @assets_cmd.command("status")
 def status_cmd() -> None:
-    """Print the Sawyer model's folder; exit 2 with one line when it is not fetched."""
-    try:
-        folder = assets.sawyer_dir()
-    except InputError:
-        raise InputError(
-            f"the Sawyer model is not fetched (looked in {assets.assets_dir() / 'sawyer'}); "
-            f"fetch it with: {assets.FETCH_COMMAND}"
-        ) from None
-    click.echo(folder)
+    """Print the Sawyer model's folder; exit 2 with one line when it is not fetched or
+    fails its integrity check (the line names the file and the command that restores it)."""
+    click.echo(assets.sawyer_dir())
+
+
+@assets_cmd.command("check")
+def check_cmd() -> None:
+    """Check every file of the Sawyer model against the manifest its fetch wrote.
+
+    Prints one line and exits 0 when intact; exits 2 with one line naming the damaged file
+    and the command that restores it (``legws assets fetch --force``) otherwise.
+    """
+    v = assets.verify()
+    click.echo(f"{v.folder}: intact ({v.files} files, {v.size} bytes, sha256 {v.digest})")

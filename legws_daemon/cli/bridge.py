@@ -16,6 +16,7 @@ from types import FrameType
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import (
     COMMAND_BURST,
@@ -92,7 +93,7 @@ def bridge_group() -> None:
 )
 @click.option(
     "--rate",
-    type=click.FloatRange(1.0, 1000.0),
+    type=FiniteFloat(1.0, 1000.0),
     default=200.0,
     show_default=True,
     help="Integration and state publication rate, Hz.",

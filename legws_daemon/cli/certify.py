@@ -4,9 +4,11 @@ with ``--commit`` the commit certificate (method.md §9)."""
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
+import math
+from collections.abc import Callable
+from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import click
 import numpy as np
@@ -22,13 +24,16 @@ from legws_daemon.core.commit import (
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.montecarlo import (
     CONFIDENCE,
+    MAX_TRIALS,
+    MAX_WORK,
     GoalAccuracy,
     GoalCommitRate,
-    commit_rates,
+    check_trials,
     monte_carlo,
-    simulate_commits,
+    monte_carlo_commit,
 )
-from legws_daemon.core.params import COST_FORMS, CostForm, Params
+from legws_daemon.core.params import COST_FORMS, RANGES, CostForm, Params, range_problem
+from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.scene.catalog import load_scene
@@ -74,6 +79,49 @@ def commit_report(cert: CommitCertificate, mc: dict[str, GoalCommitRate] | None)
     if mc is not None:
         out["monte_carlo_commit"] = {name: asdict(r) for name, r in mc.items()}
     return out
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def require_finite(value: Any, where: str = "") -> None:
+    """Refuse a report holding a non-finite number (JSON has none, and no certificate is
+    infinite): one line naming the field, before anything is printed.
+
+    Raises:
+        InputError: naming the first non-finite field.
+    """
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputError(
+            f"is {value}: the certificate is not finite for these parameters "
+            "(check alpha, beta, sigma and the goal positions)",
+            field=where or "(report)",
+        )
+    if isinstance(value, dict):
+        for k, v in value.items():
+            require_finite(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            require_finite(v, f"{where}[{i}]")
+
+
+def _param_option(name: str, unit: str) -> Callable[[F], F]:
+    """``--NAME``: override the goal set's (or the default) parameter, within
+    :data:`~legws_daemon.core.params.RANGES` (one-line error outside, with the reason)."""
+    lo, hi = RANGES[name]
+
+    def check(_ctx: click.Context, _param: click.Parameter, value: float | None) -> float | None:
+        if value is not None and not (math.isfinite(value) and lo <= value <= hi):
+            raise click.BadParameter(range_problem(name, value))
+        return value
+
+    return click.option(
+        f"--{name}",
+        type=float,
+        callback=check,
+        metavar="X",
+        help=f"Override {name}{unit}, in [{lo:g}, {hi:g}].",
+    )
 
 
 def _table(rows: list[list[str]], header: list[str]) -> str:
@@ -216,11 +264,16 @@ def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
 )
 @click.option("--cost", type=click.Choice(COST_FORMS), help="Override the cost form.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (interfaces.md).")
+@_param_option("alpha", " (the accepted failure probability)")
+@_param_option("beta", " (the observer's rationality)")
+@_param_option("sigma", " (the user's velocity noise, m/s)")
 @click.option(
     "--monte-carlo",
     "trials",
-    type=click.IntRange(min=1, max=10_000_000),
-    help="Also simulate N noisy users per goal and report accuracy at the horizon.",
+    type=click.IntRange(min=1, max=MAX_TRIALS),
+    help=f"Also simulate N noisy users per goal and report accuracy at the horizon (N at most "
+    f"{MAX_TRIALS:,}, and N x goals x steps at most {MAX_WORK:.3g}, about a minute: "
+    "the error names the largest N for the goal set).",
 )
 @click.option(
     "--seed", type=int, default=0, show_default=True, help="Seed of the Monte Carlo check."
@@ -256,6 +309,9 @@ def certify_cmd(
     layout_file: Path | None,
     cost: CostForm | None,
     as_json: bool,
+    alpha: float | None,
+    beta: float | None,
+    sigma: float | None,
     trials: int | None,
     seed: int,
     clip_speed: bool,
@@ -289,6 +345,17 @@ def certify_cmd(
         source = str(goals_file)
     if cost is not None:
         params = params.with_cost(cost)
+    if alpha is not None:
+        params = replace(params, alpha=alpha)
+    if beta is not None:
+        params = replace(params, beta=beta)
+    if sigma is not None:
+        params = replace(params, sigma=sigma)
+    if trials is not None:
+        check_trials(
+            goals, params, trials, commit_forms=int(with_commit), clip_speed=clip_speed,
+            field="--monte-carlo",
+        )  # fmt: skip
 
     cert = certify(goals, params)
     mc = settings = None
@@ -307,14 +374,13 @@ def certify_cmd(
         commit = certify_commit(goals, params, user, commit_form)
         rates = None
         if trials is not None:
-            rollouts = simulate_commits(
-                goals, params, trials, np.random.default_rng([seed, 9]), clip_speed=clip_speed
-            )[params.cost]
             steps = [commit.goals[n].step for n in goals.names]
-            rates = commit_rates(rollouts, steps, goals.names)
+            rng = np.random.default_rng([seed, 9])
+            rates = monte_carlo_commit(goals, params, trials, rng, steps, clip_speed=clip_speed)
         report |= commit_report(commit, rates)
         report["commit"]["user"] = asdict(user) | {"clipped": clip_speed}
         report["commit"]["form"] = commit_form
+    require_finite(report)
     if export_goals is not None:
         write_atomic(export_goals, dump_json(goalset_to_data(goals, params)).encode())
     click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))

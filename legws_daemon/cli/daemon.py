@@ -11,8 +11,10 @@ from types import FrameType
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import open_output, output_path
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
@@ -27,26 +29,31 @@ from legws_daemon.transport.session import config_from_file, config_from_spec
 
 
 def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
-    """``auto``: the cached plan of the graph (planned now if there is none); else a folder
-    (or its ``plan.json``) written by ``legws plan``."""
+    """``auto``: the cached plan of the graph (planned now if there is none, or if the cached
+    one does not validate: a warning, then it is replaced); else a folder (or its
+    ``plan.json``) written by ``legws plan``, refused with one line naming the file, the
+    stage and the failed check unless every stage layout passes the checks of a
+    ``--layout`` file and records the certificates it gives (``check_plan``)."""
     if arg == "auto":
         from legws_daemon.design.stage_plan import plan_taskgraph
 
         return plan_taskgraph(graph, scene)
-    from legws_daemon.task.plan_file import load_plan
+    from legws_daemon.task.plan_file import check_plan, load_plan
 
     path = Path(arg)
-    plan = load_plan(path / "plan.json" if path.is_dir() else path, scene)
+    plan_json = path / "plan.json" if path.is_dir() else path
+    plan = load_plan(plan_json, scene)
     if plan.taskgraph != graph.name:
         raise InputError(
             f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'", field="--plan"
         )
-    return plan
+    return check_plan(plan, graph, scene, str(plan_json))
 
 
 def cached_catalog_plan(graph: TaskGraph, scene: Scene) -> Plan:
     """``load_taskgraph`` with ``plan: "auto"``: the graph's cached plan (as ``--plan auto``
-    would use). Nothing is planned on the control loop: without one, say how to make it."""
+    would use), validated as ``--plan DIR`` is. Nothing is planned on the control loop:
+    without one, or with one that does not validate, say how to make it."""
     from legws_daemon.design.stage_plan import cached_plan
 
     plan = cached_plan(graph, scene)
@@ -140,13 +147,13 @@ def install_stop_handlers(stop: threading.Event) -> None:
 )
 @click.option(
     "--rate",
-    type=click.FloatRange(min=1.0, max=1000.0),
+    type=FiniteFloat(min=1.0, max=1000.0),
     help="Control rate, Hz (default: the profile's; the deadman stays the profile's).",
 )
 @click.option("--cost", type=click.Choice(COST_FORMS), help="Observer cost form (default dragan).")
 @click.option(
     "--duration",
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=FiniteFloat(min=0.0, min_open=True),
     help="Stop after this many seconds (default: run until SIGINT/SIGTERM).",
 )
 @click.option(
@@ -196,6 +203,8 @@ def daemon_cmd(
         raise click.UsageError("give --scene or --taskgraph, not both")
     if plan_arg is not None and taskgraph is None:
         raise click.UsageError("--plan needs --taskgraph")
+    if trace_file is not None:
+        output_path(trace_file)  # a device or folder there: one line before anything starts
     spec = load_profile_named(profile)
     require_motion_allowed(spec, allow_motion)
     if rate is not None:
@@ -229,7 +238,7 @@ def daemon_cmd(
 
             telemetry = RerunLog(rerun_target, robot=spec.robot)
             stack.callback(telemetry.close)
-        trace = stack.enter_context(trace_file.open("w")) if trace_file else None
+        trace = stack.enter_context(open_output(trace_file)) if trace_file else None
         config = DaemonConfig(
             spec,
             sc,

@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.formats.profile import load_profile_named
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
@@ -23,7 +24,7 @@ from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 )
 @click.option(
     "--timeout",
-    type=click.FloatRange(min=1.0),
+    type=FiniteFloat(min=1.0),
     default=600.0,
     show_default=True,
     help="Stop the run after this many seconds.",
@@ -47,12 +48,14 @@ def demo_cmd(
     for, what the daemon committed to and when, and the certificate.
     """
     from legws_daemon.demo.run import markdown, run_demo
+    from legws_daemon.formats.files import output_folder
 
     spec = load_profile_named(profile)
     if spec.adapter != "sim":
         raise click.UsageError(f"the demo runs on a sim profile; '{profile}' is {spec.adapter}")
     graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))  # errors before starting
     folder = out if out is not None else Path("out") / f"demo-{graph.name}"
+    output_folder(folder)  # a file or device in the way: one line before any planning
     plan_dir = None
     if plan:
         from legws_daemon.design.stage_plan import plan_taskgraph

@@ -93,7 +93,7 @@ def eval_cmd(
     """
     from tqdm import tqdm
 
-    from legws_daemon.formats.files import write_atomic
+    from legws_daemon.formats.files import output_folder, write_atomic
     from legws_daemon.scene.catalog import load_scene
     from legws_daemon.scene.constraints import require_feasible
     from legws_daemon.scene.layout_file import load_layout
@@ -114,7 +114,7 @@ def eval_cmd(
         layouts = [layout for layout, _ in loaded]
         elites = [elite for _, elite in loaded]
     if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        output_folder(out_dir)  # a file in the way is one line before any work
     with tqdm(total=len(layouts), desc=f"eval {scene.name}", unit="layout", disable=quiet) as bar:
         report = run_eval(
             scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update,

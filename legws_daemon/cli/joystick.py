@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 
 if TYPE_CHECKING:
@@ -111,7 +112,7 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
             ),
             click.option(
                 "--duration",
-                type=click.FloatRange(min=0.0, min_open=True),
+                type=FiniteFloat(min=0.0, min_open=True),
                 help="Stop after this many seconds (default: until Ctrl-C or SIGTERM).",
             ),
             click.option(
@@ -127,7 +128,7 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
                 2,
                 click.option(
                     "--rate",
-                    type=click.FloatRange(min=0.0, max=1000.0, min_open=True),
+                    type=FiniteFloat(min=0.0, max=1000.0, min_open=True),
                     help="Publishing rate, Hz (default: the profile's control rate).",
                 ),
             )
@@ -158,14 +159,14 @@ def joystick_group() -> None:
 @publisher_options()
 @click.option(
     "--step",
-    type=click.FloatRange(min=0.0, max=1.0, min_open=True),
+    type=FiniteFloat(min=0.0, max=1.0, min_open=True),
     default=1.0,
     show_default=True,
     help="Deflection a key sets on its axis.",
 )
 @click.option(
     "--hold",
-    type=click.FloatRange(min=0.0, max=10.0, min_open=True),
+    type=FiniteFloat(min=0.0, max=10.0, min_open=True),
     default=0.3,
     show_default=True,
     help="Seconds a key's deflection (and the enable) lasts unless the key repeats.",
@@ -255,7 +256,7 @@ def can_cmd(options: PublisherOptions, interface: str, channel: str, bitrate: in
 @click.argument("file", type=click.Path(path_type=Path, dir_okay=False))
 @click.option(
     "--speed",
-    type=click.FloatRange(min=0.0, max=1000.0, min_open=True),
+    type=FiniteFloat(min=0.0, max=1000.0, min_open=True),
     default=1.0,
     show_default=True,
     help="Replay this many times faster than recorded.",

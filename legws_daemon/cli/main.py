@@ -30,6 +30,7 @@ from legws_daemon.cli.secure import secure_group
 from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.cli.taskgraph import taskgraph_group
 from legws_daemon.errors import LegwsError
+from legws_daemon.formats.validation import printable
 
 EXIT_BAD_INPUT = 2
 
@@ -59,7 +60,9 @@ cli.add_command(secure_group)
 
 
 def _fail(message: str) -> int:
-    text = " ".join(message.split())
+    # one line, and nothing a terminal would act on (a path or a message field may hold
+    # escape sequences or bidirectional controls): those are written as Python escapes
+    text = printable(" ".join(message.split()))
     click.echo(f"legws: error: {text}", err=True)
     return EXIT_BAD_INPUT
 

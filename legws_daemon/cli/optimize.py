@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -65,6 +66,7 @@ def optimize_cmd(
     from tqdm import tqdm
 
     from legws_daemon.design.optimize import optimize
+    from legws_daemon.formats.files import output_folder
     from legws_daemon.scene.catalog import load_scene
     from legws_daemon.scene.catalog import scene_names as all_names
 
@@ -81,7 +83,7 @@ def optimize_cmd(
     names = [n.strip() for n in movable.split(",") if n.strip()] if movable else None
     if names is not None:
         scene.check_names(names, "--movable")
-    out = out_dir or Path("out") / "optimize" / scene.name
+    out = output_folder(out_dir or Path("out") / "optimize" / scene.name)
     with tqdm(total=iterations, desc=f"{method} {scene.name}", unit="it", disable=quiet) as bar:
 
         def progress(it: int, best: float, coverage: float) -> None:
@@ -120,6 +122,7 @@ def _run_all(
 
     from legws_daemon.design.batch import Job, run_all
     from legws_daemon.errors import InputError
+    from legws_daemon.formats.files import output_folder, write_atomic
     from legws_daemon.scene.catalog import load_scene
 
     try:
@@ -146,12 +149,21 @@ def _run_all(
         for sc in scenes
         for s in seed_list
     ]
-    with tqdm(total=len(jobs), desc=f"{method} runs", unit="run", disable=quiet) as bar:
+    output_folder(root)  # a file in the way is one line before any run starts
+    bars: list[Any] = []
+
+    def started() -> None:  # the bar appears once the pool or the cluster is there
+        bars.append(tqdm(total=len(jobs), desc=f"{method} runs", unit="run", disable=quiet))
+
+    try:
         results = run_all(
-            jobs, dask=dask_address, workers=workers, progress=lambda _: bar.update(1)
-        )
+            jobs, dask=dask_address, workers=workers, progress=lambda _: bars[0].update(1),
+            started=started,
+        )  # fmt: skip
+    finally:
+        for bar in bars:
+            bar.close()
     keys = ("scene", "seed", *RESULT_KEYS, "seconds", "cached", "out")
     table = [{k: r[k] for k in keys} for r in results]
-    root.mkdir(parents=True, exist_ok=True)
-    (root / "index.json").write_text(json.dumps(table, indent=2) + "\n")
+    write_atomic(root / "index.json", (json.dumps(table, indent=2) + "\n").encode())
     click.echo(json.dumps(table))

@@ -111,15 +111,20 @@ def plan_cmd(
     objective K, the latest certified commit as a fraction of the way); every other object
     keeps its pose from the decision before. Single-candidate decisions need no inference.
     Writes plan.json and a top-view PNG per decision; results are cached by the graph
-    file, the scene file and the settings.
+    file, the scene file and the settings. A cached plan is used only while every stage
+    layout meets the scene's constraints (as a --layout file must) and its recorded
+    certificates are the ones its layouts give; else a warning, and it is planned again.
     """
     from legws_daemon.design.stage_plan import plan_taskgraph
+    from legws_daemon.formats.files import output_folder
     from legws_daemon.task.plan_file import plan_to_data
     from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
     graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))
     if out_dir is None and no_cache:
         out_dir = Path("out") / "plan" / graph.name
+    if out_dir is not None:
+        output_folder(out_dir)  # a file or device in the way: one line before any planning
     plan = plan_taskgraph(
         graph, scene, method=method, iterations=iterations, seed=seed, objective=objective_kind,
         commit_form=commit_form,

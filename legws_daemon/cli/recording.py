@@ -13,7 +13,9 @@ from pathlib import Path
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import regular_file
 from legws_daemon.telemetry.rrd_file import FINISH_TIMEOUT, finish
 
 
@@ -26,7 +28,7 @@ def recording_group() -> None:
 @click.argument("file", type=click.Path(path_type=Path))
 @click.option(
     "--timeout",
-    type=float,
+    type=FiniteFloat(),
     default=FINISH_TIMEOUT * 10,
     show_default=True,
     help="seconds the rewrite may take",
@@ -37,9 +39,10 @@ def finish_cmd(file: Path, timeout: float) -> int:
         raise InputError(
             f"expected a positive number of seconds, got {timeout!r}", field="--timeout"
         )
-    if not file.is_file():
-        what = "is a folder" if file.is_dir() else "does not exist"
-        raise InputError(f"{what}; expected a rerun recording (.rrd)", source=str(file))
+    try:
+        regular_file(file, "recording")
+    except InputError as err:
+        raise InputError(f"{err}; expected a rerun recording (.rrd)") from None
     before = file.stat().st_size
     problem = finish(file, timeout, tolerant=True)
     if problem is not None:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
 import click
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import output_path
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.layout_file import load_layout
 
@@ -54,6 +56,8 @@ def render_cmd(
     """
     sc = load_scene(scene)
     layout = load_layout(layout_file, sc) if layout_file else None
+    if os.path.lexists(output):
+        output_path(output)  # a device or folder there: one line before any rendering
 
     # mujoco and the GL stack load only here: the other commands never pay for them
     from legws_daemon.robot.render import render_layout, save_png

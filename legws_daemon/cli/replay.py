@@ -17,6 +17,7 @@ from typing import Any
 
 import click
 
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
@@ -136,10 +137,12 @@ def render_text(report: dict[str, Any]) -> str:
     "--stage",
     help="Replay only this stage (its name or index; default: every stage).",
 )
-@click.option("--beta", type=float, callback=_check_beta, help="Override the recorded beta (> 0).")
+@click.option(
+    "--beta", type=FiniteFloat(), callback=_check_beta, help="Override the recorded beta (> 0)."
+)
 @click.option(
     "--threshold",
-    type=float,
+    type=FiniteFloat(),
     callback=_check_threshold,
     help="Override the recorded commit threshold p_thresh, in (0.5, 1).",
 )

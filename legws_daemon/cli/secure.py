@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import output_folder
 from legws_daemon.formats.profile import endpoint_problem
 
 #: What each configuration file is for, and how it is used (its header comment).
@@ -84,13 +85,14 @@ def init_cmd(
         problem = endpoint_problem(endpoint)
         if problem is not None:
             raise InputError(problem, field=flag)
-    if directory.exists() and any(directory.iterdir()):
+    output_folder(directory)  # a file or device in the way: one line
+    if any(directory.iterdir()):
         raise InputError(
             "is not empty; `legws secure init` never overwrites", source=str(directory)
         )
     root = directory.resolve()
     certs = root / "certs"
-    certs.mkdir(parents=True, exist_ok=True)
+    output_folder(certs)
     root.chmod(0o700)
 
     ca = Authority.create(days)

@@ -8,6 +8,7 @@ import click
 import numpy as np
 
 from legws_daemon.cli.joystick import PublisherOptions, publisher_options
+from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.core.params import Params
 
 
@@ -23,14 +24,14 @@ from legws_daemon.core.params import Params
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed.")
 @click.option(
     "--sigma",
-    type=click.FloatRange(min=0.0, max=1.0),
+    type=FiniteFloat(min=0.0, max=1.0),
     default=Params().sigma,
     show_default=True,
     help="Joystick velocity noise, m/s per axis.",
 )
 @click.option(
     "--cancel-after",
-    type=click.FloatRange(min=0.0),
+    type=FiniteFloat(min=0.0),
     help="Press cancel this many seconds into the robot's assistance (once).",
 )
 @click.option(

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+from decimal import Decimal
 from pathlib import Path
 
 import click
 
-from legws_daemon.errors import InputError
-from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import Stage, TaskGraph
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
@@ -17,8 +17,23 @@ def _plural(n: int, word: str) -> str:
     return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
+#: Path counts up to this are printed in full; larger ones as "about 2.1e9 paths".
+EXACT_PATHS = 10**6
+
+
+def count_paths_text(n: int) -> str:
+    """``1 path``, ``524288 paths``; above :data:`EXACT_PATHS` ``about 2.1e9 paths`` (two
+    significant digits: a 64-stage graph may have up to 2^62, about 4.6e18)."""
+    if n <= EXACT_PATHS:
+        return _plural(n, "path")
+    mantissa, exponent = f"{Decimal(n):.1e}".split("e")  # exact for any int, no float
+    return f"about {mantissa}e{int(exponent)} paths"
+
+
 def summary(path: Path, graph: TaskGraph) -> str:
-    """One line: stages, decision points (and how many infer), paths, scene, repeat."""
+    """One line: stages, decision points (and how many infer), paths, scene, repeat.
+
+    The paths are counted, not listed (:meth:`TaskGraph.path_count`)."""
     points = decision_points(graph)
     inferred = sum(p.inference for p in points)
     choices = sum(p.is_choice for p in points)
@@ -26,7 +41,7 @@ def summary(path: Path, graph: TaskGraph) -> str:
     return (
         f"{path}: ok: {_plural(len(graph.stages), 'stage')}, "
         f"{_plural(len(points), 'decision point')} ({inferred} with inference, "
-        f"{_plural(choices, 'choice')}), {_plural(len(graph.paths()), 'path')}, "
+        f"{_plural(choices, 'choice')}), {count_paths_text(graph.path_count())}, "
         f"scene {graph.scene}{repeat}"
     )
 
@@ -39,7 +54,8 @@ def _stage_line(stage: Stage, fixed: tuple[str, ...]) -> str:
 
 
 def tree(graph: TaskGraph) -> list[str]:
-    """The graph as an indented tree from the start; a stage met again is not expanded."""
+    """The graph as an indented tree from the start; a stage met again is not expanded
+    ("(shown above)"): a line per stage, transition and choice, however many paths."""
     fixed = ", ".join(graph.fixed) or "none"
     lines = [
         f"task graph '{graph.name}' ({graph.source}): scene {graph.scene}, repeat "
@@ -107,21 +123,8 @@ def show_cmd(taskgraph: str, png: Path | None) -> None:
     if png is not None:
         from legws_daemon.task.diagram import diagram_png
 
-        _make_folder(png.parent)
+        output_folder(png.parent)
         write_atomic(png, diagram_png(graph))
     click.echo("\n".join(tree(graph)))
     if png is not None:
         click.echo(f"wrote {png}")
-
-
-def _make_folder(folder: Path) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise InputError(
-            "cannot create the folder: a file is in the way", source=str(folder)
-        ) from None
-    except OSError as err:
-        raise InputError(
-            f"cannot create the folder: {err.strerror or err}", source=str(folder)
-        ) from None

@@ -69,6 +69,14 @@ class NominalTerms:
 MAX_HORIZON_STEPS = 100_000
 
 
+def upper_quantile(tail: ArrayLike) -> FloatArray | float:
+    """``Phi^-1(1 - tail)``, the standard normal quantile with ``tail`` above it, computed as
+    ``-Phi^-1(tail)``: exact for any tail down to the smallest double (``1 - tail`` rounds
+    to 1, and the quantile to infinity, once ``tail`` is below ~1e-16)."""
+    z = -ndtri(np.asarray(tail, dtype=np.float64))
+    return float(z) if np.ndim(z) == 0 else np.asarray(z, dtype=np.float64)
+
+
 def horizon_steps(distance: ArrayLike, params: Params) -> IntArray:
     """``T = ceil(eta |p_g* - p0| / (v_max dt))`` (at least one step).
 
@@ -183,7 +191,7 @@ def certify_batch(
     margin = params.beta * (t.costs - c_true[:, :, None])
     a2 = np.einsum("bijk,bijk->bij", t.sensitivity, t.sensitivity)
     variance = params.beta**2 * (t.steps * (params.sigma * params.dt) ** 2)[:, :, None] * a2
-    quantile = float(ndtri(1.0 - params.alpha / (m - 1)))  # standard normal quantile
+    quantile = float(upper_quantile(params.alpha / (m - 1)))
     slack = margin - quantile * np.sqrt(variance)
     eye = np.eye(m, dtype=bool)
     margin[:, eye] = 0.0

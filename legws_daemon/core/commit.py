@@ -44,15 +44,20 @@ exactly (mean 1, standard deviation ``sigma / v_max`` on every axis).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import ndtr, ndtri
+from scipy.special import ndtr
 
-from legws_daemon.core.certificate import MAX_HORIZON_STEPS, goal_arrays, start_terms
+from legws_daemon.core.certificate import (
+    MAX_HORIZON_STEPS,
+    goal_arrays,
+    start_terms,
+    upper_quantile,
+)
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
@@ -63,7 +68,9 @@ from legws_daemon.errors import InputError
 COMMIT_FORMS = ("min", "sum")
 
 #: Elements of the largest intermediate array ``(B, M, T, M)`` built at once; batches are
-#: split to stay below it (~32 MB of float64 each).
+#: split by layouts to stay below it (~32 MB of float64 each), and one layout whose
+#: ``M x T x M`` is larger by its true goals (rows), down to one row of ``T x M`` elements
+#: (at most 64 goals x 100,000 steps: 51 MB): memory stays bounded whatever the horizon.
 CHUNK_ELEMENTS = 4_000_000
 #: A nominal point this close to a goal coincides with it (its distance term has no
 #: gradient), m.
@@ -191,36 +198,19 @@ def commit_batch(
             f"unknown commit form {form!r}; known: {', '.join(COMMIT_FORMS)}",
             field="--commit-form",
         )
-    p0, pg, rot_term, trans0, t_a, chunk = _setup(
+    p0, pg, rot_term, trans0, t_a = _setup(
         p0, R0, goal_positions, goal_rotations, symmetry, params, user
     )
     b, m = pg.shape[:2]
     tau_c, tau_w = thresholds(m, params.p_thresh)
-    z_c = float(ndtri(1.0 - params.alpha / (2 * (m - 1))))
+    z_c = float(upper_quantile(params.alpha / (2 * (m - 1))))
 
-    parts: list[tuple[FloatArray, ...]] = []
-    for s in range(0, b, chunk):
-        sl = slice(s, s + chunk)
-        parts.append(
-            _chunk(
-                p0,
-                pg[sl],
-                rot_term[sl],
-                trans0[sl],
-                t_a[sl],
-                params,
-                user,
-                form,
-                tau_c,
-                tau_w,
-                z_c,
-            )
-        )
-    if parts:
-        fraction, step, c_arrival, w = (np.concatenate(x) for x in zip(*parts, strict=True))
-    else:
-        fraction = c_arrival = w = np.zeros((0, m))
-        step = np.zeros((0, m))
+    fraction, step, c_arrival, w = (np.zeros((b, m)) for _ in range(4))
+    for sl, rows in _pieces(t_a):
+        fraction[sl, rows], step[sl, rows], c_arrival[sl, rows], w[sl, rows] = _chunk(
+            p0, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, form,
+            tau_c, tau_w, z_c, rows,
+        )  # fmt: skip
     step_i = np.asarray(step, dtype=np.int64)
     certified = (step_i > 0) & (w >= 0.0)
     return CommitBatch(
@@ -245,15 +235,32 @@ def _setup(
     symmetry: ArrayLike,
     params: Params,
     user: UserMotion,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray, int]:
-    """``(p0, p_g, rotation terms, distances, T_a, layouts per chunk)`` of a batch."""
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray]:
+    """``(p0, p_g, rotation terms, distances, T_a)`` of a batch."""
     p0_, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
     b, m = pg.shape[:2]
     sym = np.broadcast_to(np.asarray(symmetry), (b, m))
     trans0, rot_term = start_terms(p0_, R0, pg, Rg, sym, params)  # (B, M) each
     t_a = arrival_steps(trans0, params, user.speed)
+    return p0_, pg, rot_term, trans0, t_a
+
+
+def _pieces(t_a: IntArray) -> Iterator[tuple[slice, slice]]:
+    """``(layouts, true goals)`` pieces of a batch whose ``(b, rows, T, M)`` arrays hold at
+    most :data:`CHUNK_ELEMENTS` elements (at least one layout and one row each). Every row
+    of a layout is computed on its own, so the pieces give exactly the unsplit result."""
+    b, m = t_a.shape
     t_max = int(t_a.max()) if b else 1
-    return p0_, pg, rot_term, trans0, t_a, max(1, CHUNK_ELEMENTS // (m * m * t_max))
+    per_layout = m * m * t_max
+    if per_layout <= CHUNK_ELEMENTS:
+        chunk = CHUNK_ELEMENTS // per_layout
+        for s in range(0, b, chunk):
+            yield slice(s, s + chunk), slice(0, m)
+        return
+    rows = max(1, CHUNK_ELEMENTS // (m * t_max))
+    for s in range(b):
+        for r in range(0, m, rows):
+            yield slice(s, s + 1), slice(r, r + rows)
 
 
 def commit_chance_batch(
@@ -278,21 +285,20 @@ def commit_chance_batch(
     and in ``benchmarks/commit_ceiling.py``.
     """
     user = user or unclipped_user(params)
-    p0_, pg, rot_term, trans0, t_a, chunk = _setup(
+    p0_, pg, rot_term, trans0, t_a = _setup(
         p0, R0, goal_positions, goal_rotations, symmetry, params, user
     )
     b, m = pg.shape[:2]
     _, tau_w = thresholds(m, params.p_thresh)
-    others = ~np.eye(m, dtype=bool)[None, :, None, :]
     out = np.zeros((b, m))
-    for s in range(0, b, chunk):
-        sl = slice(s, s + chunk)
-        t, margin, sd = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
+    for sl, rows in _pieces(t_a):
+        t, margin, sd = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, rows)
+        others = _others(m, rows)
         c0, weight, total = _posterior_slack(np.where(others, margin, np.inf), tau_w)
         spread = (weight * np.where(others, sd, 0.0)).sum(axis=-1) / total  # 0 on the true goal
         z = c0 / np.maximum(spread, 1e-12)
-        z = np.where(t[None, None, :] <= t_a[sl][:, :, None], z, -np.inf)
-        out[sl] = ndtr(z.max(axis=-1))
+        z = np.where(t[None, None, :] <= t_a[sl, rows][:, :, None], z, -np.inf)
+        out[sl, rows] = ndtr(z.max(axis=-1))
     return np.asarray(out, dtype=np.float64)
 
 
@@ -312,22 +318,21 @@ def commit_time_batch(
     ``T_a dt (1 + max(0, -c0(T_a)))``: later than any commit, and worse the further from
     one. Not a certificate: the search surrogate of ``--objective time``."""
     user = user or unclipped_user(params)
-    p0_, pg, rot_term, trans0, t_a, chunk = _setup(
+    p0_, pg, rot_term, trans0, t_a = _setup(
         p0, R0, goal_positions, goal_rotations, symmetry, params, user
     )
     b, m = pg.shape[:2]
     tau_c, tau_w = thresholds(m, params.p_thresh)
-    others = ~np.eye(m, dtype=bool)[None, :, None, :]
     out = np.zeros((b, m))
-    for s in range(0, b, chunk):
-        sl = slice(s, s + chunk)
-        t, margin, _ = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user)
-        c0 = _posterior_slack(np.where(others, margin, np.inf), tau_w)[0]  # (b, i, T)
-        c0 = np.where(t[None, None, :] <= t_a[sl][:, :, None], c0, -np.inf)
+    for sl, rows in _pieces(t_a):
+        t, margin, _ = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, rows)
+        c0 = _posterior_slack(np.where(_others(m, rows), margin, np.inf), tau_w)[0]  # (b, i, T)
+        t_rows = t_a[sl, rows]
+        c0 = np.where(t[None, None, :] <= t_rows[:, :, None], c0, -np.inf)
         has, _, crossing = _first_crossing(c0, tau_c)
-        c_end = np.take_along_axis(c0, (t_a[sl] - 1)[..., None], -1)[..., 0]
-        late = t_a[sl] * (1.0 + np.maximum(0.0, -c_end))
-        out[sl] = np.where(has, crossing, late) * params.dt
+        c_end = np.take_along_axis(c0, (t_rows - 1)[..., None], -1)[..., 0]
+        late = t_rows * (1.0 + np.maximum(0.0, -c_end))
+        out[sl, rows] = np.where(has, crossing, late) * params.dt
     return np.asarray(out, dtype=np.float64)
 
 
@@ -350,6 +355,11 @@ def _goal_set_mean(batch: Callable[..., FloatArray], goals: GoalSet, params: Par
         goals.symmetry, params, clipped_user(params),
     )  # fmt: skip
     return float(values.mean())
+
+
+def _others(m: int, rows: slice) -> NDArray[np.bool_]:
+    """``(1, i, 1, j)``: goal ``j`` is an alternative of the true goal ``i`` in ``rows``."""
+    return np.asarray(np.arange(m)[rows][:, None] != np.arange(m)[None, :])[None, :, None, :]
 
 
 def _posterior_slack(alt: FloatArray, tau_w: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -388,29 +398,34 @@ def _terms(
     t_a: IntArray,
     params: Params,
     user: UserMotion,
+    rows: slice,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``(t, m_ij(t), sqrt(v_ij(t)))`` along each goal's nominal up to the chunk's longest
-    ``T_a``: steps ``(T,)``, margins and standard deviations ``(b, i, T, j)``."""
+    """``(t, m_ij(t), sqrt(v_ij(t)))`` along the nominal of each true goal ``i`` in ``rows``
+    up to their longest ``T_a``, against every goal ``j``: steps ``(T,)``, margins and
+    standard deviations ``(b, i, T, j)``."""
     b, m = pg.shape[:2]
+    true = np.arange(m)[rows]  # the true goals' indices
+    k = len(true)
     step_len = user.speed * params.v_max * params.dt
-    n_t = int(t_a.max())
+    n_t = int(t_a[:, rows].max())
     t = np.arange(1, n_t + 1, dtype=np.float64)  # (T,)
     s = (t * step_len)[None, None, :, None]  # (1, 1, T, 1) distance travelled
     dist_start = trans0 + rot_term  # (b, M)
-    eye = np.eye(m, dtype=bool)
+    eye = true[:, None] == np.arange(m)[None, :]  # (i, j): j is the true goal i
     # Distances from the nominal pbar_t = p0 + s u_i to every goal j, from scalars alone:
     # |pbar_t - p_j|^2 = |p0 - p_j|^2 + 2 s (p0 - p_j).u_i + s^2 (no (b, i, T, j, 3) arrays).
-    u = safe_unit(pg - p0)  # (b, i, 3)
+    u = safe_unit(pg[:, rows] - p0)  # (b, i, 3)
     e = np.einsum("bik,bjk->bij", u, p0 - pg)[:, :, None, :]  # (b, i, 1, j)
     q = (trans0**2)[:, None, None, :]
-    along = (trans0[:, :, None, None] - s) * eye[None, :, None, :]  # |pbar_t - p_i|, exact
+    along = (trans0[:, rows, None, None] - s) * eye[None, :, None, :]  # |pbar_t - p_i|, exact
     trans_now = np.where(
         eye[None, :, None, :], along, np.sqrt(np.maximum(q + 2 * s * e + s * s, 0))
     )
     dist_now = trans_now + rot_term[:, None, None, :]
-    length = np.broadcast_to(t * step_len, (b, m, n_t))
+    length = np.broadcast_to(t * step_len, (b, k, n_t))
     costs = path_costs(length, dist_now, dist_start[:, None, None, :], params.cost)
-    c_true = np.diagonal(costs, axis1=1, axis2=3).transpose(0, 2, 1)  # (b, i, T)
+    at_true = np.broadcast_to(true[None, :, None, None], (b, k, n_t, 1))
+    c_true = np.take_along_axis(costs, at_true, axis=-1)[..., 0]  # (b, i, T)
     margin = params.beta * (costs - c_true[..., None])  # (b, i, T, j)
 
     # |a_ij|^2 = |unit_j / S_j - unit_i / S_i|^2 with unit_g = (pbar - p_g) / |pbar - p_g|
@@ -420,9 +435,9 @@ def _terms(
     else:
         scale = dist_start
     on_j = trans_now > _COINCIDENT
-    on_i = np.diagonal(on_j, axis1=1, axis2=3).transpose(0, 2, 1)[..., None]  # (b, i, T, 1)
+    on_i = np.take_along_axis(on_j, at_true, axis=-1)  # (b, i, T, 1)
     s_j = scale[:, None, None, :]
-    s_i = scale[:, :, None, None]
+    s_i = scale[:, rows, None, None]
     dot = -(e + s) / np.where(on_j, trans_now, 1.0)  # unit_j . unit_i
     a2 = on_j / s_j**2 + on_i / s_i**2 - 2 * np.where(on_j & on_i, dot, 0.0) / (s_i * s_j)
     # a . u_i (unit_j . u_i = (e + s) / |pbar - p_j|, unit_i . u_i = -1): the noise along
@@ -448,13 +463,15 @@ def _chunk(
     tau_c: float,
     tau_w: float,
     z_c: float,
+    rows: slice,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts, each ``(b, M)``."""
+    """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts and the true goals ``rows``,
+    each ``(b, rows)``."""
     m = pg.shape[1]
-    eye = np.eye(m, dtype=bool)
-    t, margin, sd = _terms(p0, pg, rot_term, trans0, t_a, params, user)
+    t, margin, sd = _terms(p0, pg, rot_term, trans0, t_a, params, user, rows)
+    t_a = t_a[:, rows]
     valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
-    others = ~eye[None, :, None, :]  # (1, i, 1, j)
+    others = _others(m, rows)  # (1, i, 1, j)
     lower = np.where(others, margin - z_c * sd, np.inf)  # (b, i, T, j)
     # "sum": ln((1-p)/p) - ln sum_j exp(-l_j)
     c = lower.min(axis=-1) - tau_c if form == "min" else _posterior_slack(lower, tau_w)[0]
@@ -464,7 +481,7 @@ def _chunk(
     c_arrival = np.take_along_axis(c, (t_a - 1)[..., None], axis=-1)[..., 0]
 
     t_end = np.where(has, t_c, t_a)  # (b, i)
-    z_w = ndtri(1.0 - params.alpha / (2 * (m - 1) * t_end))  # (b, i)
+    z_w = np.asarray(upper_quantile(params.alpha / (2 * (m - 1) * t_end)))  # (b, i)
     wrong = np.where(others, margin + tau_w - z_w[:, :, None, None] * sd, np.inf).min(axis=-1)
     in_window = t[None, None, :] <= t_end[:, :, None]
     w = np.where(in_window, wrong, np.inf).min(axis=-1)

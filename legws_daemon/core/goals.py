@@ -19,6 +19,24 @@ from legws_daemon.errors import InputError
 #: A goal closer than this to the start position cannot be inferred (zero-length horizon).
 MIN_GOAL_DISTANCE = 1e-3
 
+#: Most candidate goals of one goal set. The certificate is over all ``M (M - 1)`` ordered
+#: pairs (its largest array ``(M, M, 3)``: 8.94 GiB at 20,000 goals) and the commit
+#: certificate over ``M x T x M`` (pairs times steps), so the cost grows with ``M^2``. 64 is
+#: far above any table a Sawyer serves: its workspace (0.55 x 0.90 m of object centres)
+#: holds at most 45 objects 0.12 m apart, and the paper's largest set has 8. At 64 goals
+#: ``legws certify --commit`` computes in 0.3 s with an 85 MiB peak at the default
+#: resolution (goals on the table, ~200 steps), 1 s and 370 MiB with a goal 4.4 m away
+#: (1,760 steps); 2,000 goals used to take 74 s and then fail for memory.
+MAX_GOALS = 64
+
+
+def too_many_goals(m: int) -> str:
+    """The one-line reason a set of ``m > MAX_GOALS`` goals is refused."""
+    return (
+        f"expected at most {MAX_GOALS} goals, got {m} (the certificates' cost grows with the "
+        "square of the number of goals)"
+    )
+
 
 @dataclass(frozen=True, slots=True)
 class GoalSet:
@@ -42,6 +60,8 @@ class GoalSet:
         m = len(self.names)
         if m < 2:
             raise InputError(f"expected at least 2 goals, got {m}", field="goals")
+        if m > MAX_GOALS:
+            raise InputError(too_many_goals(m), field="goals")
         if len(set(self.names)) != m:
             dup = sorted({n for n in self.names if self.names.count(n) > 1})
             raise InputError(

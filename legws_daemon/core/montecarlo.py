@@ -9,12 +9,19 @@ observer's argmax is compared with ``g*``; accuracy comes with a Clopper-Pearson
 The commit certificate's check (method.md section 9): :func:`simulate_commits` rolls the
 same users out to arrival and records each observer's first commit (step, goal, and how far
 along the way); :func:`commit_rates` turns that into the promised rate by the certified
-step, wrong commits and commits before arrival, per goal.
+step, wrong commits and commits before arrival, per goal (:func:`monte_carlo_commit` does
+both keeping only the counts).
+
+Cost: the users are simulated in chunks of whole random streams (:data:`STREAM_TRIALS`
+trials each) and the observer evaluated in slices of trials, so the arrays stay within
+:data:`MEMORY_BUDGET` (256 MiB) for any number of trials, with results identical to one
+unsplit run; a run is refused beyond :data:`MAX_TRIALS` trials or :data:`MAX_WORK`
+goal-steps (about a minute).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,19 +91,163 @@ def _advance(
     length: FloatArray,
     target: FloatArray,
     active: np.ndarray,
-    rng: np.random.Generator,
+    eps: FloatArray,
     params: Params,
     clip_speed: bool,
 ) -> None:
-    """One control period of the noisy users ``x`` ``(M, N, 3)`` toward ``target``, in place;
-    rows where ``active`` ``(M, 1)`` is false stay put. ``length`` accumulates the path."""
-    m, trials = length.shape
-    u = deflection(x, target, noise(rng, (m, trials), params.sigma, params.v_max))
+    """One control period of the noisy users ``x`` ``(M, N, 3)`` toward ``target`` with the
+    noise ``eps`` (deflection units), in place; rows where ``active`` ``(M, 1)`` is false stay
+    put. ``length`` accumulates the path."""
+    u = deflection(x, target, eps)
     if clip_speed:
         u = clip_unit(u)
     dx = params.v_max * params.dt * u
     x += np.where(active[..., None], dx, 0.0)
     length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+
+
+# --- cost and memory ------------------------------------------------------------------
+
+#: Most simulated users per goal: at 1,000,000 the 95 % Clopper-Pearson interval is within
+#: +-0.001 of the rate, finer than the model's own approximations.
+MAX_TRIALS = 1_000_000
+#: Most work of one Monte Carlo run, in goal-steps (see :func:`monte_carlo_work`): about a
+#: minute on one core (``legws certify`` at the cap, measured: 33 s for 1,000,000 users of
+#: the two-goal example, 51-57 s for two goals' check at the horizon and of commits
+#: together, 19-33 s for 8 and 64 goals).
+MAX_WORK = 250_000_000
+#: Trials that draw from one random stream: the noise of trials ``[k S, (k + 1) S)`` comes
+#: from stream ``k`` (stream 0 is the generator passed in, the others are spawned from it), so
+#: results do not depend on how many trials are simulated at once, and runs of up to ``S``
+#: trials draw exactly as one loop over all trials did.
+STREAM_TRIALS = 4096
+#: Bytes the Monte Carlo's arrays may take at once: half for the simulated users (positions,
+#: path lengths, first commits and each step's temporaries), half for the observer's costs
+#: of every goal. Trials are simulated in chunks of whole streams and evaluated in
+#: sub-chunks to stay below it.
+MEMORY_BUDGET = 256 * 2**20
+#: Bytes per (true goal, trial) of the users' state and a step's temporaries, and per (true
+#: goal, trial, goal) of the observer's evaluation: measured with tracemalloc at most 110
+#: and 75 (commit check, 2 to 64 goals), rounded up. Measured peaks: 110 MiB (check at the
+#: horizon), 145-160 MiB (commit check), for 2 to 64 goals and any number of trials.
+_STATE_BYTES = 160
+_EVAL_BYTES = 96
+
+
+def monte_carlo_work(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    *,
+    horizon_forms: int = 1,
+    commit_forms: int = 0,
+    clip_speed: bool = False,
+) -> int:
+    """Goal-steps of a Monte Carlo run: ``trials x M x (T + M forms)`` for the check at the
+    horizon with ``horizon_forms`` cost forms (every simulated step of every user, and the
+    observer once at the horizon), plus ``trials x M x T_a x M x forms`` for the commit
+    check with ``commit_forms`` (the observer's posterior over the M goals at every step).
+    Either runs at 4 to 16 million goal-steps per second (measured; slowest for few goals)."""
+    trans0, _ = _start_terms(goals, params)
+    m = goals.m
+    work = 0
+    if horizon_forms:
+        steps = int(horizon_steps(trans0, params).max())
+        work += trials * m * (steps + m * horizon_forms)
+    if commit_forms:
+        speed = clipped_user(params).speed if clip_speed else 1.0
+        steps = int(arrival_steps(trans0, params, speed).max())
+        work += trials * m * steps * m * commit_forms
+    return work
+
+
+def check_trials(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    *,
+    horizon_forms: int = 1,
+    commit_forms: int = 0,
+    clip_speed: bool = False,
+    field: str = "trials",
+) -> None:
+    """Refuse a run of more than :data:`MAX_TRIALS` trials or :data:`MAX_WORK` goal-steps
+    (:func:`monte_carlo_work` with the same arguments).
+
+    Raises:
+        InputError: one line naming ``field``, the work and the most trials accepted here.
+    """
+    if not 1 <= trials <= MAX_TRIALS:
+        raise InputError(f"expected 1 to {MAX_TRIALS:,} trials, got {trials:,}", field=field)
+    per_trial = monte_carlo_work(
+        goals, params, 1, horizon_forms=horizon_forms, commit_forms=commit_forms,
+        clip_speed=clip_speed,
+    )  # fmt: skip
+    work = trials * per_trial
+    if work > MAX_WORK:
+        what = " and ".join(
+            w for w, n in (("at the horizon", horizon_forms), ("of commits", commit_forms)) if n
+        )
+        raise InputError(
+            f"{trials:,} trials of {goals.m} goals are {work:.3g} goal-steps of simulation "
+            f"(the check {what}: {per_trial:,} per trial); at most {MAX_WORK:.3g} are "
+            f"accepted, {max(1, MAX_WORK // per_trial):,} trials for this goal set",
+            field=field,
+        )
+
+
+#: Random streams of a run and the trials each draws for: ``[(generator, trials), ...]``.
+Streams = list[tuple[np.random.Generator, int]]
+
+
+def _streams(rng: np.random.Generator, trials: int) -> Streams:
+    """``(generator, trials)`` of every :data:`STREAM_TRIALS` trials, in order."""
+    n = -(-trials // STREAM_TRIALS)
+    gens = [rng, *rng.spawn(n - 1)] if n > 1 else [rng]
+    return [(g, min(STREAM_TRIALS, trials - i * STREAM_TRIALS)) for i, g in enumerate(gens)]
+
+
+def _chunks(streams: Streams, rows: int) -> Iterator[Streams]:
+    """Groups of whole streams whose users' state fits half the :data:`MEMORY_BUDGET`."""
+    per = max(1, (MEMORY_BUDGET // 2) // (rows * STREAM_TRIALS * _STATE_BYTES))
+    for i in range(0, len(streams), per):
+        yield streams[i : i + per]
+
+
+def _sub_slices(trials: int, rows: int, goals: int) -> list[slice]:
+    """Slices of trials whose ``(rows, trials, goals)`` evaluation fits half the budget."""
+    per = max(1, (MEMORY_BUDGET // 2) // (rows * goals * _EVAL_BYTES))
+    return [slice(s, s + per) for s in range(0, trials, per)]
+
+
+def _noise(chunk: Streams, rows: int, params: Params) -> FloatArray:
+    """One step's noise ``(rows, trials, 3)`` of a chunk, each stream drawing its own."""
+    parts = [noise(g, (rows, n), params.sigma, params.v_max) for g, n in chunk]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+
+# --- the check at the horizon (method.md §4) ------------------------------------------
+
+
+def _roll_to_horizon(
+    goals: GoalSet, params: Params, steps: IntArray, chunk: Streams, clip_speed: bool
+) -> tuple[FloatArray, FloatArray]:
+    """Positions ``(M, n, 3)`` and path lengths ``(M, n)`` of a chunk's users at their
+    true goal's horizon."""
+    p0 = goals.x0.position
+    target = goals.positions[:, None, :]  # (M, 1, 3)
+    m = goals.m
+    n = sum(k for _, k in chunk)
+    x = np.broadcast_to(p0, (m, n, 3)).copy()
+    length = np.zeros((m, n))
+    for t in range(int(steps.max())):
+        eps = _noise(chunk, m, params)
+        _advance(x, length, target, (t < steps)[:, None], eps, params, clip_speed)
+    return x, length
+
+
+def _horizon(goals: GoalSet, params: Params) -> IntArray:
+    return horizon_steps(np.linalg.norm(goals.positions - goals.x0.position, axis=1), params)
 
 
 def simulate_user(
@@ -107,31 +258,37 @@ def simulate_user(
     *,
     clip_speed: bool = False,
 ) -> HorizonStates:
-    """Roll out ``trials`` noisy users per true goal up to that goal's horizon."""
+    """Roll out ``trials`` noisy users per true goal up to that goal's horizon (every end
+    state is returned: ``(M, N, 3)``; :func:`monte_carlo` keeps only the counts)."""
     if trials < 1:
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
-    p0 = goals.x0.position
-    target = goals.positions[:, None, :]  # (M, 1, 3)
-    steps = horizon_steps(np.linalg.norm(goals.positions - p0, axis=1), params)
-    m = goals.m
-    x = np.broadcast_to(p0, (m, trials, 3)).copy()
-    length = np.zeros((m, trials))
-    for t in range(int(steps.max())):
-        _advance(x, length, target, (t < steps)[:, None], rng, params, clip_speed)
+    check_trials(goals, params, trials, clip_speed=clip_speed)
+    steps = _horizon(goals, params)
+    parts = [
+        _roll_to_horizon(goals, params, steps, chunk, clip_speed)
+        for chunk in _chunks(_streams(rng, trials), goals.m)
+    ]
+    x = np.concatenate([x for x, _ in parts], axis=1)
+    length = np.concatenate([length for _, length in parts], axis=1)
     return HorizonStates(x, length, steps)
 
 
 def horizon_correct(
     goals: GoalSet, params: Params, states: HorizonStates, cost: CostForm
 ) -> IntArray:
-    """Number of trials per true goal whose observer argmax at the horizon is the true goal."""
+    """Number of trials per true goal whose observer argmax at the horizon is the true goal
+    (evaluated in slices of trials that fit the memory budget)."""
     trans0, rot = _start_terms(goals, params)
     d0 = trans0 + rot
-    diff = states.positions[:, :, None, :] - goals.positions[None, None, :, :]
-    dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
-    costs = path_costs(states.lengths, dist_now, d0, cost)  # (M, N, M)
-    best = np.argmin(costs, axis=-1)
-    return np.asarray((best == np.arange(goals.m)[:, None]).sum(axis=1), dtype=np.int64)
+    m, n = states.lengths.shape
+    total = np.zeros(m, dtype=np.int64)
+    for sub in _sub_slices(n, m, goals.m):
+        diff = states.positions[:, sub, None, :] - goals.positions[None, None, :, :]
+        dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
+        costs = path_costs(states.lengths[:, sub], dist_now, d0, cost)  # (M, n, M)
+        best = np.argmin(costs, axis=-1)
+        total += (best == np.arange(goals.m)[:, None]).sum(axis=1)
+    return total
 
 
 def monte_carlo(
@@ -146,20 +303,36 @@ def monte_carlo(
     """Accuracy at the horizon per true goal, for each requested cost form.
 
     The same simulated trajectories serve every cost form (common random numbers), so the
-    forms are compared on identical user behaviour. Same seed, same result.
+    forms are compared on identical user behaviour. Same seed, same result, whatever the
+    memory budget: the users are simulated in chunks of whole random streams and only the
+    counts are kept (memory stays within :data:`MEMORY_BUDGET`).
+
+    Raises:
+        InputError: beyond :data:`MAX_TRIALS` trials or :data:`MAX_WORK` goal-steps.
     """
     forms: Sequence[CostForm] = costs if costs is not None else (params.cost,)
+    if trials < 1:
+        raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
+    check_trials(goals, params, trials, clip_speed=clip_speed, horizon_forms=len(forms))
     rng = np.random.default_rng(seed)
-    states = simulate_user(goals, params, trials, rng, clip_speed=clip_speed)
+    steps = _horizon(goals, params)
+    correct = {form: np.zeros(goals.m, dtype=np.int64) for form in forms}
+    for chunk in _chunks(_streams(rng, trials), goals.m):
+        x, length = _roll_to_horizon(goals, params, steps, chunk, clip_speed)
+        states = HorizonStates(x, length, steps)
+        for form in forms:
+            correct[form] += horizon_correct(goals, params, states, form)
     out: dict[CostForm, dict[str, GoalAccuracy]] = {}
     for form in forms:
-        correct = horizon_correct(goals, params, states, form)
         per_goal: dict[str, GoalAccuracy] = {}
-        for name, k in zip(goals.names, correct, strict=True):
+        for name, k in zip(goals.names, correct[form], strict=True):
             lo, hi = clopper_pearson(int(k), trials)
             per_goal[name] = GoalAccuracy(int(k) / trials, lo, hi, int(k), trials)
         out[form] = per_goal
     return out
+
+
+# --- the commit check (method.md §9) ----------------------------------------------------
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,6 +357,64 @@ class CommitRollouts:
     step_length: float
 
 
+def _commit_chunks(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    rng: np.random.Generator,
+    clip_speed: bool,
+    forms: Sequence[CostForm],
+    rows: IntArray,
+) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
+    """Per chunk of trials and cost form, the ``(step, goal, progress)`` of the first
+    commits ``(len(rows), n)`` of the true goals ``rows``."""
+    p0 = goals.x0.position
+    m = len(rows)
+    target = goals.positions[rows, None, :]
+    # the clipped user is slower: it arrives after the clipped motion's T_a
+    speed = clipped_user(params).speed if clip_speed else 1.0
+    trans0, rot = _start_terms(goals, params)
+    t_a = arrival_steps(trans0, params, speed)[rows]
+    d0 = trans0 + rot
+    way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
+    for chunk in _chunks(_streams(rng, trials), m):
+        n = sum(k for _, k in chunk)
+        subs = _sub_slices(n, m, goals.m)
+        x = np.broadcast_to(p0, (m, n, 3)).copy()
+        length = np.zeros((m, n))
+        furthest = np.zeros((m, n))
+        first_step = {f: np.zeros((m, n), dtype=np.int64) for f in forms}
+        first_goal = {f: np.full((m, n), -1, dtype=np.int64) for f in forms}
+        first_progress = {f: np.full((m, n), np.inf) for f in forms}
+        for t in range(1, int(t_a.max(initial=0)) + 1):
+            active = (t <= t_a)[:, None]  # (m, 1)
+            _advance(x, length, target, active, _noise(chunk, m, params), params, clip_speed)
+            furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
+            for sub in subs:
+                diff = x[:, sub, None, :] - goals.positions[None, None, :, :]
+                dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
+                for form in forms:
+                    post = posterior(path_costs(length[:, sub], dist_now, d0, form), params.beta)
+                    goal = first_goal[form][:, sub]
+                    hit = (np.max(post, axis=-1) >= params.p_thresh) & active & (goal < 0)
+                    step, progress = first_step[form][:, sub], first_progress[form][:, sub]
+                    first_step[form][:, sub] = np.where(hit, t, step)
+                    first_goal[form][:, sub] = np.where(hit, np.argmax(post, axis=-1), goal)
+                    first_progress[form][:, sub] = np.where(hit, furthest[:, sub], progress)
+        yield {f: (first_step[f], first_goal[f], first_progress[f]) for f in forms}
+
+
+def _commit_rows(goals: GoalSet, true_goals: Sequence[int] | None) -> IntArray:
+    if true_goals is None:
+        return np.arange(goals.m)
+    return np.asarray(true_goals, dtype=np.int64)
+
+
+def _commit_arrivals(goals: GoalSet, params: Params, clip_speed: bool) -> IntArray:
+    speed = clipped_user(params).speed if clip_speed else 1.0
+    return arrival_steps(_start_terms(goals, params)[0], params, speed)
+
+
 def simulate_commits(
     goals: GoalSet,
     params: Params,
@@ -198,47 +429,27 @@ def simulate_commits(
     observer's first commit, for each cost form on the same trajectories. With
     ``clip_speed`` the users are the robot's (speed clipped to ``v_max``) and ``T_a`` is
     that slower motion's (:func:`~legws_daemon.core.commit.clipped_user`). ``true_goals``
-    limits the rollouts to those true goals (the other rows stay without a commit)."""
+    limits the rollouts to those true goals (the other rows stay without a commit).
+
+    Every trial's first commit is returned (``(M, N)`` arrays per form);
+    :func:`monte_carlo_commit` keeps only the counts, in bounded memory."""
     if trials < 1:
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
     forms: Sequence[CostForm] = costs if costs is not None else (params.cost,)
-    p0 = goals.x0.position
-    rows = np.arange(goals.m) if true_goals is None else np.asarray(true_goals, dtype=np.int64)
-    m = len(rows)
-    target = goals.positions[rows, None, :]
-    # the clipped user is slower: it arrives after the clipped motion's T_a
-    speed = clipped_user(params).speed if clip_speed else 1.0
-    trans0, rot = _start_terms(goals, params)
-    t_a_all = arrival_steps(trans0, params, speed)
-    t_a = t_a_all[rows]
-    d0 = trans0 + rot
-    way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
-    x = np.broadcast_to(p0, (m, trials, 3)).copy()
-    length = np.zeros((m, trials))
-    furthest = np.zeros((m, trials))
-    first_step = {f: np.zeros((m, trials), dtype=np.int64) for f in forms}
-    first_goal = {f: np.full((m, trials), -1, dtype=np.int64) for f in forms}
-    first_progress = {f: np.full((m, trials), np.inf) for f in forms}
-    for t in range(1, int(t_a.max(initial=0)) + 1):
-        active = (t <= t_a)[:, None]  # (M, 1)
-        _advance(x, length, target, active, rng, params, clip_speed)
-        furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
-        diff = x[:, :, None, :] - goals.positions[None, None, :, :]
-        dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
-        for form in forms:
-            post = posterior(path_costs(length, dist_now, d0, form), params.beta)
-            best = np.argmax(post, axis=-1)
-            hit = (np.max(post, axis=-1) >= params.p_thresh) & active & (first_goal[form] < 0)
-            first_step[form] = np.where(hit, t, first_step[form])
-            first_goal[form] = np.where(hit, best, first_goal[form])
-            first_progress[form] = np.where(hit, furthest, first_progress[form])
+    check_trials(
+        goals, params, trials, horizon_forms=0, commit_forms=len(forms), clip_speed=clip_speed
+    )
+    rows = _commit_rows(goals, true_goals)
+    parts = list(_commit_chunks(goals, params, trials, rng, clip_speed, forms, rows))
+    t_a_all = _commit_arrivals(goals, params, clip_speed)
     step = params.v_max * params.dt
     out: dict[CostForm, CommitRollouts] = {}
     for f in forms:
         steps = np.zeros((goals.m, trials), dtype=np.int64)
         chosen = np.full((goals.m, trials), -1, dtype=np.int64)
         progress = np.full((goals.m, trials), np.inf)
-        steps[rows], chosen[rows], progress[rows] = first_step[f], first_goal[f], first_progress[f]
+        for target, i in ((steps, 0), (chosen, 1), (progress, 2)):
+            target[rows] = np.concatenate([part[f][i] for part in parts], axis=1)
         out[f] = CommitRollouts(steps, chosen, progress, t_a_all, step)
     return out
 
@@ -278,26 +489,79 @@ def commit_rates(
 ) -> dict[str, GoalCommitRate]:
     """Per-goal commit statistics; ``by_step[i]`` is goal ``i``'s certified step (``None``:
     count up to arrival)."""
+    limits = _limits(rollouts.arrival_steps, by_step)
+    counts = _commit_counts(
+        (rollouts.step, rollouts.goal, rollouts.progress), limits, rollouts.step_length
+    )
+    return _rates(counts, limits, rollouts.step.shape[1], names)
+
+
+def monte_carlo_commit(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    rng: np.random.Generator,
+    by_step: Sequence[int | None],
+    *,
+    clip_speed: bool = False,
+) -> dict[str, GoalCommitRate]:
+    """:func:`commit_rates` of :func:`simulate_commits` (same rollouts, same numbers) for
+    the parameters' cost form, keeping only the counts: memory stays within
+    :data:`MEMORY_BUDGET` whatever the number of trials.
+
+    Raises:
+        InputError: beyond :data:`MAX_TRIALS` trials or :data:`MAX_WORK` goal-steps.
+    """
+    if trials < 1:
+        raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
+    check_trials(goals, params, trials, horizon_forms=0, commit_forms=1, clip_speed=clip_speed)
+    limits = _limits(_commit_arrivals(goals, params, clip_speed), by_step)
+    step_length = params.v_max * params.dt
+    total = np.zeros((4, goals.m), dtype=np.int64)
+    rows = np.arange(goals.m)
+    for part in _commit_chunks(goals, params, trials, rng, clip_speed, (params.cost,), rows):
+        total += _commit_counts(part[params.cost], limits, step_length)
+    return _rates(total, limits, trials, goals.names)
+
+
+def _limits(arrival: IntArray, by_step: Sequence[int | None]) -> list[int]:
+    """Each goal's step its commit is counted by: the certified step, else arrival."""
+    return [int(arrival[i]) if s is None else int(s) for i, s in enumerate(by_step)]
+
+
+def _commit_counts(
+    first: tuple[IntArray, IntArray, FloatArray], limits: Sequence[int], step_length: float
+) -> IntArray:
+    """``(4, M)`` counts per true goal of first commits: on it by its limit step, on it
+    before coming further along the way than the limit's distance, on another goal, and on
+    it before arrival."""
+    step, goal, progress = first
+    out = np.zeros((4, len(limits)), dtype=np.int64)
+    for i, limit in enumerate(limits):
+        on_true = goal[i] == i
+        out[0, i] = np.sum(on_true & (step[i] <= limit))
+        out[1, i] = np.sum(on_true & (progress[i] <= limit * step_length + 1e-12))
+        out[2, i] = np.sum((goal[i] >= 0) & ~on_true)
+        out[3, i] = np.sum(on_true)
+    return out
+
+
+def _rates(
+    counts: IntArray, limits: Sequence[int], trials: int, names: Sequence[str]
+) -> dict[str, GoalCommitRate]:
     out: dict[str, GoalCommitRate] = {}
-    trials = rollouts.step.shape[1]
     for i, name in enumerate(names):
-        step = by_step[i]
-        limit = int(rollouts.arrival_steps[i]) if step is None else int(step)
-        on_true = rollouts.goal[i] == i
-        timely = int(np.sum(on_true & (rollouts.step[i] <= limit)))
+        timely, early, wrong, on_true = (int(c) for c in counts[:, i])
         lo, hi = clopper_pearson(timely, trials)
-        early = int(
-            np.sum(on_true & (rollouts.progress[i] <= limit * rollouts.step_length + 1e-12))
-        )
         out[name] = GoalCommitRate(
             rate_by_step=timely / trials,
             lower95=lo,
             upper95=hi,
             rate_by_progress=early / trials,
             progress_upper95=clopper_pearson(early, trials)[1],
-            wrong=float(np.mean((rollouts.goal[i] >= 0) & ~on_true)),
-            before_arrival=float(np.mean(on_true)),
-            by_step=limit,
+            wrong=wrong / trials,
+            before_arrival=on_true / trials,
+            by_step=limits[i],
             trials=trials,
         )
     return out

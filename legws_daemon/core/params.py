@@ -22,7 +22,7 @@ class Params:
         sigma: joystick velocity noise, m/s (per axis standard deviation).
         v_max: end-effector speed at full deflection, m/s.
         dt: control period, s.
-        alpha: accepted failure probability of the certificate.
+        alpha: accepted failure probability of the certificate, in ``[1e-9, 0.5]``.
         horizon_fraction: ``eta``, fraction of the way to the goal at which the
             decision is wanted.
         cost: cost form of the observer, ``dragan`` (default) or ``ratio``.
@@ -40,16 +40,13 @@ class Params:
     p_thresh: float = 0.9
 
     def __post_init__(self) -> None:
-        for name, (lo, hi) in _RANGES.items():
+        for name, (lo, hi) in RANGES.items():
             value = getattr(self, name)
             if not (_is_real(value) and math.isfinite(value) and lo <= value <= hi):
-                raise InputError(
-                    f"expected a number in [{lo:g}, {hi:g}], got {value!r}", field=name
-                )
-        unit_open = {"alpha": self.alpha, "p_thresh": self.p_thresh}
-        for name, value in unit_open.items():
-            if not (_is_real(value) and 0.0 < value < 1.0):
-                raise InputError(f"expected a number in (0, 1), got {value!r}", field=name)
+                raise InputError(range_problem(name, value), field=name)
+        p = self.p_thresh
+        if not (_is_real(p) and 0.0 < p < 1.0):
+            raise InputError(f"expected a number in (0, 1), got {p!r}", field="p_thresh")
         eta = self.horizon_fraction
         if not (_is_real(eta) and 0.0 < eta <= 1.0):
             raise InputError(f"expected a number in (0, 1], got {eta!r}", field="horizon_fraction")
@@ -65,15 +62,38 @@ class Params:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-#: Closed ranges of the physical parameters: wide enough for any real set-up, narrow enough
-#: that no computation downstream overflows or runs for ever.
-_RANGES: dict[str, tuple[float, float]] = {
+#: Closed ranges of the numeric parameters: wide enough for any real set-up, narrow enough
+#: that no computation downstream overflows, turns non-finite or runs for ever. The CLI's
+#: options declare the same ranges.
+RANGES: dict[str, tuple[float, float]] = {
     "beta": (1e-6, 1e3),
     "rotation_weight": (0.0, 10.0),
     "sigma": (1e-9, 10.0),
     "v_max": (1e-3, 10.0),
     "dt": (1e-4, 10.0),
+    "alpha": (1e-9, 0.5),
 }
+
+#: Why a range ends where it does (below its low end, above its high end), where the reason
+#: is not plain physics.
+_WHY: dict[str, tuple[str, str]] = {
+    "alpha": (
+        "a failure probability below 1e-9 is beyond what the Gaussian, linearised model can "
+        "promise or a Monte Carlo check can test (and near 1e-17 its normal quantile leaves "
+        "double precision)",
+        "above 0.5 the certificate would promise less than a coin flip",
+    ),
+}
+
+
+def range_problem(name: str, value: object) -> str:
+    """The one-line message of a parameter outside :data:`RANGES` (with the reason)."""
+    lo, hi = RANGES[name]
+    text = f"expected a number in [{lo:g}, {hi:g}], got {value!r}"
+    if name in _WHY and isinstance(value, int | float) and math.isfinite(value):
+        low, high = _WHY[name]
+        text += f": {low}" if value < lo else f": {high}" if value > hi else ""
+    return text
 
 
 def _is_real(value: object) -> bool:

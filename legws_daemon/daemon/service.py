@@ -43,7 +43,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import IO, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import zenoh
@@ -77,6 +77,7 @@ from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorke
 from legws_daemon.daemon.ticker import Ticker
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import StopMessage, bridge_keys, parse_stop, stop_role
+from legws_daemon.formats.files import LineFile
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
@@ -274,7 +275,7 @@ class DaemonConfig:
     zenoh_config: zenoh.Config
     telemetry: Telemetry | None = None
     duration: float | None = None
-    trace: IO[str] | None = None
+    trace: LineFile | None = None
     graph: TaskGraph | None = None
     plan: Plan | None = None
     scene_loader: Callable[[str], Scene] = field(default=lambda name: catalog_scene(name))
@@ -962,11 +963,10 @@ class DaemonService:
             row["wall_received"] = rec.sample_received + wall_minus_mono
         try:
             out.write(json.dumps(row) + "\n")
-        except (OSError, ValueError) as err:  # a full disk ends the trace, not the control
+        except InputError as err:  # a full disk ends the trace, not the control
+            # the file was cut back to its last whole line and closed
             self._trace_failed = True
-            with contextlib.suppress(OSError, ValueError):
-                out.close()  # closed even when its last flush fails: nothing raises at exit
-            self._emit(TraceFailed(f"{type(err).__name__}: {err}"))
+            self._emit(TraceFailed(str(err)))
 
     def _fail_pending(self) -> None:
         """At shutdown: answer every command not carried out; discard a prepared load."""

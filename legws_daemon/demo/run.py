@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.files import last_line, open_output, output_folder, write_atomic
 from legws_daemon.formats.profile import ProfileSpec, TransportSpec
 from legws_daemon.joystick.publisher import Publisher, Sample
 from legws_daemon.joystick.sim_user import SimUser, StatusWatch
@@ -143,7 +143,7 @@ def run_demo(
 ) -> DemoResult:
     """Run the daemon and a simulated user through ``taskgraph``; write the recording, the
     daemon's log and the summary (JSON and Markdown) into ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     port = free_port()
     cfg_path = out / "zenoh.json5"
     write_atomic(cfg_path, zenoh_json5(port).encode())
@@ -155,8 +155,10 @@ def run_demo(
         args += ["--plan", str(plan)]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     t0 = time.monotonic()
-    with (out / "daemon.log").open("wb") as daemon_log:
-        daemon = subprocess.Popen(args, stdout=daemon_log, stderr=subprocess.STDOUT, env=env)
+    with open_output(out / "daemon.log") as daemon_log:
+        daemon = subprocess.Popen(
+            args, stdout=daemon_log.fileno(), stderr=subprocess.STDOUT, env=env
+        )
         try:
             result = _drive(taskgraph, profile, port, seed, timeout, daemon, log)
         finally:
@@ -168,7 +170,7 @@ def run_demo(
                 daemon.kill()
                 code = daemon.wait(10)
     if code != 0:
-        tail = (out / "daemon.log").read_text(errors="replace").strip().splitlines()[-1:]
+        tail = last_line(out / "daemon.log").split()
         raise LegwsError(f"the daemon exited with {code}: {' '.join(tail)}")
     result.seconds = time.monotonic() - t0
     result.recording = str(recording)

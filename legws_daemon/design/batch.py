@@ -10,6 +10,8 @@ assets fetched (``legws assets fetch``).
 from __future__ import annotations
 
 import os
+import re
+import socket
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -18,7 +20,13 @@ from pathlib import Path
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.robot.assets import sawyer_dir
 from legws_daemon.workers import worker_context
+
+#: A Dask scheduler address as ``--dask`` takes it.
+DASK_ADDRESS = re.compile(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d{1,5})?")
+#: Seconds to reach the scheduler: a live one answers in well under a second.
+DASK_CONNECT_TIMEOUT = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +66,9 @@ def executor(dask: str | None, workers: int) -> Iterator[Executor]:
         with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
             yield pool
         return
+    if not DASK_ADDRESS.fullmatch(dask):
+        raise InputError(f"expected tcp://HOST:PORT, got {dask!r}", field="--dask")
+    _probe_scheduler(dask)
     try:
         from distributed import Client
     except ImportError:
@@ -65,7 +76,9 @@ def executor(dask: str | None, workers: int) -> Iterator[Executor]:
             "--dask needs the optional extra: pip install 'legws[dask]'", field="--dask"
         ) from None
     try:
-        client = Client(dask, timeout=10, set_as_default=False)  # type: ignore[no-untyped-call]
+        client = Client(  # type: ignore[no-untyped-call]
+            dask, timeout=DASK_CONNECT_TIMEOUT, set_as_default=False
+        )
     except (OSError, TimeoutError) as err:
         raise InputError(
             f"cannot reach the Dask scheduler at {dask}: {err}", field="--dask"
@@ -76,16 +89,43 @@ def executor(dask: str | None, workers: int) -> Iterator[Executor]:
         client.close()  # type: ignore[no-untyped-call]
 
 
+def _probe_scheduler(address: str) -> None:
+    """One TCP connection to a ``tcp://`` scheduler first: nobody there (refused, no route)
+    is one line at once, before Dask is imported or anything is printed."""
+    scheme, _, rest = address.partition("://")
+    host, _, port = rest.rpartition(":")
+    if scheme != "tcp" or not port.isdigit():
+        return
+    if not 1 <= int(port) <= 65535:
+        raise InputError(f"port {port} is not in 1-65535", field="--dask")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), DASK_CONNECT_TIMEOUT):
+            pass
+    except OSError as err:
+        raise InputError(
+            f"cannot reach the Dask scheduler at {address}: {err.strerror or err}", field="--dask"
+        ) from None
+
+
 def run_all(
     jobs: Sequence[Job],
     *,
     dask: str | None = None,
     workers: int = min(2, os.cpu_count() or 1),
     progress: Callable[[dict[str, Any]], object] | None = None,
+    started: Callable[[], object] | None = None,
 ) -> list[dict[str, Any]]:
-    """Run every job; results in the order of ``jobs``."""
+    """Run every job; results in the order of ``jobs``.
+
+    ``started`` is called once the pool or the cluster is there (a progress bar appears
+    only then: a scheduler that cannot be reached is one error line, nothing before it).
+    """
     results: dict[int, dict[str, Any]] = {}
+    if dask is None:
+        sawyer_dir()  # a missing or damaged robot model: one line here, not in each worker
     with executor(dask, workers) as pool:
+        if started is not None:
+            started()
         futures = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
         for fut in as_completed(futures):
             try:

@@ -22,7 +22,6 @@ import io
 import json
 import math
 import os
-import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -40,9 +39,10 @@ from legws_daemon.core.params import Params
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import GRID, SearchResult, search
 from legws_daemon.errors import InfeasibleError, LegwsError
-from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.files import output_folder, read_limited, write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
-from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.formats.validation import read_json
+from legws_daemon.robot.assets import model_digest
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.planner import FEASIBILITY, MotionPlanner, stand_in_planner
@@ -82,8 +82,8 @@ def settings_key(scene: Scene, settings: dict[str, Any]) -> str:
     """Hash of what a run depends on: the scene file, the robot model, the settings and the
     code's version. Cheap, so that a cached run needs no simulator."""
     h = hashlib.sha256()
-    h.update(Path(scene.source).read_bytes())
-    h.update((sawyer_dir() / "robot.xml").read_bytes())
+    h.update(read_limited(Path(scene.source), "scene"))
+    h.update(model_digest().encode())  # every file of the model, verified
     extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP,
              "feasibility": FEASIBILITY}  # fmt: skip
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
@@ -200,11 +200,11 @@ def optimize(
         settings["commit_form"] = commit_form
     key = settings_key(scene, settings)
     cached = cache_dir() / key
-    out_dir.mkdir(parents=True, exist_ok=True)
+    output_folder(out_dir)
     if use_cache and all((cached / f).is_file() for f in FILES):
         for f in cached.iterdir():
-            shutil.copyfile(f, out_dir / f.name)
-        summary: dict[str, Any] = json.loads((out_dir / "summary.json").read_text())
+            write_atomic(out_dir / f.name, read_limited(f, "cache file"))
+        summary: dict[str, Any] = read_json(out_dir / "summary.json", "summary")
         summary["cached"] = True
         return summary
     world = World(scene)
@@ -264,8 +264,8 @@ def optimize(
             summary["render_error"] = str(err)
     write_atomic(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
     if use_cache:
-        cached.mkdir(parents=True, exist_ok=True)
+        output_folder(cached)
         for f in out_dir.iterdir():
             if f.is_file() and (f.name in FILES or f.name == "best_layout.png"):
-                shutil.copyfile(f, cached / f.name)
+                write_atomic(cached / f.name, read_limited(f, "cache file"))
     return summary

@@ -5,10 +5,14 @@ temporary name in the cache folder, then renamed (:func:`publish`), so a reader 
 whole plan or none: a stale folder is first renamed aside, never deleted in place.
 
 A folder is used only when it validates (:func:`load_cached`): ``plan.json`` parses and
-passes the schema, its ``key`` is the folder's name, and every picture it names is a
-complete PNG. Anything else — a truncated or garbage file, another schema, missing
-pictures, a folder without ``plan.json`` — is logged as a warning, counts as missing, and
-is planned again and replaced; it is never used, and never a traceback.
+passes the schema, its ``key`` is the folder's name, every picture it names is a complete
+PNG, and — given the task graph and the scene — every stage layout passes the checks of a
+``--layout`` file and records the certificates it gives
+(:func:`~legws_daemon.task.plan_file.check_plan`). Anything else — a truncated or garbage
+file, another schema, missing pictures, a folder without ``plan.json``, objects too close
+together or off the table, a certificate the layout does not give — is logged as a
+warning naming the stage and the failed check, counts as missing, and is planned again
+and replaced; it is never used, and never a traceback.
 """
 
 from __future__ import annotations
@@ -25,14 +29,14 @@ from pathlib import Path
 from typing import Any
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.files import write_atomic
-from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.formats.files import output_folder, read_limited, write_atomic
+from legws_daemon.robot.assets import model_digest
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.planner import FEASIBILITY
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
-from legws_daemon.task.plan_file import load_plan
+from legws_daemon.task.plan_file import check_plan, load_plan
 
 PLAN_FILE = "plan.json"
 #: A PNG file starts with this signature and ends with an ``IEND`` chunk (and its CRC).
@@ -40,6 +44,8 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"IEND\xaeB`\x82"
 
 log = logging.getLogger("legws.plan")
+#: Reads of a folder that another run keeps replacing, before it counts as unusable.
+READ_TRIES = 10
 
 
 def plan_cache_dir() -> Path:
@@ -52,40 +58,60 @@ def plan_key(graph: TaskGraph, scene: Scene, settings: dict[str, Any]) -> str:
     """Hash of the task-graph file, the scene file, the robot model and the settings."""
     h = hashlib.sha256()
     source = Path(graph.source)
-    h.update(source.read_bytes() if source.is_file() else repr(graph).encode())
-    h.update(b"\0" + Path(scene.source).read_bytes() + b"\0")
-    h.update((sawyer_dir() / "robot.xml").read_bytes())
+    h.update(read_limited(source, "task graph") if source.is_file() else repr(graph).encode())
+    h.update(b"\0" + read_limited(Path(scene.source), "scene") + b"\0")
+    h.update(model_digest().encode())  # every file of the model, verified
     extra = {"tcp": TCP_OFFSET, "gap": FINGER_GAP, "feasibility": FEASIBILITY}
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
     return h.hexdigest()[:20]
 
 
-def load_cached(folder: Path) -> Plan | None:
+def load_cached(
+    folder: Path, graph: TaskGraph | None = None, scene: Scene | None = None
+) -> Plan | None:
     """The plan cached in ``folder`` (named by its key), or ``None`` when there is none or
     it does not validate (logged as a warning: it is planned again and replaced).
 
-    A folder replaced by another run while it is read is read again (a few times).
+    With ``graph`` and ``scene``, its stage layouts and certificates are checked too
+    (:func:`~legws_daemon.task.plan_file.check_plan`).
     """
-    for _ in range(3):
+    plan, problem = read_cached(folder, graph, scene)
+    if problem is not None:
+        log.warning("legws: warning: the cached plan in %s is not usable (%s); planning "
+                    "again", folder, problem)  # fmt: skip
+    return plan
+
+
+def read_cached(
+    folder: Path, graph: TaskGraph | None = None, scene: Scene | None = None
+) -> tuple[Plan | None, str | None]:
+    """The plan cached in ``folder`` and ``None``; ``(None, None)`` when there is none;
+    ``(None, what is wrong)`` when it does not validate (as :func:`load_cached`).
+
+    A folder replaced by another run while it is read is read again (up to
+    :data:`READ_TRIES` times: a run replacing it in a tight loop can hit a few reads in a row).
+    """
+    problem = None
+    for _ in range(READ_TRIES):
         try:
             before = folder.stat()
         except OSError:
-            return None  # no entry (or it is being replaced right now)
-        plan, problem = _read(folder)
+            return None, None  # no entry (or it is being replaced right now)
+        plan, problem = _read(folder, graph, scene)
         if plan is not None:
-            return plan
+            return plan, None
         try:
             replaced = folder.stat().st_ino != before.st_ino
         except OSError:
             replaced = True
         if not replaced:
             break
-    log.warning("legws: warning: the cached plan in %s is not usable (%s); planning "
-                "again", folder, problem)  # fmt: skip
-    return None
+    return None, problem
 
 
-def _read(folder: Path) -> tuple[Plan | None, str | None]:
+def _read(
+    folder: Path, graph: TaskGraph | None, scene: Scene | None
+) -> tuple[Plan | None, str | None]:
     """The validated plan of a cache folder, or what is wrong with it."""
     problem = None
     try:
@@ -95,6 +121,8 @@ def _read(folder: Path) -> tuple[Plan | None, str | None]:
         for d in plan.decisions:
             if problem is None and d.image:
                 problem = _png_problem(folder / d.image)
+        if problem is None and graph is not None and scene is not None:
+            check_plan(plan, graph, scene, str(folder / PLAN_FILE))
     except InputError as err:
         problem = str(err)
     except Exception as err:  # anything unreadable is a corrupt cache, never a traceback
@@ -149,11 +177,8 @@ def publish(staging: Path, folder: Path) -> None:
 def copy_out(plan: Plan, out_dir: Path) -> Plan:
     """Copy ``plan.json`` and the pictures of ``plan`` (from its folder) into ``out_dir``."""
     assert plan.directory is not None
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        what = "a file is in the way" if isinstance(err, FileExistsError) else err.strerror
-        raise InputError(f"cannot create the folder: {what}", source=str(out_dir)) from None
+    output_folder(out_dir)
     for name in [PLAN_FILE, *(d.image for d in plan.decisions if d.image)]:
-        write_atomic(out_dir / name, (plan.directory / name).read_bytes())
+        kind = "plan" if name == PLAN_FILE else "picture"
+        write_atomic(out_dir / name, read_limited(plan.directory / name, kind))
     return replace(plan, directory=out_dir)

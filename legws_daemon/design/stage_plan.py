@@ -22,7 +22,10 @@ start's when the start is feasible. When nothing passes, the plan says so
 
 Plans are cached in ``$XDG_CACHE_HOME/legws/plan/<key>/`` (``plan.json`` and one top-view
 picture per decision), keyed by the task-graph file, the scene file, the robot model and
-the settings; a folder is written completely under a temporary name, then renamed.
+the settings; a folder is written completely under a temporary name, then renamed. A
+cached plan is used only when it validates, its stage layouts and certificates included
+(:func:`~legws_daemon.task.plan_file.check_plan`: the checks of a ``--layout`` file, and
+the certificates the layouts give); one that does not is logged, planned again and replaced.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from legws_daemon.design.plan_cache import (
     plan_cache_dir,
     plan_key,
     publish,
+    read_cached,
 )
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.search import SearchResult, search
@@ -327,8 +331,24 @@ def plan_settings(
 
 def cached_plan(graph: TaskGraph, scene: Scene) -> Plan | None:
     """The graph's plan with the default settings (``legws plan NAME``) from the cache, or
-    ``None`` (nothing is planned: for the daemon's ``load_taskgraph``, on the loop)."""
-    return load_cached(plan_cache_dir() / plan_key(graph, scene, plan_settings()))
+    ``None`` (nothing is planned: for the daemon's ``load_taskgraph``, on the loop).
+
+    Raises:
+        InputError: the cached plan does not validate (as in
+            :func:`~legws_daemon.design.plan_cache.load_cached`, stage layouts and
+            certificates included); the message says what is wrong and to plan it again
+            with ``legws plan NAME``.
+    """
+    folder = plan_cache_dir() / plan_key(graph, scene, plan_settings())
+    plan, problem = read_cached(folder, graph, scene)
+    if problem is not None:
+        raise InputError(
+            f"the cached plan of task graph '{graph.name}' is not usable ({problem}); plan it "
+            f"again with `legws plan {graph.name}` (the daemon does not plan on its control "
+            "loop)",
+            field="plan",
+        )
+    return plan
 
 
 def plan_taskgraph(
@@ -381,7 +401,7 @@ def plan_taskgraph(
     settings = plan_settings(method, iterations, seed, objective, commit_form, params)
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
-    cached = load_cached(folder) if use_cache else None
+    cached = load_cached(folder, graph, scene) if use_cache else None
     if cached is not None:
         return copy_out(cached, out_dir) if out_dir is not None else cached
     started = time.perf_counter()

@@ -9,13 +9,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator
 
 from legws_daemon.core.geometry import Pose
-from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.goals import MAX_GOALS, GoalSet, too_many_goals
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.scene_file import CellPosition
 from legws_daemon.formats.validation import (
     Finite,
     Quat,
-    Vec3,
     nonzero_quaternion,
     printable,
     read_json,
@@ -24,9 +24,12 @@ from legws_daemon.formats.validation import (
 
 
 class PoseSchema(BaseModel):
+    """A pose in the robot cell: the position within the bounds of a scene's (|x|, |y| <= 3 m,
+    -1 <= z <= 3 m, base frame), which also bounds every horizon at a given step length."""
+
     model_config = ConfigDict(extra="allow")
 
-    position: Vec3
+    position: CellPosition
     quaternion: Quat
 
     _q = field_validator("quaternion")(nonzero_quaternion)
@@ -57,7 +60,7 @@ class GoalSetFile(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     x0: PoseSchema
-    goals: Annotated[list[GoalSchema], Field(min_length=2)]
+    goals: Annotated[list[GoalSchema], Field(min_length=2, max_length=MAX_GOALS)]
     params: ParamsSchema = ParamsSchema()
 
 
@@ -76,7 +79,13 @@ def _strip(err: InputError) -> str:
 
 
 def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:
-    """Validate parsed JSON of a goal-set file."""
+    """Validate parsed JSON of a goal-set file.
+
+    More than :data:`~legws_daemon.core.goals.MAX_GOALS` goals are refused before any goal
+    is validated (the certificates' cost grows with the square of their number)."""
+    goals = data.get("goals") if isinstance(data, dict) else None
+    if isinstance(goals, list) and len(goals) > MAX_GOALS:
+        raise InputError(too_many_goals(len(goals)), source=source, field="goals")
     doc = validate(GoalSetFile, data, source)
     params = params_from_schema(doc.params, source)
     x0 = Pose(np.array(doc.x0.position), np.array(doc.x0.quaternion))
@@ -95,7 +104,7 @@ def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:
 
 def load_goalset(path: Path) -> tuple[GoalSet, Params]:
     """Read and validate a goal-set file; every error is one line naming file and field."""
-    return goalset_from_data(read_json(path), str(path))
+    return goalset_from_data(read_json(path, "goal set"), str(path))
 
 
 def goalset_to_data(goals: GoalSet, params: Params) -> dict[str, Any]:

@@ -428,7 +428,7 @@ class InputMapping(_Model):
 
 def load_mapping(path: Path) -> InputMapping:
     """Read and validate a mapping file; errors name the file and the field."""
-    return validate(InputMapping, read_toml(path), str(path))
+    return validate(InputMapping, read_toml(path, "input mapping"), str(path))
 
 
 def mappings_dir() -> Path:

@@ -18,10 +18,14 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
+    DuplicateKeyError,
     Finite,
     Quat,
     Vec3,
+    check_text,
     field_error,
+    printable,
+    unique_keys,
     validate,
 )
 
@@ -205,7 +209,11 @@ def parse(model: type[M], payload: bytes | str, source: str) -> M:
     if len(payload) > MAX_PAYLOAD:
         raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}", source=source)
     try:
-        data = json.loads(payload)
+        data = json.loads(payload, object_pairs_hook=unique_keys)
+    except DuplicateKeyError as dup:
+        raise InputError(
+            f"the key {printable(dup.key)!r} appears twice in one object", source=source
+        ) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise InputError(f"not JSON: {err}", source=source) from None
     except RecursionError:
@@ -218,6 +226,7 @@ def parse(model: type[M], payload: bytes | str, source: str) -> M:
             source=source,
             field="schema",
         )
+    check_text(data, source)  # labels and reasons are printed: no terminal controls
     return validate(model, data, source)
 
 

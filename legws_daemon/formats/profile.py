@@ -37,8 +37,10 @@ from legws_daemon.formats.validation import (
 Rate = Annotated[float, Strict(), Field(gt=0, le=1000)]
 Speed = Annotated[float, Strict(), Field(gt=0, le=2.0)]
 Seconds = Annotated[float, Strict(), Field(gt=0, le=60)]
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]]+):(\d{1,5})$")
-_HOST_LABEL = re.compile(r"^(?!-)[A-Za-z0-9-]{1,63}(?<!-)$")
+# matched whole (fullmatch: "$" would let a trailing line break through), ASCII digits only
+# ("\d" also takes other scripts' digits, which int() reads but zenoh does not)
+_ENDPOINT = re.compile(r"(tcp|udp|tls|quic)/(\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]]+):([0-9]{1,5})")
+_HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
 
 
 def endpoint_problem(text: str) -> str | None:
@@ -49,22 +51,31 @@ def endpoint_problem(text: str) -> str | None:
     side could not find it).
     """
     expected = "expected PROTOCOL/HOST:PORT (tcp, udp, tls or quic), e.g. tcp/127.0.0.1:7447"
-    m = _ENDPOINT.match(text)
+    quoted = _quote(text)
+    m = _ENDPOINT.fullmatch(text)
     if m is None:
-        return f"invalid endpoint {text!r}; {expected}"
-    host, port = m.group(2), int(m.group(3))
-    if not 1 <= port <= 65535:
-        return f"invalid endpoint {text!r}: port {port} is not in 1..65535"
+        port = re.fullmatch(r".*:([0-9]{6,20})", text)
+        if port is not None:
+            return f"invalid endpoint {quoted}: port {port.group(1)} is not in 1..65535"
+        return f"invalid endpoint {quoted}; {expected}"
+    host, port_number = m.group(2), int(m.group(3))
+    if not 1 <= port_number <= 65535:
+        return f"invalid endpoint {quoted}: port {port_number} is not in 1..65535"
     try:
         ipaddress.ip_address(host[1:-1] if host.startswith("[") else host)
         return None
     except ValueError:
         pass
     if host.startswith("[") or re.fullmatch(r"[0-9.]+", host):
-        return f"invalid endpoint {text!r}: {host} is not an IP address"
-    if len(host) > 253 or not all(_HOST_LABEL.match(label) for label in host.split(".")):
-        return f"invalid endpoint {text!r}: {host!r} is not a host name"
+        return f"invalid endpoint {quoted}: {host} is not an IP address"
+    if len(host) > 253 or not all(_HOST_LABEL.fullmatch(label) for label in host.split(".")):
+        return f"invalid endpoint {quoted}: {_quote(host)} is not a host name"
     return None
+
+
+def _quote(text: str) -> str:
+    """``text`` quoted on one line, at most ~80 characters of it."""
+    return repr(text) if len(text) <= 80 else repr(text[:77]) + "..."
 
 
 def _endpoint(text: str) -> str:
@@ -213,7 +224,7 @@ class ProfileSpec(_Model):
 
 def load_profile(path: Path) -> ProfileSpec:
     """Read and validate a hardware profile; errors name the file and the field."""
-    return validate(ProfileSpec, read_toml(path), str(path))
+    return validate(ProfileSpec, read_toml(path, "hardware profile"), str(path))
 
 
 def profiles_dir() -> Path:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Annotated, Literal, get_args
 
 from pydantic import (
+    AllowInfNan,
     BaseModel,
     ConfigDict,
     Field,
@@ -20,16 +21,13 @@ from pydantic import (
     model_validator,
 )
 
+from legws_daemon.core.goals import MAX_GOALS
 from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import (
     Angle,
-    Coordinate,
-    Finite,
     Name,
-    NonNegative,
     Positive,
     Quat,
-    Vec3,
     field_error,
     nonzero_quaternion,
     read_toml,
@@ -51,13 +49,39 @@ _SIZE_HELP = {
 
 Unit = Annotated[float, Strict(), Field(ge=0, le=1)]
 
+# --- physical bounds of a Sawyer cell (robot base frame, metres) ---------------------------
+#: Half the width of the cell around the robot base: the arm reaches 1.26 m, and a table of a
+#: few metres around it (the shipped one is 0.75 x 1.10 m) fits in |x|, |y| <= 3 m.
+CELL_XY = 3.0
+#: Heights in the cell: from the floor below a base on a pedestal or table (-1 m) to the
+#: ceiling (3 m).
+CELL_Z = (-1.0, 3.0)
+#: An object's extents (box sides, cylinder and sphere diameters, heights): from 1 mm (a
+#: washer; below it contact and clearance are degenerate) to 0.5 m (the arm carries 4 kg
+#: with a parallel gripper; a larger object covers most of a 0.75 m deep table). The shipped
+#: objects measure 8 mm to 0.28 m.
+MIN_EXTENT = 0.001
+MAX_EXTENT = 0.5
+#: Most objects and fixed places of one scene: twice :data:`MAX_GOALS`, and more than fit on
+#: any table of the cell (its constraints and collision checks cost the square of it).
+MAX_OBJECTS = 2 * MAX_GOALS
+
+CellXY = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-CELL_XY, le=CELL_XY)]
+CellZ = Annotated[float, Strict(), AllowInfNan(False), Field(ge=CELL_Z[0], le=CELL_Z[1])]
+#: A position inside the cell.
+CellPosition = tuple[CellXY, CellXY, CellZ]
+#: A length within the cell's width (a clearance), >= 0.
+CellLength = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=2 * CELL_XY)]
+#: A table side, > 0 and at most the cell's width.
+TableSide = Annotated[float, Strict(), AllowInfNan(False), Field(gt=0, le=2 * CELL_XY)]
+
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class PoseSpec(_Model):
-    position: Vec3
+    position: CellPosition
     quaternion: Quat
 
     _q = field_validator("quaternion")(nonzero_quaternion)
@@ -66,13 +90,13 @@ class PoseSpec(_Model):
 class WorkspaceSpec(_Model):
     """Table, bounds on object centres, clearances and the EE home pose (method.md §5)."""
 
-    table_height: Finite = 0.0
-    table_center: tuple[Finite, Finite] = (0.575, 0.0)
-    table_size: tuple[Positive, Positive] = (0.75, 1.10)
-    x_range: tuple[Finite, Finite] = (0.30, 0.85)
-    y_range: tuple[Finite, Finite] = (-0.45, 0.45)
-    min_clearance: NonNegative = 0.12
-    min_home_distance: NonNegative = 0.15
+    table_height: CellZ = 0.0
+    table_center: tuple[CellXY, CellXY] = (0.575, 0.0)
+    table_size: tuple[TableSide, TableSide] = (0.75, 1.10)
+    x_range: tuple[CellXY, CellXY] = (0.30, 0.85)
+    y_range: tuple[CellXY, CellXY] = (-0.45, 0.45)
+    min_clearance: CellLength = 0.12
+    min_home_distance: CellLength = 0.15
     ee_home: PoseSpec = PoseSpec(position=(0.55, 0.0, 0.30), quaternion=(0.0, 1.0, 0.0, 0.0))
 
     @model_validator(mode="after")
@@ -82,6 +106,12 @@ class WorkspaceSpec(_Model):
                 raise field_error((field,), f"must be [low, high] with low < high, got {[lo, hi]}")
         cx, cy = self.table_center
         sx, sy = self.table_size
+        if abs(cx) + sx / 2 > CELL_XY or abs(cy) + sy / 2 > CELL_XY:
+            raise field_error(
+                ("table_size",),
+                f"the table must lie within |x|, |y| <= {CELL_XY:g} m of the robot base (the "
+                f"cell), got centre {[cx, cy]} and size {[sx, sy]}",
+            )
         if not (
             cx - sx / 2 <= self.x_range[0]
             and self.x_range[1] <= cx + sx / 2
@@ -105,8 +135,8 @@ class ObjectSpec(_Model):
     grasp: GraspKind = "top"
     symmetry: Annotated[int, Strict(), Field(ge=0, le=360)] | None = None
     movable: Annotated[bool, Strict()] = True
-    x: Coordinate
-    y: Coordinate
+    x: CellXY
+    y: CellXY
     yaw: Angle = 0.0
 
     @model_validator(mode="after")
@@ -118,7 +148,23 @@ class ObjectSpec(_Model):
                 f"size of a {self.shape} must be {_SIZE_HELP[self.shape]} ({want} numbers), "
                 f"got {len(self.size)}",
             )
+        for i, (what, extent) in enumerate(_extents(self.shape, self.size)):
+            if not MIN_EXTENT <= extent <= MAX_EXTENT:
+                raise field_error(
+                    ("size", i),
+                    f"the {self.shape}'s {what} is {extent:.4g} m; objects measure "
+                    f"{MIN_EXTENT:g} to {MAX_EXTENT:g} m",
+                )
         return self
+
+
+def _extents(shape: str, size: list[float]) -> list[tuple[str, float]]:
+    """The named extents of an object's ``size`` numbers, one per number."""
+    if shape == "box":
+        return [(f"{axis} side", v) for axis, v in zip("xyz", size, strict=True)]
+    if shape == "cylinder":
+        return [("diameter", 2 * size[0]), ("height", size[1])]
+    return [("diameter", 2 * size[0])]
 
 
 class PlaceSpec(_Model):
@@ -126,7 +172,7 @@ class PlaceSpec(_Model):
 
     name: Name
     label: str | None = None
-    position: Vec3
+    position: CellPosition
     quaternion: Quat
     symmetry: Annotated[int, Strict(), Field(ge=0, le=360)] = 1
 
@@ -139,8 +185,8 @@ class SceneSpec(_Model):
     tier: str | None = None
     description: str = ""
     workspace: WorkspaceSpec = WorkspaceSpec()
-    objects: Annotated[list[ObjectSpec], Field(min_length=2)]
-    places: list[PlaceSpec] = []
+    objects: Annotated[list[ObjectSpec], Field(min_length=2, max_length=MAX_OBJECTS)]
+    places: Annotated[list[PlaceSpec], Field(max_length=MAX_OBJECTS)] = []
     goals: list[Name] | None = None
 
     @model_validator(mode="after")
@@ -169,12 +215,18 @@ class SceneSpec(_Model):
                 f"a scene needs at least 2 candidate goals (movable objects), "
                 f"has {len(candidates)}",
             )
+        if len(candidates) > MAX_GOALS:
+            raise field_error(
+                ("goals",) if self.goals is not None else ("objects",),
+                f"a scene has at most {MAX_GOALS} candidate goals (movable objects, or the "
+                f"list goals), has {len(candidates)}",
+            )
         return self
 
 
 def load_scene_spec(path: Path) -> SceneSpec:
     """Read and validate a scene file; errors name the file and the field."""
-    spec = validate(SceneSpec, read_toml(path), str(path))
+    spec = validate(SceneSpec, read_toml(path, "scene"), str(path))
     if spec.name != path.stem:
         raise InputError(
             f"expected '{path.stem}' (the file's name), got '{spec.name}'",

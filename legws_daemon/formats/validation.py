@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -11,6 +12,7 @@ from typing import Annotated, Any, TypeVar
 from pydantic import AllowInfNan, BaseModel, Field, Strict, ValidationError
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import read_limited
 
 #: Largest magnitude accepted for any coordinate or size, metres: far beyond any robot cell,
 #: small enough that nothing downstream can overflow.
@@ -113,15 +115,21 @@ def validate(model: type[M], data: Any, source: str) -> M:
         raise one_line(err, source) from None
 
 
-def read_json(path: Path) -> Any:
-    """Parse a JSON file; syntax errors name file, line and column.
+def read_json(path: Path, kind: str = "text") -> Any:
+    """Parse a JSON file of ``kind`` (its size limit: :data:`~legws_daemon.formats.files.LIMITS`).
 
-    ``NaN`` and ``Infinity`` literals parse (as Python's json module allows) and are then
-    rejected by the schema's finite-number fields, so the message names the field.
+    Syntax errors name file, line and column; a key given twice in one object and text
+    with control or bidirectional characters (:func:`check_text`) are refused. ``NaN``
+    and ``Infinity`` literals parse (as Python's json module allows) and are then rejected
+    by the schema's finite-number fields, so the message names the field.
     """
-    text = read_text(path)
+    text = read_text(path, kind)
     try:
-        return json.loads(text)
+        data = json.loads(text, object_pairs_hook=unique_keys)
+    except DuplicateKeyError as dup:
+        raise InputError(
+            f"the key {printable(dup.key)!r} appears twice in one object", source=str(path)
+        ) from None
     except json.JSONDecodeError as err:
         raise InputError(
             f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}", source=str(path)
@@ -130,11 +138,36 @@ def read_json(path: Path) -> Any:
         raise InputError("invalid JSON: nested too deeply", source=str(path)) from None
     except ValueError as err:  # e.g. an integer of more than 4300 digits
         raise InputError(f"invalid JSON: {err}", source=str(path)) from None
+    check_text(data, str(path))
+    return data
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; errors name the file and the position."""
-    text = read_text(path)
+class DuplicateKeyError(ValueError):
+    """A JSON object names a key twice (raised by :func:`unique_keys`)."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of :func:`json.loads`: a key given twice is an error (the
+    json module would keep the last one silently)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise DuplicateKeyError(key)
+        out[key] = value
+    return out
+
+
+def read_toml(path: Path, kind: str = "text") -> dict[str, Any]:
+    """Parse a TOML file of ``kind``; errors name the file and the position.
+
+    TOML itself forbids a key given twice; text with control or bidirectional characters
+    (:func:`check_text`) and non-finite numbers are refused.
+    """
+    text = read_text(path, kind)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
@@ -144,6 +177,7 @@ def read_toml(path: Path) -> dict[str, Any]:
     except ValueError as err:  # e.g. an integer of more than 4300 digits
         raise InputError(f"invalid TOML: {err}", source=str(path)) from None
     _reject_non_finite(data, str(path), ())
+    check_text(data, str(path))
     return data
 
 
@@ -160,14 +194,50 @@ def _reject_non_finite(value: Any, source: str, loc: tuple[int | str, ...]) -> N
             _reject_non_finite(v, source, (*loc, i))
 
 
-def read_text(path: Path) -> str:
+#: Characters no text from a file may hold: C0/C1 controls other than tab and line feed
+#: (ESC starts terminal escapes, CR overwrites a line, NUL cuts strings), the line and
+#: paragraph separators, and the bidirectional controls that reorder what a terminal
+#: shows (the "Trojan Source" characters).
+_BIDI = "\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069"
+_FORBIDDEN = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028\u2029" + _BIDI + "]")
+
+
+def unsafe_character(text: str) -> str | None:
+    """The first character of ``text`` that must not reach a terminal, or ``None``."""
+    found = _FORBIDDEN.search(text)
+    return found.group() if found else None
+
+
+def check_text(value: Any, source: str, loc: tuple[int | str, ...] = ()) -> None:
+    """Refuse control and bidirectional characters in every key and string of ``value``.
+
+    Names, labels, prompts and descriptions are printed on terminals and in tables: a
+    character that moves the cursor, clears the screen or reorders text is refused at
+    load, in one line naming the file, the field and the character (as U+XXXX).
+    """
+    if isinstance(value, str):
+        bad = unsafe_character(value)
+        if bad is not None:
+            raise InputError(
+                f"holds the control character U+{ord(bad):04X}; text may not hold control "
+                "or bidirectional characters",
+                source=source,
+                field=field_path(loc),
+            )
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            check_text(str(k), source, (*loc, k))
+            check_text(v, source, (*loc, k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            check_text(v, source, (*loc, i))
+
+
+def read_text(path: Path, kind: str = "text") -> str:
+    """The UTF-8 text of a regular file of ``kind``, within its size limit
+    (:func:`~legws_daemon.formats.files.read_limited`)."""
+    data = read_limited(path, kind)
     try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("no such file", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a file", source=str(path)) from None
+        return data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError("not a UTF-8 text file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read: {err.strerror}", source=str(path)) from None

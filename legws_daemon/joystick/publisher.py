@@ -26,11 +26,12 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import IO, Any
+from typing import Any
 
 import zenoh
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.files import LineFile, open_output
 from legws_daemon.formats.messages import SCHEMA_VERSION, Buttons, JoystickMessage, dump
 from legws_daemon.formats.profile import ProfileSpec, TransportSpec
 from legws_daemon.formats.validation import validate
@@ -146,7 +147,7 @@ class Publisher:
         self._stack: ExitStack | None = None
         self._session: zenoh.Session | None = None
         self._publisher: zenoh.Publisher | None = None
-        self._record: IO[str] | None = None
+        self._record: LineFile | None = None
         self.session_id = new_session_id()
 
     @classmethod
@@ -283,8 +284,9 @@ class Publisher:
                 raise LegwsError(f"{self.key}: cannot publish: {err}") from None
             self._seq += 1
             if self._record is not None:
-                self._record.write(payload.decode() + "\n")
-                self._record.flush()
+                record, self._record = self._record, None
+                record.write(payload.decode() + "\n")  # a full disk: the error, once
+                self._record = record
             return message
 
     def publish_zero(self) -> JoystickMessage:
@@ -336,14 +338,10 @@ class Publisher:
 
 
 @contextmanager
-def _open_record(path: Path) -> Iterator[IO[str]]:
-    try:
-        out = path.open("a", encoding="utf-8")
-    except OSError as err:
-        raise InputError(
-            f"cannot open for writing: {err.strerror or err}", source=str(path)
-        ) from None
-    with out:
+def _open_record(path: Path) -> Iterator[LineFile]:
+    """The recording, appended to line by line; a full disk is one line (the file keeps
+    its whole lines), a device or folder in its place is refused."""
+    with open_output(path, append=True) as out:
         yield out
 
 

@@ -35,7 +35,7 @@ def load_recording(path: Path) -> list[JoystickMessage]:
     a file without messages.
     """
     messages: list[JoystickMessage] = []
-    for number, line in enumerate(read_text(path).splitlines(), start=1):
+    for number, line in enumerate(read_text(path, "joystick log").splitlines(), start=1):
         if not line.strip():
             continue
         where = f"{path}:{number}"

@@ -5,20 +5,34 @@ standalone ``robots/sawyer`` folder. robosuite itself is never installed (it pin
 mink): the wheel is downloaded with ``pip download --no-deps`` and only that folder is
 unpacked into the asset cache. Nothing is downloaded at run time.
 
+Integrity: the fetch writes a manifest into the folder's marker ``legws-asset.json`` (every
+file's relative path, size and sha256, and one digest over them all). Every
+:func:`sawyer_dir` checks the folder against it, because this model also drives the real
+arm's kinematics: a missing, changed, truncated or replaced file is one ``InputError``
+naming the file and the command that restores the folder. Hashing the ~55 MB folder takes
+~0.15 s; the result is kept per process for each file's (path, size, mtime, ctime, inode),
+so later calls only ``lstat`` the files (~1 ms) and a changed file is hashed again.
+
 Cache location: ``$LEGWS_ASSETS``, else ``.assets/`` in a source checkout, else
 ``~/.cache/legws/assets``.
 """
 
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import os
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
+import threading
 import zipfile
-from pathlib import Path
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
 
@@ -26,6 +40,29 @@ ROBOSUITE_VERSION = "1.5.2"
 _PREFIX = "robosuite/models/assets/robots/sawyer/"
 _MARKER = "legws-asset.json"
 FETCH_COMMAND = "./dev setup   (or: legws assets fetch)"
+#: What restores a damaged model: download it again and replace the folder atomically.
+RESTORE_COMMAND = "legws assets fetch --force"
+MANIFEST_VERSION = 1
+#: Bytes read at a time when hashing, and the largest marker file read at all.
+_CHUNK = 1 << 20
+_MAX_MARKER = 1 << 20
+
+
+@dataclass(frozen=True, slots=True)
+class ManifestEntry:
+    path: str  # relative, POSIX separators
+    size: int
+    sha256: str
+
+
+@dataclass(frozen=True, slots=True)
+class Verified:
+    """A model folder that matched its manifest."""
+
+    folder: Path
+    files: int
+    size: int
+    digest: str  # sha256 over the manifest's entries: one name for the whole model
 
 
 def assets_dir() -> Path:
@@ -39,22 +76,297 @@ def assets_dir() -> Path:
 
 
 def sawyer_dir(root: Path | None = None) -> Path:
-    """Folder holding ``robot.xml`` and its meshes.
+    """Folder holding ``robot.xml`` and its meshes, checked against the fetch's manifest.
 
     Raises:
-        InputError: one line saying which command fetches the model when it is missing.
+        InputError: one line saying which command fetches the model when it is missing, or
+            which file is damaged and which command restores it.
     """
-    d = (root or assets_dir()) / "sawyer"
-    marker = d / _MARKER
-    if not (d / "robot.xml").is_file() or not marker.is_file():
-        raise InputError(f"the Sawyer model is not in {d}; fetch it with: {FETCH_COMMAND}")
-    return d
+    return verify(root).folder
+
+
+def model_digest(root: Path | None = None) -> str:
+    """The verified model's overall sha256 (e.g. for cache keys that depend on the robot)."""
+    return verify(root).digest
+
+
+# --- hashing ------------------------------------------------------------------------------
+class _DamagedError(Exception):
+    """One file of the model does not match: how, and which sub-folder when it is that."""
+
+    def __init__(self, how: str, what: str | None = None) -> None:
+        super().__init__(how)
+        self.how = how
+        self.what = what
+
+
+def _hash_file(path: Path, expected_size: int) -> str:
+    """sha256 of a regular file of ``expected_size`` bytes, read in bounded chunks.
+
+    Refuses a symlink (``O_NOFOLLOW``), a device, a FIFO or a folder (checked on the open
+    descriptor, so a swap between check and open is caught) and never reads more than
+    ``expected_size + 1`` bytes.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise _DamagedError("is a symlink, expected a regular file") from None
+        raise _DamagedError(f"cannot be read ({err.strerror or err})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise _DamagedError("is not a regular file")
+        h = hashlib.sha256()
+        remaining = expected_size + 1  # one byte more shows a file that grew meanwhile
+        while remaining > 0:
+            try:
+                block = os.read(fd, min(_CHUNK, remaining))
+            except OSError as err:
+                raise _DamagedError(f"cannot be read ({err.strerror or err})") from None
+            if not block:
+                break
+            h.update(block)
+            remaining -= len(block)
+        if remaining != 1:
+            raise _DamagedError("changed size while it was read")
+        return h.hexdigest()
+    finally:
+        os.close(fd)
+
+
+def _overall_digest(entries: list[ManifestEntry]) -> str:
+    h = hashlib.sha256()
+    for e in sorted(entries, key=lambda e: e.path):
+        h.update(f"{e.path}\0{e.size}\0{e.sha256}\n".encode())
+    return h.hexdigest()
+
+
+# --- the manifest -------------------------------------------------------------------------
+def _clean_relpath(text: object) -> str | None:
+    """``text`` as a safe relative POSIX path inside the folder, else None."""
+    if not isinstance(text, str) or not text or "\\" in text:
+        return None
+    if any(ord(c) < 32 or ord(c) == 127 for c in text):
+        return None
+    p = PurePosixPath(text)
+    if p.is_absolute() or any(part in ("", ".", "..") for part in text.split("/")):
+        return None
+    return str(p)
+
+
+def _parse_manifest(raw: object) -> tuple[list[ManifestEntry], str]:
+    """Entries and overall digest of a marker's ``manifest``; ValueError names the flaw."""
+    if not isinstance(raw, dict):
+        raise ValueError(
+            "has no manifest (written by an older legws: nothing to check the files against)"
+        )
+    if raw.get("version") != MANIFEST_VERSION or raw.get("algorithm") != "sha256":
+        raise ValueError(
+            f"has a manifest that is not version {MANIFEST_VERSION} with sha256 "
+            "(written by another legws, or edited)"
+        )
+    files = raw.get("files")
+    if not isinstance(files, list) or not files:
+        raise ValueError("has a manifest that lists no files")
+    entries: list[ManifestEntry] = []
+    seen: set[str] = set()
+    for item in files:
+        if not isinstance(item, dict):
+            raise ValueError("has a manifest entry that is not an object")
+        path = _clean_relpath(item.get("path"))
+        size, digest = item.get("size"), item.get("sha256")
+        if (
+            path is None
+            or path in seen
+            or path == _MARKER
+            or type(size) is not int
+            or size < 0
+            or not isinstance(digest, str)
+            or len(digest) != 64
+            or any(c not in "0123456789abcdef" for c in digest)
+        ):
+            raise ValueError("has a malformed manifest entry (path, size or sha256)")
+        seen.add(path)
+        entries.append(ManifestEntry(path, size, digest))
+    if "robot.xml" not in seen:
+        raise ValueError("has a manifest that does not list robot.xml")
+    overall = raw.get("digest")
+    if overall != _overall_digest(entries):
+        raise ValueError("has a manifest whose digest does not match its entries (edited)")
+    return entries, overall
+
+
+def _read_marker(marker: Path, st: os.stat_result) -> dict[str, Any]:
+    """The marker's JSON object; ValueError says why not (bounded read, regular file)."""
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError("is not a regular file")
+    if st.st_size > _MAX_MARKER:
+        raise ValueError(f"is larger than {_MAX_MARKER} bytes")
+    try:
+        with marker.open("rb") as f:
+            data = f.read(_MAX_MARKER + 1)
+        obj = json.loads(data.decode("utf-8"))
+    except OSError as err:
+        raise ValueError(f"cannot be read ({err.strerror or err})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        raise ValueError("is not valid JSON") from None
+    if not isinstance(obj, dict):
+        raise ValueError("is not a JSON object")
+    return obj
+
+
+# --- verification, cached per process -----------------------------------------------------
+_StatKey = tuple[str, int, int, int, int, int]
+#: sha256 of files already hashed, and parsed manifests, keyed on (path, size, mtime_ns,
+#: ctime_ns, inode, device): a file written, replaced or touched since has another key and
+#: is read again.
+_HASHED: dict[_StatKey, str] = {}
+_MANIFESTS: dict[_StatKey, tuple[list[ManifestEntry], str]] = {}
+_CACHE_MAX = 4096
+_LOCK = threading.Lock()
+
+
+def _stat_key(path: str, st: os.stat_result) -> _StatKey:
+    return (path, st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, st.st_dev)
+
+
+def _remember(cache: dict[_StatKey, Any], key: _StatKey, value: Any) -> None:
+    if len(cache) >= _CACHE_MAX:
+        cache.clear()
+    cache[key] = value
+
+
+def _damaged(folder: Path, what: str, how: str) -> InputError:
+    return InputError(
+        f"the Sawyer model is damaged: {folder / what} {how}; restore it with: {RESTORE_COMMAND}"
+    )
+
+
+def _lstat(path: str) -> os.stat_result:
+    try:
+        return os.lstat(path)
+    except FileNotFoundError:
+        raise _DamagedError("is missing") from None
+    except OSError as err:
+        raise _DamagedError(f"cannot be read ({err.strerror or err})") from None
+
+
+def _check_entry(folder: str, entry: ManifestEntry, dirs_ok: set[str]) -> None:
+    """Raise ``_DamagedError`` unless the file of ``entry`` matches it.
+
+    ``dirs_ok``: sub-folders already found to be real folders (not symlinks) in this check.
+    """
+    # no symlink anywhere below the folder: a link to elsewhere certifies nothing here
+    parts = entry.path.split("/")
+    sub = folder
+    for i, part in enumerate(parts[:-1]):
+        sub = f"{sub}/{part}"
+        if sub not in dirs_ok:
+            rel = "/".join(parts[: i + 1])
+            try:
+                mode = _lstat(sub).st_mode
+            except _DamagedError as err:
+                raise _DamagedError(err.how, rel) from None
+            if stat.S_ISLNK(mode):
+                raise _DamagedError("is a symlink, expected a folder", rel)
+            if not stat.S_ISDIR(mode):
+                raise _DamagedError("is not a folder", rel)
+            dirs_ok.add(sub)
+    path = f"{sub}/{parts[-1]}"
+    st = _lstat(path)
+    if stat.S_ISLNK(st.st_mode):
+        raise _DamagedError("is a symlink, expected a regular file")
+    if not stat.S_ISREG(st.st_mode):
+        raise _DamagedError("is not a regular file")
+    if st.st_size != entry.size:
+        raise _DamagedError(f"has {st.st_size} bytes, the fetch's manifest says {entry.size}")
+    key = _stat_key(path, st)
+    digest = _HASHED.get(key)
+    if digest is None:
+        digest = _hash_file(Path(path), entry.size)
+        _remember(_HASHED, key, digest)
+    if digest != entry.sha256:
+        raise _DamagedError("differs from the fetch's manifest (sha256)")
+
+
+def _manifest(marker: Path) -> tuple[list[ManifestEntry], str]:
+    """The marker's manifest, parsed once per version of the file; ValueError if bad."""
+    try:
+        st = os.lstat(marker)
+    except OSError as err:
+        raise ValueError(f"cannot be read ({err.strerror or err})") from None
+    key = _stat_key(str(marker), st)
+    cached = _MANIFESTS.get(key)
+    if cached is None:
+        cached = _parse_manifest(_read_marker(marker, st).get("manifest"))
+        _remember(_MANIFESTS, key, cached)
+    return cached
+
+
+def verify(root: Path | None = None) -> Verified:
+    """Check the Sawyer folder against its manifest (see the module's docstring).
+
+    Raises:
+        InputError: one line: not fetched (and how to fetch), or the damaged file and
+            ``legws assets fetch --force``.
+    """
+    folder = (root or assets_dir()) / "sawyer"
+    marker = folder / _MARKER
+    if not folder.is_dir() or not (marker.exists() or marker.is_symlink()):
+        if folder.is_dir() and any(folder.iterdir()):
+            raise _damaged(folder, _MARKER, "is missing (the fetch did not complete)")
+        raise InputError(
+            f"the Sawyer model is not fetched (looked in {folder}); fetch it with: {FETCH_COMMAND}"
+        )
+    with _LOCK:
+        try:
+            entries, overall = _manifest(marker)
+        except ValueError as err:
+            raise _damaged(folder, _MARKER, str(err)) from None
+        dirs_ok: set[str] = set()
+        for entry in entries:
+            try:
+                _check_entry(str(folder), entry, dirs_ok)
+            except _DamagedError as err:
+                raise _damaged(folder, err.what or entry.path, err.how) from None
+    return Verified(folder, len(entries), sum(e.size for e in entries), overall)
+
+
+def _write_manifest(folder: Path, source: dict[str, Any]) -> None:
+    """Hash every file below ``folder`` and write the marker with its manifest.
+
+    Only for a folder just unpacked by :func:`fetch` (hashing content of unknown origin
+    certifies nothing).
+    """
+    entries: list[ManifestEntry] = []
+    for dirpath, dirnames, filenames in os.walk(folder):
+        dirnames.sort()
+        for name in sorted(filenames):
+            path = Path(dirpath) / name
+            rel = path.relative_to(folder).as_posix()
+            if rel == _MARKER:
+                continue
+            st = path.lstat()
+            if not stat.S_ISREG(st.st_mode):
+                raise LegwsError(f"the fetched Sawyer folder holds a non-regular file: {rel}")
+            entries.append(ManifestEntry(rel, st.st_size, _hash_file(path, st.st_size)))
+    manifest = {
+        "version": MANIFEST_VERSION,
+        "algorithm": "sha256",
+        "digest": _overall_digest(entries),
+        "files": [{"path": e.path, "size": e.size, "sha256": e.sha256} for e in entries],
+    }
+    (folder / _MARKER).write_text(json.dumps({**source, "manifest": manifest}, indent=1))
 
 
 def fetch(root: Path | None = None, *, force: bool = False) -> Path:
     """Download robosuite's wheel with pip and unpack its Sawyer folder into the cache.
 
-    Atomic: the folder appears complete or not at all.
+    Without ``force``, an intact cached model is kept. Atomic: the new folder is unpacked
+    and hashed beside the cache, then swapped in with two renames; the old one is removed
+    after.
     """
     root = root or assets_dir()
     target = root / "sawyer"
@@ -78,14 +390,17 @@ def fetch(root: Path | None = None, *, force: bool = False) -> Path:
         with zipfile.ZipFile(wheels[0]) as wheel:
             members = [n for n in wheel.namelist() if n.startswith(_PREFIX) and not n.endswith("/")]
             for name in members:
-                dest = staging / name[len(_PREFIX) :]
+                rel = _clean_relpath(name[len(_PREFIX) :])
+                if rel is None or rel == _MARKER:
+                    raise LegwsError(f"robosuite's wheel holds an unsafe file name: {name!r}")
+                dest = staging / rel
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 with wheel.open(name) as src, dest.open("wb") as out:
-                    shutil.copyfileobj(src, out)
-        (staging / _MARKER).write_text(
-            json.dumps({"source": f"robosuite=={ROBOSUITE_VERSION}", "files": len(members)})
+                    shutil.copyfileobj(src, out, _CHUNK)
+        _write_manifest(
+            staging, {"source": f"robosuite=={ROBOSUITE_VERSION}", "files": len(members)}
         )
-        if target.exists():
-            shutil.rmtree(target)
+        if target.exists() or target.is_symlink():
+            target.rename(Path(tmp) / "old")  # removed with the temporary folder
         staging.rename(target)
     return sawyer_dir(root)

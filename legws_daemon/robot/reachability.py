@@ -64,8 +64,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.files import write_atomic
-from legws_daemon.robot.assets import assets_dir, sawyer_dir
+from legws_daemon.formats.files import output_folder, regular_file, write_atomic
+from legws_daemon.robot.assets import assets_dir, model_digest
 from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
 from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
@@ -333,7 +333,7 @@ class ReachabilityMap:
             "table_height": self.table_height,
             "build_seconds": self.build_seconds,
         }
-        path.parent.mkdir(parents=True, exist_ok=True)
+        output_folder(path.parent)
         buf = io.BytesIO()
         np.savez_compressed(
             buf,
@@ -352,6 +352,7 @@ class ReachabilityMap:
             LegwsError: unreadable, or not a map of ``grid`` (and ``key`` when given).
         """
         try:
+            regular_file(path, "reachability map")  # not a FIFO or a device in its place
             with np.load(path, allow_pickle=False) as f:
                 meta: dict[str, Any] = json.loads(str(f["meta"][()]))
                 top, side, flipped = (np.array(f[k]) for k in ("top", "side", "side_flipped"))
@@ -614,7 +615,7 @@ def cache_key(world: World, q_home: ArrayLike, grid: ReachabilityGrid = DEFAULT_
     table, home configuration, tolerances, grid and the map's format."""
     ws = world.scene.workspace
     h = hashlib.sha256()
-    h.update((sawyer_dir() / "robot.xml").read_bytes())
+    h.update(model_digest().encode())  # every file of the model, verified
     facts = {
         "format": FORMAT_VERSION,
         "tcp_offset": TCP_OFFSET,

@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.scene.scene import ObjectPose, Scene
 
 View = Literal["top", "perspective"]
@@ -279,7 +279,7 @@ def save_png(image: np.ndarray, path: str | Path) -> Path:
     from PIL import Image
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    output_folder(path.parent)
     buf = io.BytesIO()
     Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buf, format="PNG")
     return write_atomic(path, buf.getvalue())

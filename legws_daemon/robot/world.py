@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat
-from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.errors import InputError
+from legws_daemon.robot.assets import RESTORE_COMMAND, sawyer_dir
 from legws_daemon.robot.gripper import FINGER_GAP, FINGER_HALF, TCP_OFFSET
 from legws_daemon.scene.scene import ObjectPose, Scene
 
@@ -65,8 +66,20 @@ def _object_geom_size(shape: str, size: list[float]) -> list[float]:
     return [size[0], 0.0, 0.0]
 
 
+def _model_error(what: str, err: Exception) -> InputError:
+    """One line for a Sawyer model that passed its integrity check but MuJoCo refuses."""
+    detail = " ".join(str(err).split()) or type(err).__name__
+    return InputError(
+        f"MuJoCo cannot {what} the Sawyer model ({detail}); restore it with: {RESTORE_COMMAND}",
+        source=str(sawyer_dir() / "robot.xml"),
+    )
+
+
 def _robot_spec(visual: bool) -> mujoco.MjSpec:
-    robot = mujoco.MjSpec.from_file(str(sawyer_dir() / "robot.xml"))
+    try:
+        robot = mujoco.MjSpec.from_file(str(sawyer_dir() / "robot.xml"))
+    except (ValueError, mujoco.FatalError) as err:  # a bad XML, or a file it names
+        raise _model_error("load", err) from None
     for actuator in list(robot.actuators):
         robot.delete(actuator)
     for geom in list(robot.geoms):
@@ -154,17 +167,24 @@ class World:
             )
         frame = spec.worldbody.add_frame(pos=[0.0, 0.0, 0.0])
         spec.attach(_robot_spec(visual), prefix=PREFIX, frame=frame)
-        self.model = spec.compile()
+        try:
+            self.model = spec.compile()
+        except (ValueError, mujoco.FatalError) as err:  # e.g. a mesh it cannot read
+            raise _model_error("compile", err) from None
         self.data = mujoco.MjData(self.model)
         m = self.model
-        joints = [m.joint(PREFIX + j) for j in ARM_JOINTS]
+        try:
+            joints = [m.joint(PREFIX + j) for j in ARM_JOINTS]
+            ee_site = m.site(PREFIX + "ee").id
+        except KeyError as err:  # a robot.xml without the Sawyer's joints
+            raise _model_error("find the arm's joints in", err) from None
         robot_bodies = frozenset(b for b in range(m.nbody) if m.body(b).name.startswith(PREFIX))
         self.arm = ArmIndex(
             qpos=np.array([j.qposadr[0] for j in joints]),
             dof=np.array([j.dofadr[0] for j in joints]),
             lower=np.array([j.range[0] for j in joints]),
             upper=np.array([j.range[1] for j in joints]),
-            ee_site=m.site(PREFIX + "ee").id,
+            ee_site=ee_site,
             robot_bodies=robot_bodies,
         )
         self._mocap = {

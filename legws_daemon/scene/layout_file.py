@@ -40,7 +40,7 @@ def layout_from_data(data: Any, scene: Scene, source: str) -> Layout:
 
 def load_layout(path: Path, scene: Scene) -> Layout:
     """Read a layout file for ``scene``; errors name the file, the object and the field."""
-    return layout_from_data(read_json(path), scene, str(path))
+    return layout_from_data(read_json(path, "layout"), scene, str(path))
 
 
 def layout_to_data(layout: Layout) -> dict[str, dict[str, float]]:

@@ -9,6 +9,7 @@ layouts and, for optimised layouts from several runs (seeds), over runs.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -23,6 +24,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import Finite, read_json, validate
+from legws_daemon.robot.assets import sawyer_dir
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints, require_feasible
 from legws_daemon.scene.layout_file import layout_from_data, layout_to_data, load_layout
@@ -120,8 +122,8 @@ def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite
     if k < 1:
         raise InputError(f"expected K >= 1, got {k}", field="--top-k")
     path = run_dir / "elites.json"
-    if path.is_file():
-        entries = validate(_ElitesFile, read_json(path), str(path)).root
+    if os.path.lexists(path):  # a device or FIFO in its place is refused by the reader
+        entries = validate(_ElitesFile, read_json(path, "elites"), str(path)).root
         verified = [(i, e) for i, e in enumerate(entries) if e.verified]
         if len(verified) < k:
             raise InputError(
@@ -134,7 +136,7 @@ def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite
             out.append((layout, Elite(str(run_dir), e.rank, position, e.objective)))
         return out
     best = run_dir / "best_layout.json"
-    if k > 1 or not best.is_file():
+    if k > 1 or not os.path.lexists(best):
         raise InputError(
             f"no elites.json (needed for --top-k {k})"
             if k > 1
@@ -145,8 +147,8 @@ def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite
     rank: int | None = None
     objective: float | None = None
     summary_path = run_dir / "summary.json"
-    if summary_path.is_file():
-        summary = read_json(summary_path)
+    if os.path.lexists(summary_path):
+        summary = read_json(summary_path, "summary")
         if isinstance(summary, dict):
             r, o = summary.get("verified_rank"), summary.get("objective")
             rank = r if isinstance(r, int) and not isinstance(r, bool) else None
@@ -280,6 +282,7 @@ def run_eval(
     params = params or Params()
     if elites is not None and len(elites) != len(layouts):
         raise InputError(f"{len(elites)} elites for {len(layouts)} layouts")
+    sawyer_dir()  # a missing or damaged robot model: one line here, not in every worker
     started = time.perf_counter()
     jobs: list[Job] = [
         (i, dict(layout), seed, episodes_per_goal) for i, layout in enumerate(layouts)

@@ -3,10 +3,12 @@
 Stages stand in columns by their longest distance from the start (left to right), in file
 order within a column. A box shows the stage's name, action, prompt and candidates, and
 says "no inference" when the stage has a single candidate. Arrows into the next column
-are straight; arrows that skip columns (an optional step) run along a lane below the
-boxes. The arrows of a choice (a stage with several successors: the daemon infers over
-the union of their candidates) are orange; a graph that repeats has a dashed arrow from
-each end stage back to the start along a lane above the boxes.
+are straight; arrows that skip columns (an optional step) run along lanes below the
+boxes, sharing a lane where they do not overlap. The arrows of a choice (a stage with
+several successors: the daemon infers over the union of their candidates) are orange; a
+graph that repeats has a dashed arrow from each end stage back to the start along a lane
+above the boxes. Layout and drawing grow with stages and transitions, never with paths; a
+diagram over :data:`MAX_PIXELS` is refused (one error line).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import textwrap
 
 from PIL import Image, ImageDraw, ImageFont
 
+from legws_daemon.errors import InputError
 from legws_daemon.task.graph import Stage, TaskGraph
 
 BOX_WIDTH = 250
@@ -27,6 +30,10 @@ PAD = 8
 LINE = 18
 LANE = 16
 WRAP = 30  # characters per line inside a box
+#: The largest diagram drawn, pixels (below Pillow's decompression-bomb warning at about
+#: 89 million): a chain of 64 stages takes about 5 million, 64 stages of 10 successors each
+#: about 26 million (their arrows that skip columns sharing about 60 lanes).
+MAX_PIXELS = 50_000_000
 
 BACKGROUND = (255, 255, 255)
 INK = (40, 40, 40)
@@ -49,13 +56,34 @@ def _font(size: int) -> Font:
 
 
 def levels(graph: TaskGraph) -> dict[str, int]:
-    """Longest distance of each stage from the start (the graph is a DAG)."""
+    """Longest distance of each stage from the start (the graph is a DAG): one pass in
+    topological order."""
     level = dict.fromkeys(graph.stages, 0)
-    for _ in graph.stages:
-        for s in graph.stages.values():
-            for n in s.next:
-                level[n] = max(level[n], level[s.name] + 1)
+    for name in graph.order():
+        for n in graph.stages[name].next:
+            level[n] = max(level[n], level[name] + 1)
     return level
+
+
+def lanes(spans: list[tuple[float, float]], gap: float = 0.0) -> list[int]:
+    """A lane for each horizontal span ``(left, right)``: spans closer than ``gap`` get
+    different lanes, and no more lanes are used than the most spans over one point need
+    (the spans by their left end, each into the first lane free by then)."""
+    out = [0] * len(spans)
+    ends: list[float] = []  # the right end of each lane's last span
+    for i in sorted(range(len(spans)), key=lambda i: spans[i]):
+        left, right = spans[i]
+        lane = next((k for k, end in enumerate(ends) if end + gap < left), len(ends))
+        if lane == len(ends):
+            ends.append(right)
+        else:
+            ends[lane] = right
+        out[i] = lane
+    return out
+
+
+def _centre(box: Box) -> float:
+    return (box[0] + box[2]) / 2
 
 
 def box_lines(stage: Stage, fixed: tuple[str, ...] = ()) -> list[str]:
@@ -133,10 +161,18 @@ def diagram_png(graph: TaskGraph) -> bytes:
     skips = [
         (s.name, n) for s in graph.stages.values() for n in s.next if level[n] != level[s.name] + 1
     ]
+    spans = [(_centre(boxes[a]), _centre(boxes[b]) - 12) for a, b in skips]
+    lane_of = dict(zip(skips, lanes(spans, gap=2 * LANE), strict=True))
     bottom = max(b[3] for b in boxes.values())
-    width = int(max(b[2] for b in boxes.values()) + MARGIN)
-    height = int(bottom + 12 + len(skips) * LANE + MARGIN)
-    image = Image.new("RGB", (max(width, 520), height), BACKGROUND)
+    width = max(int(max(b[2] for b in boxes.values()) + MARGIN), 520)
+    height = int(bottom + 12 + (max(lane_of.values(), default=-1) + 1) * LANE + MARGIN)
+    if width * height > MAX_PIXELS:
+        raise InputError(
+            f"the diagram would be {width}x{height} pixels, more than "
+            f"{MAX_PIXELS // 10**6} million: too large to draw; without --png the graph is "
+            "printed as text", source=graph.source or None
+        )  # fmt: skip
+    image = Image.new("RGB", (width, height), BACKGROUND)
     draw = ImageDraw.Draw(image)
     title = f"task graph '{graph.name}' (scene {graph.scene}), repeat: {graph.repeat}"
     draw.text((MARGIN, MARGIN), title, fill=INK, font=bold)
@@ -153,16 +189,14 @@ def diagram_png(graph: TaskGraph) -> bytes:
             draw.text(
                 (x0 + PAD, y0 + PAD + i * LINE), text, fill=INK, font=bold if i == 0 else font
             )
-    lane = 0
     for s in graph.stages.values():
         colour = CHOICE if len(s.next) > 1 else PLAIN
         a = boxes[s.name]
         for n in s.next:
             b = boxes[n]
-            if (s.name, n) in skips:
-                y = bottom + 12 + lane * LANE
-                lane += 1
-                ax, bx = (a[0] + a[2]) / 2, (b[0] + b[2]) / 2 - 12
+            if (s.name, n) in lane_of:
+                y = bottom + 12 + lane_of[s.name, n] * LANE
+                ax, bx = _centre(a), _centre(b) - 12
                 _arrow(draw, [(ax, a[3]), (ax, y), (bx, y), (bx, b[3])], colour)
             else:
                 _arrow(draw, [(a[2], (a[1] + a[3]) / 2), (b[0], (b[1] + b[3]) / 2)], colour)

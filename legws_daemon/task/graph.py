@@ -61,19 +61,22 @@ class TaskGraph:
     def successors(self, stage: str) -> tuple[Stage, ...]:
         return tuple(self.stages[n] for n in self.stages[stage].next)
 
-    def paths(self) -> list[list[str]]:
-        """Every path from the start to an end stage (the graph is a small DAG)."""
-        out: list[list[str]] = []
+    def order(self) -> list[str]:
+        """Every stage, each before its successors (see :func:`topological_order`)."""
+        return topological_order(self.stages)
 
-        def walk(path: list[str]) -> None:
-            nxt = self.stages[path[-1]].next
-            if not nxt:
-                out.append(path)
-            for n in nxt:
-                walk([*path, n])
+    def path_count(self) -> int:
+        """How many paths lead from the start to an end stage: counted, not listed.
 
-        walk([self.start])
-        return out
+        One sum over the successors per stage, in reverse topological order (linear in
+        stages and transitions); exact however large (a Python int: 64 stages allow up to
+        2^62 paths, one per subset of the stages between a first and a last).
+        """
+        count: dict[str, int] = {}
+        for name in reversed(self.order()):
+            nxt = self.stages[name].next
+            count[name] = sum(count[n] for n in nxt) if nxt else 1
+        return count[self.start]
 
 
 def find_cycle(stages: dict[str, Stage]) -> list[str] | None:
@@ -101,6 +104,31 @@ def find_cycle(stages: dict[str, Stage]) -> list[str] | None:
             if found:
                 return found
     return None
+
+
+def topological_order(stages: dict[str, Stage]) -> list[str]:
+    """The stages' names, each before all its successors (Kahn's algorithm: linear in
+    stages and transitions; the same order every time).
+
+    Raises:
+        ValueError: the transitions have a cycle (see :func:`find_cycle`).
+    """
+    indegree = dict.fromkeys(stages, 0)
+    for s in stages.values():
+        for n in s.next:
+            indegree[n] += 1
+    ready = [n for n in reversed(stages) if indegree[n] == 0]  # a stack, file order on top
+    order: list[str] = []
+    while ready:
+        name = ready.pop()
+        order.append(name)
+        for n in reversed(stages[name].next):
+            indegree[n] -= 1
+            if indegree[n] == 0:
+                ready.append(n)
+    if len(order) != len(stages):
+        raise ValueError(f"the stages have a cycle: {find_cycle(stages)}")
+    return order
 
 
 def reachable(stages: dict[str, Stage], start: str) -> set[str]:

@@ -23,17 +23,27 @@ Written by ``legws plan`` (:func:`legws_daemon.design.stage_plan.plan_taskgraph`
 inference; ``settings.objective`` says what the search maximised (``slack``: J,
 ``commit``: -K, ``rate``: R; absent means ``slack``).
 Errors name the file and the field, e.g. ``plan.json: decisions[1].layout.grape.x: ...``.
+
+:func:`load_plan` checks the file; :func:`check_plan` checks a plan against its task graph
+and scene before it is used (``--plan``, the plan cache): each stage layout as a
+``--layout`` file, and each recorded certificate against its recomputation.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, model_validator
 
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import CommitCertificate, certify_commit, commit_rate_estimate
+from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.goalset import ParamsSchema
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
@@ -43,9 +53,14 @@ from legws_daemon.formats.validation import (
     read_json,
     validate,
 )
+from legws_daemon.scene.constraints import LayoutConstraints
 from legws_daemon.scene.layout_file import dump_json, layout_to_data
-from legws_daemon.scene.scene import ObjectPose, Scene
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+from legws_daemon.task.actions import action, target
+from legws_daemon.task.decisions import DecisionPoint, decision_points
+from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import SCHEMA, Plan, PlannedDecision, image_name
+from legws_daemon.task.targets import goal_set
 
 Label = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*(\|[a-z][a-z0-9_]*)*$", max_length=400)]
 
@@ -209,4 +224,211 @@ def _check_scene(doc: PlanSchema, scene: Scene, source: str) -> None:
 
 def load_plan(path: Path, scene: Scene | None = None) -> Plan:
     """Read and validate ``plan.json``; its folder becomes :attr:`Plan.directory`."""
-    return replace(plan_from_data(read_json(path), str(path), scene), directory=path.parent)
+    return replace(plan_from_data(read_json(path, "plan"), str(path), scene), directory=path.parent)
+
+
+# --- validation against the task graph and the scene ------------------------------------------
+#: A certificate a plan records (``certificate``, ``certificate_start``, ``commit_objective``,
+#: ``commit_rate_estimate``) must equal its recomputation from the layout within this much:
+#: absolute up to 1, relative above. The computation is closed-form and the layout is stored
+#: exactly, so a plan ``legws plan`` wrote matches to the last bit.
+TOLERANCE = 1e-6
+
+
+class _Settings(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    params: ParamsSchema = ParamsSchema()
+
+
+class _SettingsOf(BaseModel):
+    settings: _Settings
+
+
+def plan_params(plan: Plan, source: str) -> Params:
+    """The model parameters the plan's certificates were computed with (``settings.params``;
+    absent: the method's defaults)."""
+    doc = validate(_SettingsOf, {"settings": plan.settings}, source)
+    values = {k: v for k, v in doc.settings.params.model_dump().items() if v is not None}
+    try:
+        return Params(**values)
+    except InputError as err:
+        message = str(err).removeprefix(f"{err.field}: ")
+        raise InputError(message, source=source, field=f"settings.params.{err.field}") from None
+
+
+def decision_goals(scene: Scene, point: DecisionPoint, layout: Layout) -> GoalSet:
+    """The targets of a decision's candidates in ``layout`` as a goal set from the EE home:
+    what ``legws plan`` certifies (two or more candidates)."""
+    stage = point.stage_of
+    targets = [target(scene, layout, stage[c], a, c) for c, a in point.actions.items()]
+    return goal_set(targets, scene.home)
+
+
+def check_plan(plan: Plan, graph: TaskGraph, scene: Scene, source: str) -> Plan:
+    """``plan`` when it is a plan of ``graph`` that the daemon may use, else an
+    :class:`InputError` naming ``source``, the decision's field, the stage and the first
+    failing check.
+
+    Every stage layout is held to the rule of ``--layout`` (:func:`require_feasible
+    <legws_daemon.scene.constraints.require_feasible>`: bounds, clearances, distance from
+    the EE home), and what the plan records must be what its layouts give:
+
+    * the plan is of ``graph`` and ``scene``, with one decision per decision point, each
+      with the graph's stages, candidates and actions;
+    * each layout names every movable object; only the decision's ``optimised`` objects
+      (movable, not fixed by the graph, placed by their action) differ from where the
+      decision starts (the layout of the decision it is reached from, or the scene file's):
+      the daemon moves exactly those when the decision begins;
+    * every recorded certificate (``certificate``, ``certificate_start``, and K, the
+      commit-certified count and R when recorded) equals its recomputation with the plan's
+      ``settings.params`` within :data:`TOLERANCE`.
+
+    A certificate is not required to be positive: ``--layout`` takes a feasible layout
+    whatever its certificate (``legws plan`` records what it could reach).
+    """
+    if plan.taskgraph != graph.name:
+        raise InputError(
+            f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'",
+            source=source,
+            field="taskgraph",
+        )
+    if plan.scene != scene.name:
+        raise InputError(
+            f"expected scene '{scene.name}', got '{plan.scene}'", source=source, field="scene"
+        )
+    params = plan_params(plan, source)
+    points = decision_points(graph)
+    index = _match(plan, points, graph, source)
+    constraints = LayoutConstraints.of(scene)
+    for k, point in enumerate(points):
+        i = index[k]
+        if point.parent is None:
+            base, where = scene.default_layout(), "the scene file"
+        else:
+            parent = plan.decisions[index[point.parent]]
+            base, where = parent.layout, f"after stage '{parent.label}'"
+        problem = _decision_problem(
+            plan.decisions[i], point, graph, scene, constraints, params, base, where
+        )
+        if problem is not None:
+            field, message = problem
+            raise InputError(
+                f"stage '{plan.decisions[i].label}': {message}",
+                source=source,
+                field=f"decisions[{i}]{field}",
+            )
+    return plan
+
+
+def _match(plan: Plan, points: list[DecisionPoint], graph: TaskGraph, source: str) -> list[int]:
+    """For each decision point, the index of its decision in the plan."""
+    index: dict[int, int] = {}
+    for i, d in enumerate(plan.decisions):
+        same = [k for k, p in enumerate(points) if p.label == d.label] or [
+            k for k, p in enumerate(points) if {s.name for s in p.stages} == set(d.stages)
+        ]
+        k = same[0] if same else None
+        if k is None:
+            raise InputError(
+                f"stage '{d.label}' is not a decision point of task graph '{graph.name}'; its "
+                f"decision points: {', '.join(p.label for p in points)}",
+                source=source,
+                field=f"decisions[{i}].label",
+            )
+        if k in index:
+            raise InputError(
+                f"stage '{d.label}' is planned twice (decisions[{index[k]}] too)",
+                source=source,
+                field=f"decisions[{i}].label",
+            )
+        p = points[k]
+        if set(d.candidates) != set(p.candidates) or dict(d.actions) != p.actions:
+            want = ", ".join(f"{c} ({a})" for c, a in p.actions.items())
+            raise InputError(
+                f"stage '{d.label}': expected the task graph's candidates {want}",
+                source=source,
+                field=f"decisions[{i}].actions",
+            )
+        index[k] = i
+    missing = [p.label for k, p in enumerate(points) if k not in index]
+    if missing:
+        raise InputError(
+            f"no layout for stage {', '.join(repr(m) for m in missing)} of task graph "
+            f"'{graph.name}'",
+            source=source,
+            field="decisions",
+        )
+    return [index[k] for k in range(len(points))]
+
+
+def _decision_problem(
+    d: PlannedDecision,
+    point: DecisionPoint,
+    graph: TaskGraph,
+    scene: Scene,
+    constraints: LayoutConstraints,
+    params: Params,
+    base: Layout,
+    where: str,
+) -> tuple[str, str] | None:
+    """The field (after ``decisions[i]``) and what is wrong, or ``None``."""
+    missing = [n for n in scene.movable if n not in d.layout]
+    unknown = [n for n in d.layout if n not in scene.movable]
+    if unknown:
+        return f".layout.{unknown[0]}", f"'{unknown[0]}' is not a movable object of the scene"
+    if missing:
+        return ".layout", f"no pose of the movable object(s) {', '.join(missing)}"
+    problems = constraints.problems(scene.poses(d.layout))
+    if problems:
+        return ".layout", f"infeasible layout: {problems[0]}"
+    for n in d.optimised:
+        if n in graph.fixed:
+            return ".optimised", f"'{n}' is fixed by the task graph and may not be placed"
+        if not action(point.actions[n]).follows_layout:
+            return ".optimised", f"'{n}' ({point.actions[n]}) is not placed by its action"
+    for n in scene.movable:
+        if n not in d.optimised and d.layout[n] != base[n]:
+            return f".layout.{n}", (
+                f"'{n}' is not placed at this stage, yet it moved from {_pose(base[n])} "
+                f"({where}) to {_pose(d.layout[n])}"
+            )
+    if not point.inference:
+        return None
+    goals = decision_goals(scene, point, d.layout)
+    start = decision_goals(scene, point, base)
+    # (field, recorded value, its recomputation, whether it is a count: exact)
+    recorded: list[tuple[str, float | None, Callable[[], float], bool]] = [
+        ("certificate", d.certificate, lambda: certify(goals, params).objective, False),
+        ("certificate_start", d.certificate_start, lambda: certify(start, params).objective,
+         False),
+        ("commit_objective", d.commit_objective, lambda: commit().objective, False),
+        ("commit_certified", d.commit_certified, lambda: commit().certified, True),
+        ("commit_rate_estimate", d.commit_rate_estimate,
+         lambda: commit_rate_estimate(goals, params), False),
+    ]  # fmt: skip
+    commits: list[CommitCertificate] = []
+
+    def commit() -> CommitCertificate:
+        if not commits:
+            commits.append(certify_commit(goals, params))
+        return commits[0]
+
+    for field, stored, recompute, exact in recorded:
+        if stored is None:
+            continue  # not recorded: a plan written before the commit fields
+        value = recompute()
+        if (stored != value) if exact else not _close(stored, value):
+            return f".{field}", (
+                f"{field} is recorded as {stored:.6g} but the layout gives {value:.6g}"
+                + ("" if exact else f" (tolerance {TOLERANCE:g})")
+            )
+    return None
+
+
+def _close(stored: float, value: float) -> bool:
+    return abs(stored - value) <= TOLERANCE * max(1.0, abs(value))
+
+
+def _pose(p: ObjectPose) -> str:
+    return f"({p.x:.3f}, {p.y:.3f}, yaw {p.yaw:.3f})"

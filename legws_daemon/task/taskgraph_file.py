@@ -3,7 +3,8 @@
 Structure is checked by the schema; meaning by :func:`check_graph` against the scene:
 every candidate an object or place of the scene, no cycle, every stage reachable from the
 first, no empty candidate set, alternatives of a choice with disjoint candidates, and
-actions that fit what the gripper holds on every path. Errors name the file, the line of
+actions that fit what the gripper holds on every path (checked without listing the
+paths: :func:`held_problem`). Errors name the file, the line of
 the stage and the field, e.g.
 ``taskgraphs/tea.toml:14: stages[1].candidates: unknown object 'mug'; ...``.
 """
@@ -11,6 +12,7 @@ the stage and the field, e.g.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -135,30 +137,82 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
     graph = TaskGraph(
         spec.name, spec.scene, stages, spec.repeat, tuple(spec.fixed), spec.description, source
     )
-    for path in graph.paths():
-        held = False
-        for name in path:
-            act = stages[name].action
-            need = action(act).needs_held
-            if need != held:
-                what = "holds nothing" if need else "already holds an object"
-                before = " -> ".join(path[: path.index(name)]) or "the start"
-                raise fail(
-                    index[name], "action", f"'{act}' after {before}: the gripper {what} there"
-                )
-            after = action(act).holds_after
-            held = held if after is None else after
-        if spec.repeat == "until_consumed" and held:
-            raise fail(index[path[-1]], "action", "the graph repeats but ends holding an object")
+    problem = held_problem(graph)
+    if problem is not None:
+        last = problem.path[-1]
+        if problem.ends_held:
+            raise fail(
+                index[last], "action", "the graph repeats but ends holding an object (after "
+                f"{' -> '.join(problem.path)})"
+            )  # fmt: skip
+        act = stages[last].action
+        what = "already holds an object" if problem.held else "holds nothing"
+        before = " -> ".join(problem.path[:-1]) or "the start"
+        raise fail(index[last], "action", f"'{act}' after {before}: the gripper {what} there")
     if spec.repeat == "until_consumed" and not action(spec.stages[0].action).takes_object:
         raise fail(0, "action", "a repeated graph must start with 'pick' (what it consumes)")
     return graph
 
 
+@dataclass(frozen=True, slots=True)
+class HeldProblem:
+    """A path on which an action does not fit what the gripper holds.
+
+    Attributes:
+        path: stage names from the start to the stage at fault (inclusive).
+        held: whether the gripper holds an object when that stage starts (``ends_held``:
+            after it).
+        ends_held: the stage's action fits, but it is an end stage of a repeated graph
+            and the gripper still holds an object after it.
+    """
+
+    path: tuple[str, ...]
+    held: bool
+    ends_held: bool = False
+
+
+def held_problem(graph: TaskGraph) -> HeldProblem | None:
+    """The first path (in the order of the ``next`` lists) on which an action does not fit
+    what the gripper holds, up to its first stage at fault; ``None``: every path fits.
+
+    No path is listed (a graph of 64 stages may have 2^62): a dynamic programme over the
+    pairs (stage, held on arrival), in reverse topological order, marks the pairs from
+    which some continuation goes wrong — the stage's action does not fit, or a repeated
+    graph ends holding an object. Following the first marked successor from (start, empty
+    gripper) gives the example path a walk of every path would have met first. Linear in
+    stages and transitions.
+    """
+    repeat = graph.repeat == "until_consumed"
+    bad: dict[tuple[str, bool], bool] = {}
+    for name in reversed(graph.order()):
+        stage = graph.stages[name]
+        act = action(stage.action)
+        for held in (False, True):
+            if act.needs_held != held:
+                bad[name, held] = True
+                continue
+            out = held if act.holds_after is None else act.holds_after
+            bad[name, held] = any(bad[n, out] for n in stage.next) if stage.next else repeat and out
+    name, held = graph.start, False
+    if not bad[name, held]:
+        return None
+    path = [name]
+    while True:
+        stage = graph.stages[name]
+        act = action(stage.action)
+        if act.needs_held != held:
+            return HeldProblem(tuple(path), held)
+        held = held if act.holds_after is None else act.holds_after
+        if not stage.next:
+            return HeldProblem(tuple(path), held, ends_held=True)
+        name = next(n for n in stage.next if bad[n, held])
+        path.append(name)
+
+
 def load_taskgraph(path: Path, scene: Scene | None = None) -> tuple[TaskGraph, Scene]:
     """Read and validate a task graph and its scene; errors name file, line and field."""
-    text = read_text(path)
-    spec = validate(TaskGraphSpec, read_toml(path), str(path))
+    text = read_text(path, "task graph")
+    spec = validate(TaskGraphSpec, read_toml(path, "task graph"), str(path))
     if spec.name != path.stem:
         raise InputError(
             f"expected '{path.stem}' (the file's name), got '{spec.name}'",

@@ -53,6 +53,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import output_path
 from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.grasps import extents
@@ -261,6 +262,10 @@ def _probe(path: Path) -> Path:
         raise InputError(f"folder {path.parent} {what}", field="--rerun")
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected a file path", field="--rerun")
+    try:
+        output_path(path)  # a device, FIFO or socket there is refused, never written to
+    except InputError as err:
+        raise InputError(str(err), field="--rerun") from None
     try:
         with path.open("wb") as out:
             out.write(b"\0")

@@ -56,11 +56,50 @@ def config_from_spec(spec: TransportSpec) -> zenoh.Config:
     return cfg
 
 
+#: Deepest nesting of objects and arrays accepted in a zenoh configuration file (a real
+#: one nests 5 levels).
+MAX_CONFIG_DEPTH = 32
+
+
+def json5_depth(text: str) -> int:
+    """The deepest nesting of ``{}``/``[]`` in JSON5 text (brackets in strings and comments
+    do not count); linear, no recursion."""
+    depth = deepest = 0
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c in "\"'":
+            i += 1
+            while i < n and text[i] != c:
+                i += 2 if text[i] == "\\" else 1
+        elif text.startswith("//", i):
+            i = text.find("\n", i)
+            i = n if i < 0 else i
+        elif text.startswith("/*", i):
+            i = text.find("*/", i + 2)
+            i = n if i < 0 else i + 1
+        elif c in "{[":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "}]":
+            depth -= 1
+        i += 1
+    return deepest
+
+
 def config_from_file(path: Path) -> zenoh.Config:
     """A zenoh configuration from a JSON5 file (``--zenoh-config``); errors name the file."""
-    read_text(path)  # one-line errors for a missing or unreadable file
+    text = read_text(path, "zenoh config")  # bounded; one line for a missing or odd file
+    depth = json5_depth(text)
+    if depth > MAX_CONFIG_DEPTH:
+        # zenoh's parser recurses per level: a deep enough file overflows its stack (SIGSEGV)
+        raise InputError(
+            f"invalid zenoh configuration: nested {depth} levels deep, at most "
+            f"{MAX_CONFIG_DEPTH} allowed",
+            source=str(path),
+        )
     try:
-        return zenoh.Config.from_file(str(path))
+        return zenoh.Config.from_json5(text)
     except Exception as err:  # zenoh raises its own error types for bad JSON5 or keys
         detail = (str(err).strip().splitlines() or [type(err).__name__])[0]
         raise InputError(f"invalid zenoh configuration: {detail}", source=str(path)) from None

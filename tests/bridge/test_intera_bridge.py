@@ -617,6 +617,11 @@ def test_limits_from_a_profile_and_flags(bridge_module: types.ModuleType, tmp_pa
         ["--profile", str(tmp_path / "missing.toml")],
         ["--profile", str(unknown)],
         ["--profile", str(text)],
+        ["--profile", "/dev/zero"],  # a device: refused before it is opened
+        ["--listen", "tcp/127.0.0.1:99999"],
+        ["--connect", "tcp/127.0.0.1:0"],
+        ["--connect", "tcp/127.0.0.1:7447\n"],
+        ["--listen", "nowhere"],
     ):
         with pytest.raises(SystemExit) as info:
             b.parse_args(argv)

@@ -121,4 +121,4 @@ def test_show_png_into_an_impossible_place_is_one_line(cli: Cli, tmp_path: Path)
     blocker = tmp_path / "file"
     blocker.write_text("")
     r = cli("taskgraph", "show", "tea", "--png", blocker / "x.png")
-    assert_bad_input(r, f"{blocker}: cannot create the folder: a file is in the way")
+    assert_bad_input(r, f"{blocker}: is a regular file, expected a folder to write into")

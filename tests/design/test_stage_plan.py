@@ -31,7 +31,7 @@ from legws_daemon.task.actions import target
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
-from legws_daemon.task.plan_file import load_plan
+from legws_daemon.task.plan_file import check_plan, load_plan
 from legws_daemon.task.targets import goal_set
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
@@ -136,6 +136,18 @@ def test_every_decision_has_a_feasible_layout(plans: dict[str, Plan], name: str)
         assert moved <= set(d.optimised), d.label
         for n in d.optimised:
             assert n in point.candidates and n not in graph.fixed
+
+
+@pytest.mark.parametrize("name", GRAPHS)
+def test_plans_pass_the_checks_of_loading(plans: dict[str, Plan], name: str) -> None:
+    """What the planner writes is what loading a plan accepts (``check_plan``: the layout
+    rule of ``--layout``, moves only of the optimised objects, the recorded certificates):
+    a cached plan is never planned again for failing them."""
+    graph, sc = load(name)
+    plan = plans[name]
+    assert plan.directory is not None
+    path = plan.directory / "plan.json"
+    assert check_plan(load_plan(path, sc), graph, sc, str(path)) == plan
 
 
 @pytest.mark.parametrize("name", GRAPHS)

@@ -153,3 +153,30 @@ def test_duplicate_labels_and_scene_mismatch(tmp_path: Path) -> None:
         load_plan(write(tmp_path, "{"))
     with pytest.raises(InputError, match="no such file"):
         load_plan(tmp_path / "missing.json")
+
+
+def test_check_plan_against_graph_and_scene_names_file_field_and_stage() -> None:
+    """The checks of loading (``check_plan``; real plans: tests/design/test_plan_validation.py)."""
+    from dataclasses import replace
+
+    from legws_daemon.core.params import Params
+    from legws_daemon.task.plan_file import check_plan, plan_params
+    from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
+
+    graph, scene = load_taskgraph(resolve_taskgraph("feeding"))
+    plan = feeding_plan()  # made up: no bowls in its layouts, invented certificates
+    with pytest.raises(InputError) as info:
+        check_plan(plan, graph, scene, "p/plan.json")
+    assert str(info.value) == (
+        "p/plan.json: decisions[0].layout: stage 'choose_food': no pose of the movable "
+        "object(s) chocolate_bowl, sprinkles_bowl"
+    )
+    tea, tea_scene = load_taskgraph(resolve_taskgraph("tea"))
+    with pytest.raises(InputError, match="taskgraph: the plan is for task graph 'feeding'"):
+        check_plan(plan, tea, tea_scene, "p/plan.json")
+    assert plan_params(plan, "p") == Params()  # no settings.params: the method's defaults
+    odd = replace(plan, settings={"params": {"alpha": 2.0}})
+    with pytest.raises(InputError, match=r"^p: settings\.params\.alpha: expected a number in"):
+        plan_params(odd, "p")
+    with pytest.raises(InputError, match=r"^p: settings\.params\.gamma: Extra inputs"):
+        plan_params(replace(plan, settings={"params": {"gamma": 1}}), "p")

@@ -43,7 +43,7 @@ def test_shipped_graphs_validate(name: str) -> None:
     graph, scene = load_taskgraph(resolve_taskgraph(name))
     assert graph.name == name
     assert scene.name == graph.scene
-    assert graph.paths()
+    assert graph.path_count() >= 1
 
 
 def test_every_file_in_taskgraphs_is_shipped_and_valid() -> None:
@@ -53,7 +53,8 @@ def test_every_file_in_taskgraphs_is_shipped_and_valid() -> None:
 
 def test_choices_and_optional_steps(tmp_path: Path) -> None:
     graph, _ = load_taskgraph(write(tmp_path, GOOD))
-    assert graph.paths() == [["food", "dip", "feed"], ["food", "feed"]]
+    assert graph.path_count() == 2  # food -> dip -> feed, food -> feed
+    assert graph.order() == ["food", "dip", "feed"]
     assert [s.name for s in graph.successors("food")] == ["dip", "feed"]
 
 
