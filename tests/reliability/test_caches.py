@@ -302,6 +302,16 @@ def plan_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Plan, l
     return cached, calls
 
 
+def _replace_by_link(path: Path, target: str) -> None:
+    path.unlink()
+    path.symlink_to(target)
+
+
+def _replace_by_fifo(path: Path) -> None:
+    path.unlink()
+    os.mkfifo(path)
+
+
 def _other_plan_json(plan: Plan) -> bytes:
     return dump_plan(replace(plan, key="0123456789abcdef0123"))
 
@@ -321,6 +331,9 @@ PLAN_DAMAGE: dict[str, Callable[[Path, Plan], object]] = {
     "another key": lambda d, p: (d / PLAN_FILE).write_bytes(_other_plan_json(p)),
     "plan.json missing": lambda d, p: (d / PLAN_FILE).unlink(),
     "plan.json is a folder": lambda d, p: _folder_instead(d / PLAN_FILE),
+    # issue 16: a plan.json linked to /dev/zero grew the daemon to 24 GB; a FIFO hung it
+    "plan.json links to /dev/zero": lambda d, p: _replace_by_link(d / PLAN_FILE, "/dev/zero"),
+    "plan.json is a FIFO": lambda d, p: _replace_by_fifo(d / PLAN_FILE),
     "a picture missing": lambda d, p: (d / image_name(p.decisions[0].label)).unlink(),
     "a picture truncated": lambda d, p: (d / image_name(p.decisions[-1].label)).write_bytes(
         _png()[:30]
