@@ -20,6 +20,7 @@ from legws_daemon.core.goals import MAX_GOALS
 from legws_daemon.core.montecarlo import MAX_TRIALS
 from legws_daemon.scene.catalog import scenes_dir
 from tests.cli.helpers import Result, assert_bad_input
+from tests.formats.test_caps_files import goals_doc
 
 Cli = Callable[..., Result]
 WriteJson = Callable[[str, Any], Path]
@@ -27,14 +28,7 @@ REPO = Path(__file__).parents[2]
 
 
 def many_goals(example: dict[str, Any], m: int) -> dict[str, Any]:
-    example["goals"] = [
-        {
-            "name": f"g{i}",
-            "position": [0.3 + 0.005 * (i % 100), -0.4 + 0.008 * (i // 100 % 100), 0.02],
-            "quaternion": [0, 1, 0, 0],
-        }
-        for i in range(m)
-    ]
+    example["goals"] = goals_doc(m)["goals"]
     return example
 
 

@@ -19,9 +19,7 @@ import zenoh
 from legws_daemon.cli import daemon as daemon_cli
 from legws_daemon.cli.main import run
 from legws_daemon.daemon import service
-from legws_daemon.design import stage_plan
 from legws_daemon.design.plan_cache import PLAN_FILE, plan_cache_dir, plan_key
-from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_plan import cached_plan, plan_settings, plan_taskgraph
 from legws_daemon.errors import InputError
 from legws_daemon.scene.scene import Scene
@@ -29,6 +27,7 @@ from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.plan_file import check_plan, load_plan, plan_to_data
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
+from tests.design.test_stage_plan import counting_search
 
 GRAPHS = ("tea", "lego", "feeding")
 #: Real plans, quickly: map-elites needs no JIT compilation (cma-me's takes ~10 s).
@@ -244,15 +243,6 @@ def test_cli_refuses_a_tampered_plan_folder_in_one_line(
 
 
 # --- the cache: --plan auto and plan_taskgraph ------------------------------------------------
-def _count_searches(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    calls: list[int] = []
-
-    def counted(*args: Any, **kwargs: Any) -> SearchResult:
-        calls.append(1)
-        return search(*args, **kwargs)
-
-    monkeypatch.setattr(stage_plan, "search", counted)
-    return calls
 
 
 @pytest.mark.parametrize("case", ["two objects 1 cm apart", "an object off the table",
@@ -264,7 +254,7 @@ def test_a_tampered_cached_plan_is_logged_planned_again_and_replaced(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    calls = _count_searches(monkeypatch)
+    calls = counting_search(monkeypatch)
     name, edit, field, words = TAMPERED[case]
     graph, sc = load(name)
     first = plan_taskgraph(graph, sc, **QUICK)
@@ -306,7 +296,7 @@ def test_the_daemons_catalog_refuses_a_tampered_cached_plan_and_says_how_to_repl
     plans: dict[str, Plan], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    calls = _count_searches(monkeypatch)
+    calls = counting_search(monkeypatch)
     graph, sc = load("tea")
     _, edit, _, words = TAMPERED["two objects 1 cm apart"]
     folder = _default_key_folder(plans["tea"], graph, sc, tampered(plans["tea"], edit))

@@ -234,7 +234,7 @@ def test_pictures_and_plan_file_are_written(plans: dict[str, Plan]) -> None:
         assert img.format == "PNG"
 
 
-def _counting_search(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+def counting_search(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls: list[int] = []
 
     def counted(*args: Any, **kwargs: Any) -> SearchResult:
@@ -249,7 +249,7 @@ def test_cache_is_reused_and_follows_the_graph_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    calls = _counting_search(monkeypatch)
+    calls = counting_search(monkeypatch)
     graph, sc = load("feeding")
     first = plan_taskgraph(graph, sc, iterations=5, render=False)
     assert (len(calls), first.cached) == (1, False)
@@ -270,7 +270,7 @@ def test_cache_is_reused_and_follows_the_graph_file(
 
 def test_corrupt_cache_is_planned_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    calls = _counting_search(monkeypatch)
+    calls = counting_search(monkeypatch)
     graph, sc = load("feeding")
     first = plan_taskgraph(graph, sc, iterations=5, render=False)
     assert first.directory is not None
