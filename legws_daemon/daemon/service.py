@@ -364,7 +364,6 @@ class DaemonService:
         self._last_telemetry_warning = -np.inf
         self._telemetry_unreported = 0
         self._telemetry_last: TelemetryReport | None = None
-        self._trace_failed = False
         self._logged_stage: object = None
         self._objects_lock = threading.Lock()
         self._objects: dict[str, ObjectPose] = {}
@@ -943,7 +942,7 @@ class DaemonService:
         """One JSON line: this tick's work so far (s), when it began, the sample used, the
         command sent (m/s) and when, and how many operator commands the tick carried out."""
         out = self.config.trace
-        if out is None or self._trace_failed:
+        if out is None or out.closed:  # closed: a write failed (the disk is full)
             return
         row: dict[str, Any] = {
             "tick": rec.tick,
@@ -964,9 +963,7 @@ class DaemonService:
         try:
             out.write(json.dumps(row) + "\n")
         except InputError as err:  # a full disk ends the trace, not the control
-            # the file was cut back to its last whole line and closed
-            self._trace_failed = True
-            self._emit(TraceFailed(str(err)))
+            self._emit(TraceFailed(str(err)))  # cut back to its last whole line, closed
 
     def _fail_pending(self) -> None:
         """At shutdown: answer every command not carried out; discard a prepared load."""

@@ -167,17 +167,21 @@ def read_toml(path: Path, kind: str = "text") -> dict[str, Any]:
     TOML itself forbids a key given twice; text with control or bidirectional characters
     (:func:`check_text`) and non-finite numbers are refused.
     """
-    text = read_text(path, kind)
+    return parse_toml(read_text(path, kind), str(path))
+
+
+def parse_toml(text: str, source: str) -> dict[str, Any]:
+    """:func:`read_toml` of text already read from ``source``."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise InputError(f"invalid TOML: {err}", source=str(path)) from None
+        raise InputError(f"invalid TOML: {err}", source=source) from None
     except RecursionError:  # tomllib parses nested arrays and inline tables recursively
-        raise InputError("invalid TOML: nested too deeply", source=str(path)) from None
+        raise InputError("invalid TOML: nested too deeply", source=source) from None
     except ValueError as err:  # e.g. an integer of more than 4300 digits
-        raise InputError(f"invalid TOML: {err}", source=str(path)) from None
-    _reject_non_finite(data, str(path), ())
-    check_text(data, str(path))
+        raise InputError(f"invalid TOML: {err}", source=source) from None
+    _reject_non_finite(data, source, ())
+    check_text(data, source)
     return data
 
 

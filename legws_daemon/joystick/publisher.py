@@ -283,10 +283,8 @@ class Publisher:
             except Exception as err:  # zenoh raises its own error types
                 raise LegwsError(f"{self.key}: cannot publish: {err}") from None
             self._seq += 1
-            if self._record is not None:
-                record, self._record = self._record, None
-                record.write(payload.decode() + "\n")  # a full disk: the error, once
-                self._record = record
+            if self._record is not None and not self._record.closed:  # closed: the disk
+                self._record.write(payload.decode() + "\n")  # filled (said once)
             return message
 
     def publish_zero(self) -> JoystickMessage:

@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Name, read_text, read_toml, validate
+from legws_daemon.formats.validation import Name, parse_toml, read_text, validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.actions import action
@@ -212,7 +212,7 @@ def held_problem(graph: TaskGraph) -> HeldProblem | None:
 def load_taskgraph(path: Path, scene: Scene | None = None) -> tuple[TaskGraph, Scene]:
     """Read and validate a task graph and its scene; errors name file, line and field."""
     text = read_text(path, "task graph")
-    spec = validate(TaskGraphSpec, read_toml(path, "task graph"), str(path))
+    spec = validate(TaskGraphSpec, parse_toml(text, str(path)), str(path))  # read once
     if spec.name != path.stem:
         raise InputError(
             f"expected '{path.stem}' (the file's name), got '{spec.name}'",
