@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from legws_daemon.formats.log_lines import How, commit_text
 from legws_daemon.formats.messages import EventKind
 
 
@@ -112,7 +113,10 @@ class Commit(Event):
         return d
 
     def text(self) -> str:
-        return f"commit goal={self.goal} p={round(self.p, 4)}"
+        if self.single:
+            return commit_text(self.goal, round(self.p, 4), how="single")
+        how: How = "confirmed" if self.confirmed else "inferred"
+        return commit_text(self.goal, round(self.p, 4), how=how)
 
 
 @dataclass(frozen=True, slots=True)

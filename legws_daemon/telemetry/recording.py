@@ -16,8 +16,6 @@ stage for :func:`read_ee_path` and :func:`read_text_log`; an ``int`` is a stage 
 from __future__ import annotations
 
 import json
-import math
-import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +29,7 @@ from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import goalset_from_data
+from legws_daemon.formats.log_lines import parse_commit as parse_commit
 from legws_daemon.telemetry.rerun_log import (
     EE_ARCHETYPE,
     EE_PATH,
@@ -42,8 +41,6 @@ from legws_daemon.telemetry.rerun_log import (
 )
 
 StageKey = int | str | None
-
-_COMMIT = re.compile(r"^commit goal=(?P<goal>.+) p=(?P<p>\S+)$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,18 +75,6 @@ class EePath(NamedTuple):
     times: FloatArray
     positions: FloatArray
     quaternions: FloatArray
-
-
-def parse_commit(text: str) -> tuple[str, float] | None:
-    """``(goal, p)`` of a ``commit goal=<name> p=<prob>`` text-log line, else ``None``."""
-    match = _COMMIT.match(text)
-    if match is None:
-        return None
-    try:
-        p = float(match["p"])
-    except ValueError:
-        return None
-    return (match["goal"], p) if math.isfinite(p) else None
 
 
 class _Batch(NamedTuple):

@@ -55,6 +55,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
 from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
+from legws_daemon.formats.log_lines import commit_text as commit_text
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
@@ -118,11 +119,6 @@ def parse_target(text: str) -> tuple[str, str | None]:
     if kind == "save" and arg:
         return "save", arg
     raise InputError(f"expected {TARGET_FORMS}, got {text!r}", field="--rerun")
-
-
-def commit_text(goal: str, p: float) -> str:
-    """The text-log line of a commit: ``commit goal=<name> p=<prob>``."""
-    return f"commit goal={goal} p={p:.6f}"
 
 
 def default_blueprint() -> rrb.Blueprint:

@@ -105,7 +105,7 @@ def test_the_text_log(single: tuple[Path, int | None], first: Episode) -> None:
 
 @pytest.mark.parametrize("goal", ["banana", "my mug", "a p=0.5 b", "ünï/cödé"])
 def test_commit_lines_round_trip(goal: str) -> None:
-    assert parse_commit(commit_text(goal, 0.912345)) == (goal, 0.912345)
+    assert parse_commit(commit_text(goal, 0.912345)) == (goal, 0.912345, "inferred")
 
 
 @pytest.mark.parametrize(
