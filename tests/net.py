@@ -30,3 +30,19 @@ def free_port() -> int:
             if port not in _given:
                 _given.add(port)
                 return port
+
+
+def free_port_pair() -> int:
+    """A port whose next one is free too (the Rerun web viewer's page and stream)."""
+    while True:
+        port = free_port()
+        if port >= 65535:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port + 1))
+            except OSError:
+                continue
+        with _lock:
+            _given.add(port + 1)
+        return port

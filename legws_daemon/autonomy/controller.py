@@ -170,6 +170,11 @@ class Controller:
     def layout(self) -> Layout:
         return self.layouts.layout
 
+    @property
+    def held(self) -> Held | None:
+        """What the gripper holds (``None`` while it is open or holds nothing)."""
+        return self._held if self._gripper is not False else None
+
     # --- stages and inference -------------------------------------------------------
     def _begin_stage(self, prepared: StageState | None = None) -> StageState:
         """Targets of the stage(s) that come next (``prepared``: made by a load, its plan's
@@ -340,7 +345,7 @@ class Controller:
         return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
 
     def _context(self, state: RobotState) -> PlanContext:
-        held = self._held if self._gripper is not False else None
+        held = self.held
         box = self.adapter.box
         return PlanContext(state.ee_position, state.ee_rotation, state.q, self.planner, held, box)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import signal
 import threading
@@ -137,8 +138,11 @@ def install_stop_handlers(stop: threading.Event) -> None:
 @click.option(
     "--rerun",
     "rerun_target",
-    metavar="save:PATH|spawn|connect:URL",
-    help="Stream to Rerun: a .rrd file, a spawned viewer, or a running viewer.",
+    multiple=True,
+    metavar="save:PATH|spawn|connect[:URL]|web[:[HOST:]PORT]",
+    help="Stream to Rerun: a .rrd file, a spawned viewer, a running viewer, or the web "
+    "viewer served on HOST:PORT (default 127.0.0.1:9090; the stream on PORT+1) for a "
+    "browser. Repeat it for several (e.g. a file and the web viewer).",
 )
 @click.option(
     "--zenoh-config",
@@ -180,7 +184,7 @@ def daemon_cmd(
     taskgraph: str | None,
     plan_arg: str | None,
     layout_file: Path | None,
-    rerun_target: str | None,
+    rerun_target: tuple[str, ...],
     zenoh_config: Path | None,
     rate: float | None,
     cost: CostForm | None,
@@ -233,11 +237,19 @@ def daemon_cmd(
     install_stop_handlers(stop)
     with ExitStack() as stack:
         telemetry: Telemetry | None = None
-        if rerun_target is not None:
+        if rerun_target:
             from legws_daemon.telemetry.rerun_log import RerunLog
 
-            telemetry = RerunLog(rerun_target, robot=spec.robot)
-            stack.callback(telemetry.close)
+            period = 1.0 / spec.control.rate_hz
+            rerun_log = RerunLog(rerun_target, robot=spec.robot, tick_period=period)
+            stack.callback(rerun_log.close)
+            if rerun_log.web is not None:
+                target = rerun_log.web.target
+                click.echo(f"legws daemon: watch in a browser: {target.page_url}", err=True)
+                if not ipaddress.IPv4Address(target.host).is_loopback:
+                    click.echo(f"legws daemon: warning: the session is served unauthenticated "
+                               f"to every host that reaches {target.host}", err=True)  # fmt: skip
+            telemetry = rerun_log
         trace = stack.enter_context(open_output(trace_file)) if trace_file else None
         config = DaemonConfig(
             spec,

@@ -37,8 +37,21 @@ from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
     help="Stage-specific layouts from `legws plan` (cached after the first run), or the "
     "scene's default layout throughout.",
 )
+@click.option(
+    "--rerun",
+    "web",
+    metavar="web[:[HOST:]PORT]",
+    help="Also serve the session to a browser: the Rerun web viewer on HOST:PORT (default "
+    "127.0.0.1:9090; the stream on PORT+1); the URL is printed.",
+)
 def demo_cmd(
-    taskgraph: str, out: Path | None, seed: int, timeout: float, profile: str, plan: bool
+    taskgraph: str,
+    out: Path | None,
+    seed: int,
+    timeout: float,
+    profile: str,
+    plan: bool,
+    web: str | None,
 ) -> None:
     """Run TASKGRAPH (tea, lego, feeding or a file) on the stand-in with a simulated user.
 
@@ -50,6 +63,15 @@ def demo_cmd(
     from legws_daemon.demo.run import markdown, run_demo
     from legws_daemon.formats.files import output_folder
 
+    web_target = None
+    if web is not None:
+        from legws_daemon.telemetry.web_viewer import parse_web_target
+
+        kind, sep, arg = web.partition(":")
+        if kind != "web" or (sep and not arg):
+            raise click.BadParameter(f"expected web or web:[HOST:]PORT, got {web!r}",
+                                     param_hint="--rerun")  # fmt: skip
+        web_target = parse_web_target(arg or None)
     spec = load_profile_named(profile)
     if spec.adapter != "sim":
         raise click.UsageError(f"the demo runs on a sim profile; '{profile}' is {spec.adapter}")
@@ -77,8 +99,11 @@ def demo_cmd(
             click.echo(f"  {kind} {detail}", err=True)
 
     click.echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
+    if web_target is not None:
+        click.echo(f"legws: watch in a browser: {web_target.page_url}", err=True)
     result = run_demo(graph.name if taskgraph == graph.name else taskgraph, spec, folder,
-                      seed=seed, timeout=timeout, plan=plan_dir, log=show)  # fmt: skip
+                      seed=seed, timeout=timeout, plan=plan_dir, log=show,
+                      web=web)  # fmt: skip
     click.echo(markdown(result))
     if not result.completed:
         raise click.ClickException(f"the task did not complete; see {folder / 'daemon.log'}")

@@ -29,6 +29,7 @@ from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.cli.secure import secure_group
 from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.cli.taskgraph import taskgraph_group
+from legws_daemon.cli.view import view_cmd
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.validation import printable
 
@@ -57,6 +58,7 @@ cli.add_command(demo_cmd)
 cli.add_command(plan_cmd)
 cli.add_command(taskgraph_group)
 cli.add_command(secure_group)
+cli.add_command(view_cmd)
 
 
 def _fail(message: str) -> int:

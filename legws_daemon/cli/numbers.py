@@ -14,6 +14,13 @@ class FiniteFloat(click.FloatRange):
 
     name = "float"
 
+    def _describe_range(self) -> str:
+        """The range for the help text; nothing for an unbounded one (click would say
+        ``x<=None``)."""
+        if self.min is None and self.max is None:
+            return ""
+        return str(super()._describe_range())
+
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):

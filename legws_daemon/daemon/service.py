@@ -89,12 +89,14 @@ from legws_daemon.formats.messages import (
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, JointCommand, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
+from legws_daemon.robot.visual import RobotVisual, finger_half_gap, robot_visual
 from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
+from legws_daemon.task.targets import Held
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.transport.session import keys, open_session
 
@@ -158,7 +160,14 @@ class Telemetry(Protocol):
         slack: float | None,
         committed: str | None,
         tick_seconds: float | None = None,
+        gripper_half_gap: float | None = None,
+        phase: str | None = None,
+        operator: str | None = None,
+        fault: str | None = None,
+        stage: str | None = None,
     ) -> None: ...
+
+    def log_robot(self, visual: RobotVisual) -> None: ...
 
     def log_text(self, tick: int, t: float, level: str, text: str) -> None: ...
 
@@ -167,6 +176,21 @@ class Telemetry(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+def _operator_text(operator: Mapping[str, str | None] | None) -> str | None:
+    """Who holds the joystick lease, in a few words (``None``: nobody)."""
+    if not operator:
+        return None
+    source, session = operator.get("source"), operator.get("session")
+    return f"{source} (session {session[:8]})" if session else str(source)
+
+
+def _held_width(held: Held | None) -> float | None:
+    """The held object's extent along the closing axis (the EE's x), m."""
+    if held is None:
+        return None
+    return float(np.abs(held.frame[0]) @ held.extents)
 
 
 class GuardedAdapter(Adapter):
@@ -701,6 +725,14 @@ class DaemonService:
                 self._emit(event)
 
     # --- telemetry ----------------------------------------------------------------------
+    def _log_robot(self) -> None:
+        """The arm's meshes, once, before the first tick (taken on the worker's thread)."""
+        tel, c, worker = self.config.telemetry, self.controller, self.worker
+        if tel is None or c is None or worker is None:
+            return
+        world = c.adapter.kinematics
+        worker.submit(lambda: tel.log_robot(robot_visual(world)))
+
     def _log_setup(self) -> None:
         tel, c = self.config.telemetry, self.controller
         if tel is None or c is None or self.worker is None or c.stage.goals_home is None:
@@ -750,6 +782,11 @@ class DaemonService:
             slack=slack,
             committed=rec.committed,
             tick_seconds=self.ticker.last_duration,
+            gripper_half_gap=finger_half_gap(rec.state.gripper_closed, _held_width(c.held)),
+            phase=rec.phase,
+            operator=_operator_text(self.inbox.operator()),
+            fault=c.fault,
+            stage=c.stage.name,
             droppable=True,
         )
 
@@ -808,6 +845,7 @@ class DaemonService:
             )
             self.controller = controller
             self._logged_stage = controller.stage
+            self._log_robot()
             self._log_setup()
             self._emit(
                 Started(

@@ -140,9 +140,11 @@ def run_demo(
     timeout: float = DEFAULT_TIMEOUT,
     plan: Path | None = None,
     log: Any = None,
+    web: str | None = None,
 ) -> DemoResult:
     """Run the daemon and a simulated user through ``taskgraph``; write the recording, the
-    daemon's log and the summary (JSON and Markdown) into ``out``."""
+    daemon's log and the summary (JSON and Markdown) into ``out``. ``web`` (``web`` or
+    ``web:[HOST:]PORT``) also serves the session to the Rerun web viewer."""
     output_folder(out)
     port = free_port()
     cfg_path = out / "zenoh.json5"
@@ -153,6 +155,8 @@ def run_demo(
             str(cfg_path), "--duration", str(timeout)]  # fmt: skip
     if plan is not None:
         args += ["--plan", str(plan)]
+    if web is not None:
+        args += ["--rerun", web]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     t0 = time.monotonic()
     with open_output(out / "daemon.log") as daemon_log:

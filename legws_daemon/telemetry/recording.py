@@ -11,17 +11,23 @@ before the first set-up). The readers take an optional ``stage``: ``None`` means
 stage for :func:`read_goals` and :func:`read_params` (what the viewer shows) and every
 stage for :func:`read_ee_path` and :func:`read_text_log`; an ``int`` is a stage index
 (negative from the end); a ``str`` is a stage name.
+
+The posterior plots ``plots/posterior/<goal>`` carry no stage index: a tick belongs to
+the stage whose EE samples span it (from the stage's first EE tick to the next stage's
+first EE tick), which :func:`read_posterior` uses to give each stage its own values.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import rerun as rr
 from rerun.chunk import RrdReader
 
 from legws_daemon.core.geometry import FloatArray, IntArray
@@ -29,6 +35,7 @@ from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import goalset_from_data
+from legws_daemon.formats.log_lines import How
 from legws_daemon.formats.log_lines import parse_commit as parse_commit
 from legws_daemon.telemetry.rerun_log import (
     EE_ARCHETYPE,
@@ -41,6 +48,9 @@ from legws_daemon.telemetry.rerun_log import (
 )
 
 StageKey = int | str | None
+
+#: Where the daemon plots the posterior of a goal: this prefix and the escaped goal name.
+POSTERIOR_PREFIX = "plots/posterior/"
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,6 +87,52 @@ class EePath(NamedTuple):
     quaternions: FloatArray
 
 
+class Posterior(NamedTuple):
+    """The posterior the daemon plotted, one row per tick that has a value of any goal.
+
+    Attributes:
+        goals: the goal names, one column each.
+        ticks: ``(K,)`` ticks, increasing.
+        times: ``(K,)`` seconds on the ``time`` timeline.
+        values: ``(K, len(goals))``; ``NaN`` where a goal has no value at that tick.
+    """
+
+    goals: tuple[str, ...]
+    ticks: IntArray
+    times: FloatArray
+    values: FloatArray
+
+    def row_at(self, tick: int) -> int | None:
+        """The row of the latest tick ``<= tick`` (``None`` when every row is later)."""
+        i = int(np.searchsorted(self.ticks, tick, side="right")) - 1
+        return i if i >= 0 else None
+
+    def as_dict(self, row: int) -> dict[str, float | None]:
+        """Goal name -> value of one row (``None`` for a goal without a value there)."""
+        return {
+            g: None if np.isnan(v) else float(v)
+            for g, v in zip(self.goals, self.values[row].tolist(), strict=True)
+        }
+
+
+class RecordedCommit(NamedTuple):
+    """A commit line of the text log (:mod:`legws_daemon.formats.log_lines`).
+
+    Attributes:
+        tick: the tick of the line.
+        seconds: its time on the ``time`` timeline (``None`` when it has none).
+        goal: the committed goal.
+        p: the probability the daemon wrote.
+        how: ``inferred``, ``confirmed`` (the operator pressed confirm) or ``single``.
+    """
+
+    tick: int
+    seconds: float | None
+    goal: str
+    p: float
+    how: How
+
+
 class _Batch(NamedTuple):
     entity: str  # without the leading "/"
     static: bool
@@ -86,6 +142,14 @@ class _Batch(NamedTuple):
         """The column as Python values, or ``[]`` when the chunk lacks it."""
         index = self.batch.schema.get_field_index(name)
         return [] if index < 0 else list(self.batch.column(index).to_pylist())
+
+    def seconds(self, name: str = "time") -> list[float | None]:
+        """A duration timeline in seconds (``[]`` when the chunk lacks it)."""
+        index = self.batch.schema.get_field_index(name)
+        if index < 0:
+            return []
+        nanos = self.batch.column(index).cast("int64").to_pylist()
+        return [None if n is None else n / 1e9 for n in nanos]
 
 
 def _batches(path: Path, *entities: str) -> list[_Batch]:
@@ -237,33 +301,104 @@ def read_ee_path(path: Path | str, stage: StageKey = None) -> EePath:
     )
 
 
-def read_text_log(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, str]]:
-    """``(tick, level, text)`` of the ``log`` entity, in logging order (stable by tick)."""
-    p = Path(path)
-    want = _stage_index(p, stage)
-    rows: list[tuple[int, bytes, str, str]] = []
-    for batch in _batches(p, TEXT_LOG):
+def _text_rows(path: Path, stage: StageKey) -> list[tuple[int, float | None, str, str]]:
+    """``(tick, seconds, level, text)`` of the ``log`` entity, in logging order."""
+    want = _stage_index(path, stage)
+    rows: list[tuple[int, bytes, float | None, str, str]] = []
+    for batch in _batches(path, TEXT_LOG):
         ticks, texts = batch.column("tick"), batch.column("TextLog:text")
         if batch.static or not ticks or not texts:
             continue
         row_ids = batch.column("rerun.controls.RowId")
+        times = batch.seconds() or [None] * len(ticks)
         levels = batch.column("TextLog:level") or [None] * len(ticks)
         stages = batch.column(f"{STAGE_ARCHETYPE}:stage") or [None] * len(ticks)
-        for tick, row_id, level, text, st in zip(
-            ticks, row_ids, levels, texts, stages, strict=True
+        for tick, row_id, t, level, text, st in zip(
+            ticks, row_ids, times, levels, texts, stages, strict=True
         ):
             if tick is None or not text or (want is not None and (not st or st[0] != want)):
                 continue
-            rows.append((tick, row_id, level[0] if level else "", text[0]))
+            rows.append((tick, row_id, t, level[0] if level else "", text[0]))
     rows.sort(key=lambda r: (r[0], r[1]))  # row ids (TUIDs) are in logging order
-    return [(tick, level, text) for tick, _, level, text in rows]
+    return [(tick, t, level, text) for tick, _, t, level, text in rows]
+
+
+def read_text_log(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, str]]:
+    """``(tick, level, text)`` of the ``log`` entity, in logging order (stable by tick)."""
+    return [(tick, level, text) for tick, _, level, text in _text_rows(Path(path), stage)]
 
 
 def read_commits(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, float]]:
     """``(tick, goal, p)`` of the ``commit goal=<name> p=<prob>`` lines of the text log."""
+    return [(c.tick, c.goal, c.p) for c in read_recorded_commits(path, stage)]
+
+
+def read_recorded_commits(path: Path | str, stage: StageKey = None) -> list[RecordedCommit]:
+    """Every commit line of the text log with its time and how it came, in logging order."""
     out = []
-    for tick, _, text in read_text_log(path, stage):
+    for tick, t, _, text in _text_rows(Path(path), stage):
         commit = parse_commit(text)
         if commit is not None:
-            out.append((tick, commit[0], commit[1]))
+            out.append(RecordedCommit(tick, t, commit.goal, commit.p, commit.how))
     return out
+
+
+def read_posterior(path: Path | str, stage: StageKey = None) -> Posterior:
+    """The posterior the daemon plotted (``plots/posterior/<goal>``), of one stage or all.
+
+    For a stage: its goals, at the ticks the stage spans (its first EE tick up to the
+    next stage's first EE tick; a stage without EE samples spans none). For ``None``:
+    the goals of every stage (in order of first appearance) at every tick. A tick where
+    the daemon was not inferring has no row: no value, or a ``NaN`` (which ends a line in
+    the viewer), is not a value.
+    """
+    p = Path(path)
+    stages = read_stages(p)
+    chosen = stages if stage is None else [select_stage(stages, stage, str(p))]
+    goals = tuple(dict.fromkeys(g for s in chosen for g in s.goals.names))
+    column = {
+        "/" + POSTERIOR_PREFIX + rr.escape_entity_path_part(g): j for j, g in enumerate(goals)
+    }
+    firsts: dict[int, int] = {}
+    values: dict[int, dict[int, float]] = {}
+    times: dict[int, float] = {}
+    for batch in _batches(p, EE_PATH, POSTERIOR_PREFIX + "**"):
+        if batch.static:
+            continue
+        ticks = batch.column("tick")
+        if batch.entity == EE_PATH:
+            for tick, st in zip(ticks, batch.column(f"{EE_ARCHETYPE}:stage"), strict=False):
+                if tick is not None and st and st[0] >= 0:
+                    firsts[st[0]] = min(tick, firsts.get(st[0], tick))
+            continue
+        j = column.get("/" + batch.entity)
+        scalars = batch.column("Scalars:scalars")
+        if j is None or not ticks or not scalars:
+            continue
+        for tick, t, v in zip(ticks, batch.seconds() or [None] * len(ticks), scalars, strict=True):
+            if tick is not None and v and v[0] is not None and math.isfinite(v[0]):
+                values.setdefault(tick, {})[j] = float(v[0])
+                if t is not None:
+                    times[tick] = t
+    if stage is not None:
+        lo, hi = _span(firsts, chosen[0].index)
+        values = {t: v for t, v in values.items() if lo <= t < hi}
+    ticks_sorted = sorted(values)
+    table = np.full((len(ticks_sorted), len(goals)), np.nan)
+    for i, tick in enumerate(ticks_sorted):
+        for j, v in values[tick].items():
+            table[i, j] = v
+    return Posterior(
+        goals,
+        np.array(ticks_sorted, dtype=np.int64),
+        np.array([times.get(t, np.nan) for t in ticks_sorted], dtype=np.float64),
+        table,
+    )
+
+
+def _span(firsts: dict[int, int], index: int) -> tuple[float, float]:
+    """The ticks ``[lo, hi)`` stage ``index`` spans (empty without EE samples)."""
+    if index not in firsts:
+        return (0.0, 0.0)
+    later = [t for i, t in firsts.items() if i > index]
+    return (float(firsts[index]), float(min(later)) if later else math.inf)

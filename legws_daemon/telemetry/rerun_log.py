@@ -4,11 +4,17 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
 
 * ``world/table``, ``world/planned/<obj>`` (wireframe boxes), ``world/grasps/<goal>`` (frame
   and an arrow along the approach axis): static, replaced by each :meth:`RerunLog.log_setup`.
-* ``world/robot/links`` (line strip through the link origins), ``world/robot/link_<i>``
-  (frames), ``world/ee`` (EE frame, plus the exact float64 pose as ``legws.EePose``),
-  ``world/ee_trail``, ``world/objects/<obj>``, ``world/joystick``, ``world/command``.
-* ``plots/posterior/<goal>``, ``plots/threshold``, ``plots/slack``, ``plots/tick_ms``.
-* ``log`` (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
+* ``world/robot/<link>`` (the link's pose per tick) with ``world/robot/<link>/mesh`` (the
+  Sawyer's own meshes, static, :mod:`.robot_drawing`) and the gripper's fingers at their
+  opening; ``world/ee`` (EE frame, plus the exact float64 pose as ``legws.EePose``),
+  ``world/ee_trail``, ``world/objects/<obj>`` (the object's shape and colour, labelled with
+  its name and, while inferring, its probability), ``world/committed`` (an outline around
+  the committed object), ``world/joystick``, ``world/command``.
+* Plots, each in its own view: ``plots/posterior/<goal>`` with ``plots/threshold`` and
+  ``plots/commits`` (a marker at each commit); ``plots/slack``; ``plots/timing/tick_ms``,
+  ``plots/timing/budget_ms`` and ``plots/timing/overruns``.
+* ``status`` (a panel: mode, operator, phase, fault, stage), ``log`` (commits, cancels,
+  faults; every row tagged with its stage), ``status/mode``.
 * ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
   document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
   stage's name and index, scene, robot, threshold and goal -> object map), static: the
@@ -37,11 +43,11 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa  # type: ignore[import-untyped]
@@ -55,11 +61,17 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
 from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
+from legws_daemon.formats.log_lines import How, parse_commit
 from legws_daemon.formats.log_lines import commit_text as commit_text
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.telemetry import rrd_file
+from legws_daemon.telemetry.robot_drawing import RobotDrawing
+
+if TYPE_CHECKING:  # MuJoCo (under robot.visual) loads only where the meshes are made
+    from legws_daemon.robot.visual import RobotVisual
+    from legws_daemon.telemetry import web_viewer
 
 _LOG = logging.getLogger(__name__)
 
@@ -77,18 +89,22 @@ TEXT_LOG = "log"
 EE_ARCHETYPE = "legws.EePose"
 #: Dynamic archetype of the stage index attached to every ``log`` row.
 STAGE_ARCHETYPE = "legws.Stage"
-TARGET_FORMS = "save:PATH, spawn, connect or connect:URL"
+TARGET_FORMS = "save:PATH, spawn, connect, connect:URL, web or web:[HOST:]PORT"
+#: Where a spawned native viewer listens (rerun's default).
+SPAWN_URL = "rerun+http://127.0.0.1:9876/proxy"
 
-_GREY = np.array([150.0, 150.0, 150.0])
-_GREEN = np.array([40.0, 200.0, 70.0])
 _COMMITTED = 0xFFB000FF
-_OTHER = 0x707070FF
+_PLANNED = 0xFFFFFF50  # faint outlines
+_OVERRUN = 0xE03030FF
 _PALETTE = (0x1F77B4FF, 0xFF7F0EFF, 0x2CA02CFF, 0xD62728FF, 0x9467BDFF, 0x8C564BFF,
             0xE377C2FF, 0x17BECFFF, 0xBCBD22FF, 0x7F7F7FFF)  # fmt: skip
 _COLOUR_LEVELS = 50
 _UNKNOWN_HALF_SIZE = (0.025, 0.025, 0.025)
-#: The threshold line is a constant: one point every this many ticks draws it.
+#: The threshold and budget lines are constants: one point every this many ticks draws them.
 _THRESHOLD_EVERY = 10
+STATUS_DOC = "status"
+COMMITS_PLOT = "plots/commits"
+TIMING = "plots/timing"
 #: Seconds :meth:`RerunLog.close` waits for a sink that already failed a check.
 FAILED_CLOSE_TIMEOUT = 0.5
 #: A ``save:`` file gets what was logged in chunks of this many seconds (rerun's default is
@@ -105,33 +121,76 @@ STALL_SECONDS = 15.0
 
 
 def parse_target(text: str) -> tuple[str, str | None]:
-    """Parse ``--rerun``: ``save:PATH``, ``spawn``, ``connect`` or ``connect:URL``.
+    """Parse ``--rerun``: ``save:PATH``, ``spawn``, ``connect``, ``connect:URL``, ``web`` or
+    ``web:[HOST:]PORT`` (:func:`~.web_viewer.parse_web_target` checks the address).
 
     Returns:
-        ``(kind, argument)``; the argument is ``None`` for ``spawn`` and a bare ``connect``
-        (rerun's default address).
+        ``(kind, argument)``; the argument is ``None`` for ``spawn``, a bare ``connect``
+        (rerun's default address) and a bare ``web`` (127.0.0.1:9090).
     """
     kind, sep, arg = text.partition(":")
     if kind == "spawn" and not sep:
         return "spawn", None
-    if kind == "connect" and (not sep or arg):
-        return "connect", arg or None
+    if kind in ("connect", "web") and (not sep or arg):
+        if kind == "web":
+            from legws_daemon.telemetry.web_viewer import parse_web_target  # imports this
+
+            parse_web_target(arg or None)
+        return kind, arg or None
     if kind == "save" and arg:
         return "save", arg
     raise InputError(f"expected {TARGET_FORMS}, got {text!r}", field="--rerun")
 
 
+def parse_targets(texts: str | Sequence[str]) -> list[tuple[str, str | None]]:
+    """One or more ``--rerun`` targets (:func:`parse_target`), each kind at most once."""
+    items = [texts] if isinstance(texts, str) else list(texts)
+    if not items:
+        raise InputError(f"expected one of {TARGET_FORMS}, got none", field="--rerun")
+    parsed = [parse_target(t) for t in items]
+    kinds = [k for k, _ in parsed]
+    for kind in kinds:
+        if kinds.count(kind) > 1:
+            raise InputError(f"{kind} given {kinds.count(kind)} times; at most once",
+                             field="--rerun")  # fmt: skip
+    return parsed
+
+
 def default_blueprint() -> rrb.Blueprint:
-    """The 3D world, the plots and the text log side by side."""
+    """The operator's layout: the 3D world over the text log on the left; the status panel
+    and three plots on the right — the posterior (0 to 1, with the threshold and the
+    commits), the certificate's slack, and the tick timing against its budget. The side
+    panels start collapsed (the views get the room); the time panel stays."""
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="world", origin="/", contents="world/**"),
             rrb.Vertical(
-                rrb.TimeSeriesView(name="posterior", origin="/", contents="plots/**"),
-                rrb.TextLogView(name="log", origin="/", contents=["log", "status/**"]),
+                rrb.Spatial3DView(name="world", origin="/world", contents="/world/**"),
+                rrb.TextLogView(name="log", origin="/", contents=["/log", "/status/**"]),
+                row_shares=[3, 1],
             ),
-            column_shares=[2, 1],
-        )
+            rrb.Vertical(
+                rrb.TextDocumentView(name="status", origin="/status", contents="/status"),
+                rrb.TimeSeriesView(
+                    name="posterior",
+                    origin="/plots",
+                    contents=["/plots/posterior/**", "/plots/threshold", f"/{COMMITS_PLOT}"],
+                    axis_y=rrb.ScalarAxis(range=(0.0, 1.0), zoom_lock=True),
+                    plot_legend=rrb.PlotLegend(corner="LeftTop"),
+                ),
+                rrb.TimeSeriesView(name="slack", origin="/plots", contents="/plots/slack"),
+                rrb.TimeSeriesView(
+                    name="timing (ms)",
+                    origin="/plots",
+                    contents=f"/{TIMING}/**",
+                    plot_legend=rrb.PlotLegend(corner="LeftTop"),
+                ),
+                row_shares=[1.2, 3, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", play_state="following"),
     )
 
 
@@ -244,10 +303,10 @@ def _rgba(rgb: ArrayLike, alpha: int = 255) -> int:
     return (r << 24) | (g << 16) | (b << 8) | alpha
 
 
-def posterior_colour(p: float) -> int:
-    """Grey at probability 0 to green at 1, in :data:`_COLOUR_LEVELS` steps (``0xRRGGBBAA``)."""
-    level = round(min(max(p, 0.0), 1.0) * _COLOUR_LEVELS) / _COLOUR_LEVELS
-    return _rgba(_GREY + level * (_GREEN - _GREY))
+def _md(text: str | None) -> str:
+    """A value in a line of Markdown: one line, its markup characters escaped."""
+    line = " ".join(str(text).split())
+    return "".join("\\" + c if c in "\\`*_[]<>#|~" else c for c in line)
 
 
 def _probe(path: Path) -> Path:
@@ -335,13 +394,43 @@ def _check_settings(length: int, every: int, scale: float, link_every: int) -> N
             raise InputError(f"expected {expected}, got {value!r}", field=name)
 
 
+@dataclass(frozen=True, slots=True)
+class _Shape:
+    """How an object is drawn: its scene shape, size (as the scene gives it) and colour."""
+
+    kind: str  # box | cylinder | sphere
+    size: tuple[float, ...]
+    color: int
+    half_size: tuple[float, float, float]  # of its bounding box
+
+    def archetype(self, position: FloatArray, q_wxyz: FloatArray, label: str) -> Any:
+        quat = rr.Quaternion(xyzw=_xyzw(q_wxyz))
+        common: dict[str, Any] = {"centers": [position], "colors": [self.color],
+                                  "labels": [label], "fill_mode": "solid"}  # fmt: skip
+        if self.kind == "cylinder":
+            radius, height = self.size[0], self.size[1]
+            return rr.Cylinders3D(lengths=[height], radii=[radius], quaternions=[quat], **common)
+        if self.kind == "sphere":
+            r = self.size[0]
+            return rr.Ellipsoids3D(half_sizes=[[r, r, r]], **common)
+        return rr.Boxes3D(half_sizes=[self.half_size], quaternions=[quat], **common)
+
+
+def _shape_of(scene: Scene, name: str) -> _Shape:
+    obj = scene.object(name)
+    colour = _rgba(np.asarray(obj.color, dtype=np.float64) * 255)
+    return _Shape(obj.shape, tuple(float(x) for x in obj.size), colour, _half_size(scene, name))
+
+
+_UNKNOWN = _Shape("box", tuple(2 * h for h in _UNKNOWN_HALF_SIZE), 0x909090FF, _UNKNOWN_HALF_SIZE)
+
+
 @dataclass(slots=True)
 class _ObjectState:
-    """What was last sent for one object box (to skip unchanged rows)."""
+    """What was last sent for one object (to skip unchanged rows)."""
 
-    half_size: tuple[float, float, float]
-    pose: bytes = b""
-    style: tuple[int, str] | None = None
+    shape: _Shape
+    sent: bytes = b""  # pose and label as last sent
 
 
 @dataclass(slots=True)
@@ -392,9 +481,10 @@ class RerunLog:
         trail_length: number of EE positions in ``world/ee_trail``.
         trail_every: re-send the trail every this many new trail points.
         command_scale: seconds; the command arrow is the EE velocity times this.
-        link_frames_every: send the ``world/robot/link_<i>`` frames every this many ticks
-            (0: never); the arm's line strip is sent every tick. Each moving link frame
-            costs about as much as a posterior plot point.
+        link_frames_every: send the links' poses every this many ticks (0: at the first
+            tick only). Each moving link costs about as much as a posterior plot point.
+        tick_period: the control period, s: drawn as the budget line of the timing plot,
+            and a tick longer than it is an overrun.
 
     Per-tick calls never raise: a failure is counted in :attr:`dropped` and logged (once,
     then every 1000th time) on the ``logging`` logger of this module. Not thread-safe: call
@@ -412,7 +502,7 @@ class RerunLog:
 
     def __init__(
         self,
-        target: str,
+        target: str | Sequence[str],
         *,
         robot: str,
         application_id: str = "legws",
@@ -421,10 +511,16 @@ class RerunLog:
         trail_every: int = 5,
         command_scale: float = 2.0,
         link_frames_every: int = 1,
+        tick_period: float | None = None,
     ) -> None:
-        kind, arg = parse_target(target)
+        targets = parse_targets(target)
         _check_settings(trail_length, trail_every, command_scale, link_frames_every)
-        save_path = _probe(Path(arg)) if kind == "save" and arg is not None else None
+        if tick_period is not None and not (
+            isinstance(tick_period, int | float) and math.isfinite(tick_period) and tick_period > 0
+        ):
+            raise InputError(f"expected a number > 0, got {tick_period!r}", field="tick_period")
+        save_arg = dict(targets).get("save")
+        save_path = _probe(Path(save_arg)) if save_arg is not None else None
         self.robot = robot
         self.dropped = 0
         self.last_error: str | None = None
@@ -437,24 +533,37 @@ class RerunLog:
         #: ``save:`` only: whether :meth:`close` added the footer (``None`` before it ran).
         self.finished: bool | None = None
         self._now: tuple[int, float] = (0, 0.0)  # the latest (tick, time) logged
-        batching = rr.ChunkBatcherConfig(flush_tick=SAVE_FLUSH_SECONDS) if kind == "save" else None
+        live = any(kind != "save" for kind, _ in targets)  # a viewer waits on the chunks
+        batching = None if live else rr.ChunkBatcherConfig(flush_tick=SAVE_FLUSH_SECONDS)
         self._stream = rr.RecordingStream(
             application_id, recording_id=recording_id, batcher_config=batching
         )
-        self._open_sink(kind, arg)
+        #: the web viewer of a ``web`` target (its page: ``web.target.page_url``)
+        self.web: web_viewer.WebViewer | None = None
+        try:
+            self._open_sinks(targets)
+        except BaseException:
+            if self.web is not None:
+                self.web.close()
+            raise
         self._fast = _fast()
         self._trail = _Trail(trail_length, trail_every)
         self._command_scale = command_scale
-        self._link_frames_every = link_frames_every
+        self._robot = RobotDrawing(self._stream.log, self._fast, None, link_frames_every)
+        self._budget_ms = None if tick_period is None else float(tick_period) * 1e3
         self._stage = -1
         self._static: dict[str, str] = {}
         self._goal_object: dict[str, str] = {}
         self._object_goals: dict[str, list[str]] = {}
         self._objects: dict[str, _ObjectState] = {}
         self._sizes: dict[str, tuple[float, float, float]] = {}
+        self._shapes: dict[str, _Shape] = {}
+        self._committed_outline: bytes | None = None
+        self._status: tuple[str | None, ...] | None = None
+        self._stage_name: str | None = None
+        self._goal_colours: dict[str, int] = {}
+        self._open_series: set[str] = set()  # plots with a line in progress
         self._pending_clears: list[str] = []
-        self._links: list[bytes] = []  # per link frame, as last sent
-        self._arm: list[bytes] = []  # every link, as last sent in the line strip
         self._paths: dict[str, str] = {}
         self._p_thresh: float | None = None
         self._threshold_due = False
@@ -465,28 +574,39 @@ class RerunLog:
         self._stream.log("meta/robot", rr.TextDocument(robot), static=True)
         self._stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
-    def _open_sink(self, kind: str, arg: str | None) -> None:
-        blueprint = default_blueprint()
-        if kind == "save":
-            path = self._save_path
-            assert path is not None
-            try:
+    def _open_sinks(self, targets: list[tuple[str, str | None]]) -> None:
+        sinks: list[Any] = []
+        for kind, arg in targets:
+            if kind == "save":
+                path = self._save_path
+                assert path is not None
                 # no footer while logging: its manifest would grow in memory all session
-                self._stream.save(path, default_blueprint=blueprint, write_footer=False)
-            except (OSError, RuntimeError, ValueError) as exc:
-                detail = " ".join(str(exc).split()) + _disk_note(path)
-                raise InputError(f"cannot write {path}: {detail}", field="--rerun") from None
-        elif kind == "spawn":
-            viewer = viewer_executable()
-            try:
-                rr.spawn(executable_path=str(viewer), recording=self._stream,
-                         default_blueprint=blueprint)  # fmt: skip
-            except (OSError, RuntimeError) as exc:
-                detail = " ".join(str(exc).split())
-                raise InputError(f"cannot start the Rerun viewer {viewer}: {detail}",
+                sinks.append(rr.FileSink(path, write_footer=False))
+            elif kind == "spawn":
+                viewer = viewer_executable()
+                try:
+                    rr.spawn(executable_path=str(viewer), connect=False)
+                except (OSError, RuntimeError) as exc:
+                    detail = " ".join(str(exc).split())
+                    raise InputError(f"cannot start the Rerun viewer {viewer}: {detail}",
+                                     field="--rerun") from None  # fmt: skip
+                sinks.append(rr.GrpcSink(SPAWN_URL))
+            elif kind == "web":
+                from legws_daemon.telemetry.web_viewer import WebViewer, parse_web_target
+
+                self.web = WebViewer.start(parse_web_target(arg))
+                sinks.append(rr.GrpcSink(self.web.target.grpc_url))
+            else:
+                sinks.append(rr.GrpcSink(arg) if arg else rr.GrpcSink())
+        try:
+            self._stream.set_sinks(*sinks, default_blueprint=default_blueprint())
+        except (OSError, RuntimeError, ValueError) as exc:
+            detail = " ".join(str(exc).split())
+            if self._save_path is not None:
+                detail += _disk_note(self._save_path)
+                raise InputError(f"cannot write {self._save_path}: {detail}",
                                  field="--rerun") from None  # fmt: skip
-        else:
-            self._stream.connect_grpc(arg, default_blueprint=blueprint)
+            raise InputError(f"cannot open the Rerun sinks: {detail}", field="--rerun") from None
 
     @property
     def closed(self) -> bool:
@@ -525,6 +645,7 @@ class RerunLog:
             return
         doc = self._stage_doc(scene, goals, goal_objects, planned, p_thresh, params_json, stage)
         self._stage += 1
+        self._stage_name = stage
         doc["stage_index"] = self._stage
         static: dict[str, str] = {}
         self._log_table(scene, static)
@@ -598,9 +719,7 @@ class RerunLog:
                 centers=[[pose.x, pose.y, scene.z_center(name)]],
                 half_sizes=[_half_size(scene, name)],
                 quaternions=[rr.Quaternion(xyzw=_yaw_xyzw(pose.yaw))],
-                colors=[[90, 140, 230]],
-                labels=[f"{name} (planned)"],
-                show_labels=False,
+                colors=[_PLANNED],
                 fill_mode="majorwireframe",
             )
             self._stream.log(path, box, static=True)
@@ -614,23 +733,39 @@ class RerunLog:
                 quaternion=rr.Quaternion(xyzw=_xyzw(goals.quaternions[i])),
             )
             approach = rr.Arrows3D(
-                origins=[[0.0, 0.0, -0.08]],
-                vectors=[[0.0, 0.0, 0.08]],
+                origins=[[0.0, 0.0, -0.06]],
+                vectors=[[0.0, 0.0, 0.06]],
                 colors=[_PALETTE[i % len(_PALETTE)]],
-                labels=[name],
+                radii=[0.002],
             )
-            self._stream.log(path, frame, rr.TransformAxes3D(0.04), approach, static=True)
+            self._stream.log(path, frame, approach, static=True)
             static[path] = "grasp"
 
     def _log_series(self, goals: GoalSet, static: dict[str, str]) -> None:
-        for i, name in enumerate(goals.names):
-            path = self._posterior_path(name)
-            style = rr.SeriesLines(colors=[_PALETTE[i % len(_PALETTE)]], names=[name], widths=2)
-            self._stream.log(path, style, static=True)
-            static[path] = "series"
-        threshold = rr.SeriesLines(colors=[0x999999FF], names=["p_thresh"], widths=1)
-        self._stream.log("plots/threshold", threshold, static=True)
-        static["plots/threshold"] = "series"
+        # a goal keeps its colour for the whole session (its earlier curves stay in the
+        # plot), so the styles of earlier stages' goals are not cleared
+        for name in goals.names:
+            if name in self._goal_colours:
+                continue
+            colour = _PALETTE[len(self._goal_colours) % len(_PALETTE)]
+            self._goal_colours[name] = colour
+            style = rr.SeriesLines(colors=[colour], names=[name], widths=2)
+            self._stream.log(self._posterior_path(name), style, static=True)
+        styles: dict[str, rr.SeriesLines | rr.SeriesPoints] = {
+            "plots/threshold": rr.SeriesLines(colors=[0xBBBBBBFF], names=["threshold"], widths=1),
+            COMMITS_PLOT: rr.SeriesPoints(
+                colors=[_COMMITTED], names=["commit"], markers=["diamond"], marker_sizes=[6]
+            ),
+            "plots/slack": rr.SeriesLines(colors=[0x4FC3F7FF], names=["slack J"], widths=2),
+            f"{TIMING}/tick_ms": rr.SeriesLines(colors=[0x9CCC65FF], names=["tick"], widths=1),
+            f"{TIMING}/budget_ms": rr.SeriesLines(colors=[0xBBBBBBFF], names=["budget"], widths=1),
+            f"{TIMING}/overruns": rr.SeriesPoints(
+                colors=[_OVERRUN], names=["overrun"], markers=["cross"], marker_sizes=[5]
+            ),
+        }
+        for path, series in styles.items():
+            self._stream.log(path, series, static=True)
+            static[path] = "points" if isinstance(series, rr.SeriesPoints) else "series"
 
     def _clear_static(self, static: dict[str, str]) -> None:
         """Overwrite the static data of entities the new stage no longer has."""
@@ -640,8 +775,10 @@ class RerunLog:
             if kind == "box":
                 self._stream.log(path, rr.Boxes3D.cleared(), static=True)
             elif kind == "grasp":
-                cleared = (rr.Transform3D.cleared(), rr.TransformAxes3D.cleared())
-                self._stream.log(path, *cleared, rr.Arrows3D.cleared(), static=True)
+                cleared = (rr.Transform3D.cleared(), rr.Arrows3D.cleared())
+                self._stream.log(path, *cleared, static=True)
+            elif kind == "points":
+                self._stream.log(path, rr.SeriesPoints.cleared(), static=True)
             else:
                 self._stream.log(path, rr.SeriesLines.cleared(), static=True)
         self._static = static
@@ -650,9 +787,14 @@ class RerunLog:
         self, scene: Scene, goals: GoalSet, goal_objects: Mapping[str, str], p_thresh: float
     ) -> None:
         self._sizes = {name: _half_size(scene, name) for name in scene.objects}
+        shapes = {name: _shape_of(scene, name) for name in scene.objects}
+        # objects gone, or drawn as another shape now (the old archetype would stay)
         self._pending_clears.extend(
-            f"world/objects/{_part(n)}" for n in self._objects if n not in self._sizes
+            f"world/objects/{_part(n)}"
+            for n, state in self._objects.items()
+            if shapes.get(n, _UNKNOWN).kind != state.shape.kind or n not in shapes
         )
+        self._shapes = shapes
         self._objects = {}
         self._goal_object = {g: goal_objects[g] for g in goals.names if g in goal_objects}
         self._object_goals = {}
@@ -687,26 +829,73 @@ class RerunLog:
         slack: float | None,
         committed: str | None,
         tick_seconds: float | None = None,
+        gripper_half_gap: float | None = None,
+        phase: str | None = None,
+        operator: str | None = None,
+        fault: str | None = None,
+        stage: str | None = None,
     ) -> None:
-        """Log one control tick (see the module docstring for the entities). Never raises."""
+        """Log one control tick (see the module docstring for the entities). Never raises.
+
+        ``posterior`` is ``None`` when nothing is being inferred (the objects are then
+        labelled with their names only, and the plot has a gap). ``gripper_half_gap`` is half
+        the fingers' opening (m, :func:`~legws_daemon.robot.visual.finger_half_gap`);
+        ``phase``, ``operator``, ``fault`` (``None``: none) and ``stage`` (the task's
+        current stage, also one without inference; default: the last set up) fill the
+        status panel."""
         if self._closed:
             return
+        posterior = posterior or None  # an empty posterior (no goals in the stage) is none
         try:
             self._set_time(tick, t)
             for path in self._pending_clears:
                 self._stream.log(path, rr.Clear(recursive=False))
             self._pending_clears.clear()
-            self._log_links(tick, link_positions, link_rotations)
+            self._robot.log_poses(tick, link_positions, link_rotations)
+            if gripper_half_gap is not None:
+                self._robot.log_fingers(float(gripper_half_gap))
             ee = self._log_ee(t, ee_position, ee_quaternion)
-            self._log_objects(objects, posterior or {}, committed)
+            self._log_objects(objects, posterior, committed)
             self._log_arrows(ee, joystick, command)
             self._log_plots(tick, posterior, slack, tick_seconds)
             if mode != self._mode:
                 self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
                 self._mode = mode
+            self._log_status((mode, operator, phase, fault, stage), committed)
             self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("tick", exc)
+
+    def log_robot(self, visual: RobotVisual) -> None:
+        """Draw the arm with its own meshes from now on (static; call once, before the
+        ticks: the first tick then shows the whole arm). Never raises."""
+        if self._closed:
+            return
+        try:
+            self._robot = RobotDrawing(self._stream.log, self._fast, visual, self._robot.every)
+            self._robot.log_static()
+            self._logged += 1
+        except Exception as exc:  # telemetry must never stop the control loop
+            self._drop("robot", exc)
+
+    def _log_status(self, fields: tuple[str | None, ...], committed: str | None) -> None:
+        """The status panel, re-sent when a field changes."""
+        mode, operator, phase, fault, stage = fields
+        stage = stage or self._stage_name
+        key = (mode, operator, phase, fault, stage, committed)
+        if key == self._status:
+            return
+        self._status = key
+        fault_text = f"**fault** :warning: {_md(fault)}" if fault else "**fault** none"
+        doc = "  \n".join(
+            [
+                f"**mode** {_md(mode)} · **phase** {_md(phase or '-')} · "
+                f"**stage** {_md(stage or '-')}",
+                f"**committed** {_md(committed or '-')} · {fault_text}",
+                f"**operator** {_md(operator or 'none')}",
+            ]
+        )
+        self._stream.log(STATUS_DOC, rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN))
 
     def _drop(self, what: str, exc: Exception) -> None:
         self.dropped += 1
@@ -718,35 +907,6 @@ class RerunLog:
         self._now = (tick, t)
         self._stream.set_time("tick", sequence=tick)
         self._stream.set_time("time", duration=t)
-
-    def _log_links(self, tick: int, positions: FloatArray, rotations: FloatArray) -> None:
-        pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-        rot = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
-        k = len(pos)
-        every = self._link_frames_every
-        if len(self._links) != k:
-            self._links = [b""] * k
-            for i in range(k if every > 0 else 0):
-                self._stream.log(f"world/robot/link_{i}", rr.TransformAxes3D(0.05), static=True)
-        keys = [pos[i].tobytes() + rot[i].tobytes() for i in range(k)]
-        fast = self._fast
-        if keys != self._arm:
-            self._arm = keys
-            self._stream.log("world/robot/links", [fast.strips("LineStrips3D:strips", pos)])
-        if every <= 0 or keys == self._links or (tick % every and self._links[0]):
-            return
-        # one Arrow array per quantity, zero-copy slices per link; rerun stores column-major
-        translations = pa.array(pos.astype(np.float32).ravel())
-        matrices = pa.array(rot.transpose(0, 2, 1).astype(np.float32).ravel())
-        for i in range(k):
-            if keys[i] == self._links[i]:
-                continue
-            self._links[i] = keys[i]
-            frame = [
-                fast.wrap("Transform3D:translation", translations.slice(3 * i, 3)),
-                fast.wrap("Transform3D:mat3x3", matrices.slice(9 * i, 9)),
-            ]
-            self._stream.log(f"world/robot/link_{i}", frame)
 
     def _log_ee(self, t: float, position: FloatArray, quaternion: FloatArray) -> FloatArray:
         p = np.array(position, dtype=np.float64).reshape(3)
@@ -772,47 +932,56 @@ class RerunLog:
     def _log_objects(
         self,
         objects: Mapping[str, tuple[FloatArray, FloatArray]],
-        posterior: Mapping[str, float],
+        posterior: Mapping[str, float] | None,
         committed: str | None,
     ) -> None:
-        fast = self._fast
         committed_object = self._goal_object.get(committed) if committed else None
+        outline: tuple[FloatArray, FloatArray, _Shape] | None = None
         for name, (position, quaternion) in objects.items():
             state = self._objects.get(name)
-            batches: list[rr.DescribedComponentBatch] = []
             if state is None:
-                state = _ObjectState(self._sizes.get(name, _UNKNOWN_HALF_SIZE))
-                self._objects[name] = state
-                batches.append(fast.fixed("Boxes3D:half_sizes", state.half_size))
-                batches.append(fast.constant("Boxes3D:fill_mode", 3))  # solid
+                state = self._objects[name] = _ObjectState(self._shapes.get(name, _UNKNOWN))
             p = np.asarray(position, dtype=np.float64).reshape(3)
             q = np.asarray(quaternion, dtype=np.float64).reshape(4)
-            pose = p.tobytes() + q.tobytes()
-            if pose != state.pose:
-                state.pose = pose
-                batches.append(fast.fixed("Boxes3D:centers", p))
-                batches.append(fast.fixed("Boxes3D:quaternions", _xyzw(q)))
-            style = self._object_style(name, posterior, committed_object)
-            if style != state.style:
-                state.style = style
-                batches.append(fast.plain("Boxes3D:colors", [style[0]]))
-                batches.append(fast.plain("Boxes3D:labels", [style[1]]))
-            if batches:
-                self._stream.log(f"world/objects/{_part(name)}", batches)
+            label = self._object_label(name, posterior)
+            sent = p.tobytes() + q.tobytes() + label.encode()
+            if sent != state.sent:
+                state.sent = sent
+                self._stream.log(f"world/objects/{_part(name)}", state.shape.archetype(p, q, label))
+            if name == committed_object:
+                outline = (p, q, state.shape)
+        self._log_outline(outline)
 
-    def _object_style(
-        self, name: str, posterior: Mapping[str, float], committed_object: str | None
-    ) -> tuple[int, str]:
-        """Colour and label; the probability is quantised so that a label is re-sent only
-        when it changes by a colour step."""
+    def _log_outline(self, outline: tuple[FloatArray, FloatArray, _Shape] | None) -> None:
+        """An amber outline around the committed object (cleared without a commit)."""
+        if outline is None:
+            if self._committed_outline is not None:
+                self._stream.log("world/committed", rr.Clear(recursive=False))
+                self._committed_outline = None
+            return
+        p, q, shape = outline
+        key = p.tobytes() + q.tobytes()
+        if key == self._committed_outline:
+            return
+        self._committed_outline = key
+        box = rr.Boxes3D(
+            centers=[p],
+            half_sizes=[[h + 0.012 for h in shape.half_size]],
+            quaternions=[rr.Quaternion(xyzw=_xyzw(q))],
+            colors=[_COMMITTED],
+            radii=[0.003],
+            fill_mode="majorwireframe",
+        )
+        self._stream.log("world/committed", box)
+
+    def _object_label(self, name: str, posterior: Mapping[str, float] | None) -> str:
+        """The object's name, then its probability (quantised to a colour step, so the
+        label is re-sent only when it visibly changes) while inferring."""
         goals = self._object_goals.get(name)
-        if not goals:
-            return _OTHER, name
+        if not goals or posterior is None:
+            return name
         p = min(max(sum(float(posterior.get(g, 0.0)) for g in goals), 0.0), 1.0)
-        level = round(p * _COLOUR_LEVELS) / _COLOUR_LEVELS
-        if name == committed_object:
-            return _COMMITTED, f"{name} {level:.2f} committed"
-        return posterior_colour(level), f"{name} {level:.2f}"
+        return f"{name} {round(p * _COLOUR_LEVELS) / _COLOUR_LEVELS:.2f}"
 
     def _log_arrows(self, ee: FloatArray, joystick: FloatArray | None, command: FloatArray) -> None:
         fast = self._fast
@@ -846,16 +1015,35 @@ class RerunLog:
         tick_s: float | None,
     ) -> None:
         fast = self._fast
+        drawn = set()
         for goal, p in (posterior or {}).items():
-            self._stream.log(self._posterior_path(goal), [fast.plain("Scalars:scalars", [p])])
+            path = self._posterior_path(goal)
+            self._stream.log(path, [fast.plain("Scalars:scalars", [p])])
+            drawn.add(path)
+        if slack is not None:
+            drawn.add("plots/slack")
+        if posterior is None:  # inference stopped: a NaN ends each line (none across the gap)
+            for path in sorted(self._open_series):
+                self._stream.log(path, [fast.constant("Scalars:scalars", math.nan)])
+            self._open_series = set()
+        else:  # the slack comes every few ticks: its line goes on between its points
+            self._open_series |= drawn
         if self._p_thresh is not None and (self._threshold_due or tick % _THRESHOLD_EVERY == 0):
             value = [fast.constant("Scalars:scalars", self._p_thresh)]
             self._stream.log("plots/threshold", value)
             self._threshold_due = False
         if slack is not None:
             self._stream.log("plots/slack", [fast.plain("Scalars:scalars", [slack])])
-        if tick_s is not None:
-            self._stream.log("plots/tick_ms", [fast.plain("Scalars:scalars", [tick_s * 1e3])])
+        if tick_s is None:
+            return
+        ms = tick_s * 1e3
+        self._stream.log(f"{TIMING}/tick_ms", [fast.plain("Scalars:scalars", [ms])])
+        budget = self._budget_ms
+        if budget is not None:
+            if tick % _THRESHOLD_EVERY == 0:
+                self._stream.log(f"{TIMING}/budget_ms", [fast.constant("Scalars:scalars", budget)])
+            if ms > budget:
+                self._stream.log(f"{TIMING}/overruns", [fast.plain("Scalars:scalars", [ms])])
 
     # --- events and lifecycle ------------------------------------------------------------------
 
@@ -869,13 +1057,16 @@ class RerunLog:
             self._set_time(tick, t)
             stage = [self._fast.plain(f"{STAGE_ARCHETYPE}:stage", [self._stage])]
             self._stream.log(TEXT_LOG, rr.TextLog(text, level=lvl), stage)
+            commit = parse_commit(text)
+            if commit is not None:
+                self._stream.log(COMMITS_PLOT, [self._fast.plain("Scalars:scalars", [commit.p])])
             self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("text", exc)
 
-    def log_commit(self, tick: int, t: float, goal: str, p: float) -> None:
+    def log_commit(self, tick: int, t: float, goal: str, p: float, how: How = "inferred") -> None:
         """Log a commit in the format :func:`commit_text` (read back by ``legws replay``)."""
-        self.log_text(tick, t, "INFO", commit_text(goal, p))
+        self.log_text(tick, t, "INFO", commit_text(goal, p, how=how))
 
     def check(self) -> str | None:
         """Whether the recording still takes data (cheap; any thread).
@@ -962,6 +1153,9 @@ class RerunLog:
         except Exception as exc:
             self._drop("close", exc)
             return
+        finally:
+            if self.web is not None:
+                self.web.close()
         if self._save_path is not None and finish_file:
             started = time.monotonic()
             try:

@@ -65,9 +65,14 @@ def test_replay_commits_on_the_goal_reached(cli: Cli, banana: tuple[Path, int]) 
     assert stage["recorded_commit"]["goal"] == "banana"
     assert stage["recorded_commit"]["tick"] == commit_tick
     assert stage["agrees"] is True
-    assert stage["final_posterior"]["banana"] > 0.9
-    assert sum(stage["final_posterior"].values()) == pytest.approx(1.0)
+    assert commit["posterior"]["banana"] == commit["p"]
+    assert sum(commit["posterior"].values()) == pytest.approx(1.0)
+    assert stage["recorded_commit"]["how"] == "inferred"
+    assert stage["recorded_commit"]["recorded_posterior"] == commit["posterior"]
+    assert stage["recorded_commit"]["replayed_posterior"] == commit["posterior"]
+    assert stage["mismatches"] == []
     assert stage["params"] == stage["recorded_params"]
+    assert "final_posterior" not in stage
 
 
 def test_a_higher_threshold_commits_later_or_never(
@@ -106,9 +111,12 @@ def test_text_report(cli: Cli, banana: tuple[Path, int]) -> None:
     result = cli("replay", path)
     assert result.code == 0 and result.err == ""
     assert f"replayed commit: banana at tick {commit_tick} (" in result.out
-    assert f"recorded commit: banana at tick {commit_tick}, p = " in result.out
-    assert "(same goal)" in result.out
-    assert "final posterior: cereal_box 0.0" in result.out
+    assert f"recorded commit: banana at tick {commit_tick} (" in result.out
+    assert "(inferred) (same goal)" in result.out
+    assert "posterior at the commit: cereal_box 0.1" in result.out
+    assert f"recorded posterior at tick {commit_tick}: cereal_box 0.1" in result.out
+    assert "final posterior" not in result.out
+    assert "end of inference" not in result.out  # both committed
 
 
 @pytest.mark.parametrize(

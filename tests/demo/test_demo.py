@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 
 from legws_daemon.autonomy.controller import Controller
 from legws_daemon.core.params import Params
@@ -87,6 +88,40 @@ def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(tmp_path: Path) 
     assert verify.returncode == 0
     commits = [t for _, _, t in read_text_log(rrd) if t.startswith("commit ")]
     assert len(commits) == 4
+    assert sum(t.endswith(" how=single") for t in commits) == 2
+    _assert_operator_view(rrd)
+
+
+def _assert_operator_view(rrd: Path) -> None:
+    """Read back with rerun's own API: the arm's link meshes, and the posterior, the slack
+    and the timing each in a plot of its own in the file's blueprint."""
+    reader = RrdReader(rrd)
+    meshes = {
+        str(c.entity_path)
+        for c in reader.stream().filter(components="Mesh3D:vertex_positions").to_chunks()
+    }
+    assert {"/world/robot/right_l0/mesh", "/world/robot/right_l6/mesh"} <= meshes
+    assert len(meshes) >= 8
+    views: dict[str, tuple[str, list[str]]] = {}
+    contents: dict[str, list[str]] = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch, path = chunk.to_record_batch(), str(chunk.entity_path)
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            kind = batch.column("ViewBlueprint:class_identifier").to_pylist()[-1][0]
+            name = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
+            views[path] = (kind, name)
+        if "ViewContents:query" in batch.schema.names:
+            contents[path.removesuffix("/ViewContents")] = batch.column(
+                "ViewContents:query"
+            ).to_pylist()[-1]
+    plots = {name: contents[path] for path, (kind, name) in views.items() if kind == "TimeSeries"}
+    assert plots == {
+        "posterior": ["/plots/posterior/**", "/plots/threshold", "/plots/commits"],
+        "slack": ["/plots/slack"],
+        "timing (ms)": ["/plots/timing/**"],
+    }
+    kinds = sorted(kind for kind, _ in views.values())
+    assert kinds == ["3D", "TextDocument", "TextLog", "TimeSeries", "TimeSeries", "TimeSeries"]
 
 
 def test_a_plan_moves_each_decisions_objects_to_their_planned_poses(fast: ProfileSpec) -> None:

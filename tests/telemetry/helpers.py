@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,9 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import Params
+from legws_daemon.robot.kinematics import home_configuration
+from legws_daemon.robot.visual import RobotVisual, robot_visual
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.telemetry.rerun_log import RerunLog
@@ -22,7 +26,29 @@ from legws_daemon.telemetry.rrd_file import rerun_cli
 
 #: The ``rerun`` executable the daemon uses (``rerun rrd verify`` works headless).
 RERUN = rerun_cli()
-LINKS = 8
+
+
+@cache
+def _arm() -> World:
+    world = World(load_scene("breakfast_easy"))
+    home = world.scene.home
+    world.set_q(home_configuration(world, home.position, home.rotation).q)
+    return world
+
+
+def arm_visual() -> RobotVisual:
+    """The Sawyer's meshes (the real robot model, as the daemon draws it)."""
+    return robot_visual(_arm())
+
+
+@cache
+def _arm_poses(k: int) -> tuple[FloatArray, FloatArray]:
+    """Link poses of the real arm for sample ``k``: the home pose, the base joint turned
+    by ``0.01 k`` rad (so the links move from sample to sample)."""
+    world = _arm().twin()
+    q = world.q
+    q[0] += 0.01 * k
+    return world.link_poses(q)
 
 
 @dataclass(frozen=True)
@@ -85,9 +111,10 @@ def tick_kwargs(ep: Episode, k: int, posterior: dict[str, float] | None) -> dict
     moving = k + 1 < len(ep.positions) and not np.array_equal(ep.positions[k + 1], x)
     direction = ep.goals.positions[ep.goals.index(ep.target)] - ep.goals.x0.position
     direction = direction / np.linalg.norm(direction)
+    links, rotations = _arm_poses(k)
     return {
-        "link_positions": np.linspace([0.0, 0.0, 0.3], x, LINKS),
-        "link_rotations": np.tile(np.eye(3), (LINKS, 1, 1)),
+        "link_positions": links,
+        "link_rotations": rotations,
         "ee_position": x,
         "ee_quaternion": ep.quaternion,
         "objects": objects_of(ep.scene),
@@ -98,6 +125,10 @@ def tick_kwargs(ep: Episode, k: int, posterior: dict[str, float] | None) -> dict
         "slack": 0.1,
         "committed": None,
         "tick_seconds": 0.001,
+        "gripper_half_gap": 0.042,
+        "phase": "infer",
+        "operator": "sim_user",
+        "fault": None,
     }
 
 
@@ -128,7 +159,8 @@ def record(path: Path, *episodes: Episode) -> list[int | None]:
     """Write ``episodes`` as consecutive stages ``s0``, ``s1``...; their commit ticks."""
     commits = []
     tick0 = 0
-    with RerunLog(f"save:{path}", robot="sawyer-sim") as log:
+    with RerunLog(f"save:{path}", robot="sawyer-sim", tick_period=0.05) as log:
+        log.log_robot(arm_visual())
         for i, ep in enumerate(episodes):
             commits.append(log_episode(log, ep, tick0=tick0, stage=f"s{i}"))
             tick0 += len(ep.positions)

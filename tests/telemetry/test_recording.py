@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import rerun as rr
 
+from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.recording import (
@@ -21,6 +22,8 @@ from legws_daemon.telemetry.recording import (
     read_ee_path,
     read_goals,
     read_params,
+    read_posterior,
+    read_recorded_commits,
     read_stages,
     read_text_log,
 )
@@ -101,6 +104,70 @@ def test_the_text_log(single: tuple[Path, int | None], first: Episode) -> None:
     ((tick, goal, p),) = read_commits(path)
     assert (tick, goal) == (commit, "banana")
     assert PARAMS.p_thresh <= p < 1.0
+
+
+def test_commits_with_their_time_and_how(tmp_path: Path, first: Episode) -> None:
+    path = tmp_path / "confirmed.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, first, "s0")
+        log.log_tick(0, 0.0, **tick_kwargs(first, 0, None))
+        log.log_text(3, 0.15, "INFO", commit_text("banana", 0.61, how="confirmed"))
+        log.log_commit(7, 0.35, "cereal_box", 0.93)
+        log.log_text(9, 0.45, "INFO", commit_text("banana", 1.0, how="single"))
+    commits = read_recorded_commits(path)
+    assert [(c.tick, c.goal, c.p, c.how) for c in commits] == [
+        (3, "banana", 0.61, "confirmed"),
+        (7, "cereal_box", 0.93, "inferred"),
+        (9, "banana", 1.0, "single"),
+    ]
+    assert [c.seconds for c in commits] == pytest.approx([0.15, 0.35, 0.45])
+    assert read_commits(path) == [(c.tick, c.goal, c.p) for c in commits]
+    assert read_recorded_commits(path, "s0") == commits
+
+
+def _observed(ep: Episode) -> np.ndarray:
+    observer = IntentObserver(ep.goals, ep.params)
+    return np.array([observer.update(x, ep.quaternion) for x in ep.positions])
+
+
+def test_the_posterior_of_each_stage(two_stages: Path, first: Episode, second: Episode) -> None:
+    n0, n1 = len(first.positions), len(second.positions)
+    a = read_posterior(two_stages, 0)
+    assert a.goals == first.goals.names
+    assert a.ticks.tolist() == list(range(n0))
+    np.testing.assert_allclose(a.times, np.arange(n0) * PARAMS.dt, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(a.values, _observed(first))
+    b = read_posterior(two_stages, "s1")
+    assert b.goals == second.goals.names
+    assert b.ticks.tolist() == list(range(n0, n0 + n1))
+    np.testing.assert_array_equal(b.values, _observed(second))
+    every = read_posterior(two_stages)
+    assert every.goals == first.goals.names + second.goals.names
+    assert every.ticks.tolist() == list(range(n0 + n1))
+    assert np.isnan(every.values[:n0, 2:]).all() and np.isnan(every.values[n0:, :2]).all()
+    assert b.row_at(n0 - 1) is None and b.row_at(10**9) == n1 - 1
+    row = b.row_at(n0 + 3)
+    assert row == 3
+    assert b.as_dict(row) == dict(zip(second.goals.names, b.values[3].tolist(), strict=True))
+    assert every.as_dict(0)[second.goals.names[0]] is None
+
+
+def test_the_posterior_is_absent_while_not_inferring(tmp_path: Path, first: Episode) -> None:
+    path = tmp_path / "gaps.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, first)
+        for k in range(6):
+            post = (
+                {"banana": 0.25 + k / 10, "cereal_box": 0.75 - k / 10} if k in (1, 2, 4) else None
+            )
+            log.log_tick(k, k * 0.05, **tick_kwargs(first, k, post))
+    posterior = read_posterior(path, 0)
+    assert posterior.ticks.tolist() == [1, 2, 4]
+    assert posterior.row_at(3) == 1 and posterior.row_at(0) is None
+    assert posterior.as_dict(2) == {
+        "cereal_box": pytest.approx(0.35),
+        "banana": pytest.approx(0.65),
+    }
 
 
 @pytest.mark.parametrize("goal", ["banana", "my mug", "a p=0.5 b", "ünï/cödé"])
@@ -227,6 +294,7 @@ os.kill(os.getpid(), signal.SIGKILL)
 """
 
 
+@pytest.mark.slow
 def test_a_crashed_recording_without_footer_is_still_read(tmp_path: Path) -> None:
     path = tmp_path / "crashed.rrd"
     root = Path(__file__).resolve().parents[2]

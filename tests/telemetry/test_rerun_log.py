@@ -17,9 +17,10 @@ from rerun.chunk import RrdReader
 
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.recording import entity_paths, read_ee_path, read_stages
-from legws_daemon.telemetry.rerun_log import RerunLog, _fast, parse_target, posterior_colour
+from legws_daemon.telemetry.rerun_log import RerunLog, _fast, parse_target, parse_targets
 from tests.telemetry.helpers import (
     Episode,
+    arm_visual,
     log_episode,
     record,
     setup,
@@ -54,18 +55,35 @@ def recording(tmp_path_factory: pytest.TempPathFactory, episode: Episode) -> Pat
             "connect:rerun+http://127.0.0.1:9876/proxy",
             ("connect", "rerun+http://127.0.0.1:9876/proxy"),
         ),
+        ("web", ("web", None)),
+        ("web:9190", ("web", "9190")),
+        ("web:127.0.0.1:9190", ("web", "127.0.0.1:9190")),
     ],
 )
 def test_parse_target(text: str, expected: tuple[str, str | None]) -> None:
     assert parse_target(text) == expected
 
 
-@pytest.mark.parametrize("text", ["", "save", "save:", "spawn:x", "connect:", "file:x.rrd", "x"])
+@pytest.mark.parametrize(
+    "text",
+    ["", "save", "save:", "spawn:x", "connect:", "file:x.rrd", "x", "web:", "web:0",
+     "web:65535", "web:host.example:9090", "web:9090x"],
+)  # fmt: skip
 def test_parse_target_rejects(text: str) -> None:
     with pytest.raises(InputError, match="--rerun") as err:
         parse_target(text)
     assert "\n" not in str(err.value)
-    assert "save:PATH" in str(err.value)
+    assert "save:PATH" in str(err.value) or "web" in str(err.value)
+
+
+def test_several_targets_each_kind_once(tmp_path: Path) -> None:
+    save = f"save:{tmp_path / 'a.rrd'}"
+    assert parse_targets([save, "web:9190"]) == [("save", str(tmp_path / "a.rrd")),
+                                                 ("web", "9190")]  # fmt: skip
+    with pytest.raises(InputError, match="save given 2 times"):
+        parse_targets([save, f"save:{tmp_path / 'b.rrd'}"])
+    with pytest.raises(InputError, match="--rerun"):
+        parse_targets([])
 
 
 def test_save_needs_an_existing_folder(tmp_path: Path) -> None:
@@ -82,14 +100,19 @@ def test_recording_has_the_documented_entities(recording: Path, episode: Episode
         "world/table",
         "world/ee",
         "world/ee_trail",
-        "world/robot/links",
-        "world/robot/link_0",
-        "world/robot/link_7",
+        "world/robot/right_l0",
+        "world/robot/right_l0/mesh",
+        "world/robot/right_hand/fingers",
+        "world/robot/right_hand/gripper_base",
         "world/joystick",
         "world/command",
+        "world/committed",
         "plots/threshold",
+        "plots/commits",
         "plots/slack",
-        "plots/tick_ms",
+        "plots/timing/tick_ms",
+        "plots/timing/budget_ms",
+        "status",
         "status/mode",
         "log",
         "meta/goals",
@@ -136,20 +159,95 @@ def test_joystick_is_cleared_when_released(recording: Path, episode: Episode) ->
     assert [tick for tick, _ in clears] == [last_moving + 1]
 
 
-def test_objects_are_coloured_by_posterior(recording: Path) -> None:
+def test_objects_have_their_shape_colour_and_one_label(recording: Path, episode: Episode) -> None:
     colours = [c[0] for _, c in _rows(recording, "world/objects/banana", "Boxes3D:colors") if c]
     labels = [x[0] for _, x in _rows(recording, "world/objects/banana", "Boxes3D:labels") if x]
-    assert colours[0] == posterior_colour(0.5)  # two goals, uniform prior
-    assert labels[0] == "banana 0.50"
-    assert labels[-1].endswith("committed")
-    bowl = _rows(recording, "world/objects/bowl", "Boxes3D:labels")
-    assert [x for _, x in bowl] == [["bowl"]]  # not a goal: sent once
+    r, g, b = (round(c * 255) for c in episode.scene.object("banana").color)
+    assert set(colours) == {(r << 24) | (g << 16) | (b << 8) | 0xFF}  # its own colour
+    assert labels[0] == "banana 0.50"  # two goals, uniform prior
+    assert float(labels[-1].split()[-1]) >= 0.9
+    # the bowl is a cylinder (not a goal: its name only, sent once)
+    bowl = _rows(recording, "world/objects/bowl", "Cylinders3D:labels")
+    assert [x for _, x in bowl] == [["bowl"]]
+    assert not _rows(recording, "world/objects/bowl", "Boxes3D:labels")
+    # the planned poses and grasps carry no labels
+    for entity in ("world/planned/banana", "world/grasps/banana"):
+        for kind in ("Boxes3D", "Arrows3D"):
+            assert not _rows(recording, entity, f"{kind}:labels")
 
 
-def test_posterior_colour_goes_from_grey_to_green() -> None:
-    assert posterior_colour(0.0) == 0x969696FF
-    assert posterior_colour(1.0) == 0x28C846FF
-    assert posterior_colour(2.0) == posterior_colour(1.0)
+def test_the_committed_object_is_outlined(recording: Path) -> None:
+    (commit,) = [t for t, x in _rows(recording, "log", "TextLog:text") if x[0].startswith("commit")]
+    outline = _rows(recording, "world/committed", "Boxes3D:centers")
+    assert outline[0][0] == commit
+    points = _rows(recording, "plots/commits", "Scalars:scalars")
+    assert [t for t, _ in points] == [commit]
+    assert points[0][1][0] >= 0.9
+
+
+def test_the_arm_is_drawn_with_its_meshes_from_the_first_tick(recording: Path) -> None:
+    visual = arm_visual()
+    assert visual.vertex_count > 100_000  # the Sawyer's own meshes, not primitives
+    total = 0
+    for mesh in visual.meshes:
+        (row,) = _rows(recording, f"world/robot/{mesh.name}/mesh", "Mesh3D:vertex_positions")
+        assert row[0] is None  # static
+        total += len(row[1])
+        assert len(row[1]) == len(mesh.vertices)
+    assert total == visual.vertex_count
+    for i in visual.drawn_links:
+        ticks = [t for t, _ in _rows(recording, f"world/robot/{visual.links[i]}",
+                                     "Transform3D:translation")]  # fmt: skip
+        assert ticks[0] == 0, visual.links[i]
+
+
+def test_the_fingers_follow_the_opening(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "fingers.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        log.log_robot(arm_visual())
+        setup(log, episode)
+        for tick, gap in enumerate([0.042, 0.042, 0.0421, 0.02, 0.004]):
+            log.log_tick(tick, tick * 0.05, **{**tick_kwargs(episode, 0, None),
+                                               "gripper_half_gap": gap})  # fmt: skip
+    rows = _rows(path, "world/robot/right_hand/fingers", "Boxes3D:centers")
+    assert [t for t, _ in rows] == [0, 3, 4]  # sent when the opening changed
+    fingers = arm_visual().fingers
+    assert fingers is not None
+    for (_, centers), gap in zip(rows, [0.042, 0.02, 0.004], strict=True):
+        y = [c[1] for c in centers]
+        assert y == pytest.approx([gap + fingers.half_size[1], -gap - fingers.half_size[1]])
+
+
+def test_without_inference_objects_show_their_names_only(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "stopped.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode)
+        kwargs = tick_kwargs(episode, 0, None)
+        log.log_tick(0, 0.0, **{**kwargs, "mode": "stopped"})
+    labels = _rows(path, "world/objects/banana", "Boxes3D:labels")
+    assert [x for _, x in labels] == [["banana"]]
+    assert not _rows(path, "plots/posterior/banana", "Scalars:scalars")
+
+
+def test_status_panel_and_timing(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "status.rrd"
+    with RerunLog(f"save:{path}", robot="r", tick_period=0.05) as log:
+        setup(log, episode, stage="pick")
+        base = tick_kwargs(episode, 0, None)
+        log.log_tick(0, 0.0, **base)
+        log.log_tick(1, 0.05, **{**base, "tick_seconds": 0.08})  # an overrun
+        log.log_tick(2, 0.10, **base)  # nothing changed: no new panel
+        log.log_tick(3, 0.15, **{**base, "mode": "stopped", "fault": "bridge | lost"})
+    docs = _rows(path, "status", "TextDocument:text")
+    assert [t for t, _ in docs] == [0, 3]
+    assert "**mode** teleop · **phase** infer · **stage** pick" in docs[0][1][0]
+    assert "**operator** sim\\_user" in docs[0][1][0]
+    assert "**fault** none" in docs[0][1][0]
+    assert "**fault** :warning: bridge \\| lost" in docs[1][1][0]
+    assert [t for t, _ in _rows(path, "plots/timing/overruns", "Scalars:scalars")] == [1]
+    assert _rows(path, "plots/timing/budget_ms", "Scalars:scalars")[0][1] == [50.0]
+    with pytest.raises(InputError, match="tick_period"):
+        RerunLog(f"save:{tmp_path / 'y.rrd'}", robot="r", tick_period=0.0)
 
 
 def test_fast_batches_match_the_archetypes() -> None:
@@ -227,19 +325,31 @@ def test_settings_are_checked(tmp_path: Path, setting: str, value: float) -> Non
 
 
 @pytest.mark.parametrize(
-    ("every", "sent"), [(0, []), (1, [0, 1, 2, 3]), (2, [0, 2, 4]), (3, [0, 3])]
+    ("every", "sent"), [(0, [0]), (1, [0, 1, 2, 3]), (2, [0, 2, 4]), (3, [0, 3])]
 )
 def test_link_frames_every(tmp_path: Path, episode: Episode, every: int, sent: list[int]) -> None:
-    """Frames every ``every`` ticks, and the last pose once the arm stops (ticks 3-5)."""
+    """Link poses every ``every`` ticks (0: the first only), and only when they moved (the
+    arm stops at tick 3); the base never moves, so it is sent once."""
     path = tmp_path / "links.rrd"
     with RerunLog(f"save:{path}", robot="r", link_frames_every=every) as log:
+        log.log_robot(arm_visual())
         setup(log, episode)
         for tick in range(6):
             kwargs = tick_kwargs(episode, min(tick, 3), None)
             log.log_tick(tick, tick * 0.05, **kwargs)
-    assert [t for t, _ in _rows(path, "world/robot/link_7", "Transform3D:translation")] == sent
-    assert len(_rows(path, "world/robot/links", "LineStrips3D:strips")) == 4
-    assert ("world/robot/link_0" in entity_paths(path)) == (every > 0)
+    assert [t for t, _ in _rows(path, "world/robot/right_l6", "Transform3D:translation")] == sent
+    base = _rows(path, "world/robot/right_arm_base_link", "Transform3D:translation")
+    assert [t for t, _ in base] == [0]
+    assert "world/robot/links" not in entity_paths(path)  # meshes, not the stick figure
+
+
+def test_without_meshes_the_arm_is_a_line(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "line.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode)
+        for tick in range(3):
+            log.log_tick(tick, tick * 0.05, **tick_kwargs(episode, tick, None))
+    assert [t for t, _ in _rows(path, "world/robot/links", "LineStrips3D:strips")] == [0, 1, 2]
 
 
 def test_setup_rejects_unknown_names(tmp_path: Path, episode: Episode) -> None:
@@ -334,3 +444,21 @@ def test_a_recording_closed_by_a_sigterm_handler_verifies(tmp_path: Path) -> Non
     ticks = read_ee_path(path).ticks
     assert len(ticks) >= 30
     assert ticks.tolist() == list(range(len(ticks)))
+
+
+def test_a_curve_ends_when_inference_stops(tmp_path: Path, episode: Episode) -> None:
+    """No line is drawn across a stretch without inference (no posterior, or an empty one:
+    a stage of one candidate): a NaN ends each curve."""
+    path = tmp_path / "gap.rrd"
+    post = {"cereal_box": 0.4, "banana": 0.6}
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode)
+        for tick, p in enumerate([post, {**post, "banana": 0.7}, {}, None, post]):
+            log.log_tick(tick, tick * 0.05, **{**tick_kwargs(episode, 0, p),
+                                               "slack": 0.2 if tick != 1 else None})  # fmt: skip
+    rows = _rows(path, "plots/posterior/banana", "Scalars:scalars")
+    assert [t for t, _ in rows] == [0, 1, 2, 4]
+    assert np.isnan(rows[2][1][0]) and rows[3][1] == [0.6]
+    slack = _rows(path, "plots/slack", "Scalars:scalars")
+    # a tick without a slack value does not end its line; the end of inference does
+    assert [t for t, v in slack if np.isnan(v[0])] == [2]

@@ -1,0 +1,107 @@
+"""``legws replay --plot``: the posterior over time as a PNG, and its refused destinations."""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from legws_daemon.cli import main as cli_main
+from legws_daemon.cli.replay import replay_cmd
+from legws_daemon.formats.log_lines import commit_text
+from legws_daemon.telemetry.posterior_plot import COMMIT_STYLE, HEIGHT, WIDTH, goal_colours
+from legws_daemon.telemetry.rerun_log import RerunLog
+from tests.cli.helpers import Result, assert_bad_input
+from tests.telemetry.helpers import log_episode, straight_episode
+
+Cli = Callable[..., Result]
+
+
+@pytest.fixture(autouse=True)
+def registered(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``replay`` in the ``legws`` group for the in-process runner (undone after the test)."""
+    monkeypatch.setitem(cli_main.cli.commands, "replay", replay_cmd)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two stages: an inferred commit on the banana, then a confirmed one on the white mug."""
+    path = tmp_path_factory.mktemp("replay-plot") / "plot.rrd"
+    banana = straight_episode("breakfast_easy", "banana")
+    mug = straight_episode("desk", "white_mug", hold=0)
+    with RerunLog(f"save:{path}", robot="sawyer-sim") as log:
+        log_episode(log, banana, tick0=0, stage="s0")
+        tick = len(banana.positions) + 40  # within stage s1 (its inferred commit is later)
+        log_episode(log, mug, tick0=len(banana.positions), stage="s1")
+        log.log_text(tick, tick * 0.05, "INFO", commit_text("white_mug", 0.6, how="confirmed"))
+    return path
+
+
+def _pixels_near(image: Image.Image, hex_colour: str, tol: int = 12) -> int:
+    rgb = np.asarray(image.convert("RGB"), dtype=np.int16)
+    want = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)], dtype=np.int16)
+    return int(np.sum(np.all(np.abs(rgb - want) <= tol, axis=-1)))
+
+
+def test_the_plot_has_the_size_and_the_colours(cli: Cli, recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "posterior.png"
+    result = cli("replay", recording, "--plot", out)
+    assert result.code == 0 and result.err == "", result
+    assert f"Plot: {out}" in result.out
+    assert "(confirmed by the operator, below p_thresh 0.9 as expected)" in result.out
+    with Image.open(out) as image:
+        assert image.format == "PNG"
+        assert image.size == (WIDTH, HEIGHT) == (1200, 600)
+        colours = goal_colours(["cereal_box", "banana", "white_mug", "black_stapler"])
+        for goal, colour in colours.items():
+            assert _pixels_near(image, colour) > 300, goal  # a line, not a legend swatch
+        confirmed = COMMIT_STYLE["confirmed"][0]
+        assert _pixels_near(image, confirmed) > 300  # the confirmed commit's marker
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_the_plot_in_json_and_replaced(cli: Cli, recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "posterior.png"
+    out.write_text("old")
+    result = cli("replay", recording, "--stage", "s1", "--plot", out, "--json")
+    assert result.code == 0, result
+    assert f'"plot": "{out}"' in result.out
+    with Image.open(out) as image:
+        assert image.size == (1200, 600)
+        assert _pixels_near(image, goal_colours(["white_mug"])["white_mug"]) > 300
+
+
+def _refusals(tmp_path: Path) -> Iterator[tuple[Path, str]]:
+    yield tmp_path, "is a folder"
+    yield Path("/dev/null"), "character device"
+    yield tmp_path / "missing" / "p.png", "does not exist"
+    link = tmp_path / "null.png"
+    link.symlink_to("/dev/null")
+    yield link, "character device"
+    fifo = tmp_path / "fifo.png"
+    os.mkfifo(fifo)
+    yield fifo, "FIFO"
+
+
+def test_bad_plot_destinations_exit_2_before_any_work(cli: Cli, tmp_path: Path) -> None:
+    missing = tmp_path / "missing.rrd"  # the destination is checked before the recording
+    for dest, needle in _refusals(tmp_path):
+        assert_bad_input(cli("replay", missing, "--plot", dest), str(dest), needle)
+    sock_path = tmp_path / "s.png"
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(sock_path))
+        assert_bad_input(cli("replay", missing, "--plot", sock_path), "socket")
+    assert_bad_input(cli("replay", missing, "--plot"), "--plot")
+
+
+def test_a_bad_recording_leaves_no_plot(cli: Cli, tmp_path: Path) -> None:
+    text = tmp_path / "notes.rrd"
+    text.write_text("hello")
+    out = tmp_path / "p.png"
+    assert_bad_input(cli("replay", text, "--plot", out), "not a readable rerun recording")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.rrd"]
