@@ -17,8 +17,13 @@ for var in ("XDG_CACHE_HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME"):
     os.environ[var] = str(_TMP / var.lower())
 os.environ["MESA_SHADER_CACHE_DIR"] = str(_TMP / "mesa")
 os.environ.setdefault("MPLCONFIGDIR", str(_TMP / "mpl"))
-# Rerun sends no analytics when CI is set; tests never talk to the internet.
+# Rerun sends no analytics when CI is set (and with its own switch off); tests never talk
+# to the internet.
 os.environ.setdefault("CI", "true")
+os.environ["RERUN_TELEMETRY_ENABLED"] = "false"
+# the headless Rerun viewer wants a private runtime folder (else it warns on every start)
+(_TMP / "xdg-runtime").mkdir(mode=0o700)
+os.environ["XDG_RUNTIME_DIR"] = str(_TMP / "xdg-runtime")
 
 # Benchmarks measure speed, not property tests: Hypothesis's per-example deadline and its
 # too-slow health check would fail a test on a busy machine, e.g. with parallel workers.

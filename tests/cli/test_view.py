@@ -12,20 +12,11 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from legws_daemon.telemetry.web_viewer import accepting, port_free
+from legws_daemon.telemetry.web_viewer import accepting
 from tests.browser import require, vulkan_missing
 from tests.cli.helpers import LEGWS, assert_bad_input, run_script
-from tests.net import free_port
+from tests.net import free_port_pair
 from tests.telemetry.test_screenshot import write_moving_box
-
-
-@pytest.fixture(autouse=True)
-def _rerun_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    runtime = tmp_path / "xdg-runtime"
-    runtime.mkdir(mode=0o700)
-    monkeypatch.setenv("RERUN_TELEMETRY_ENABLED", "false")
-    monkeypatch.setenv("MESA_SHADER_CACHE_DIR", str(tmp_path / "mesa"))
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
 
 
 @pytest.fixture
@@ -92,10 +83,7 @@ def test_web_and_screenshot_exclude_each_other(recording: Path, tmp_path: Path) 
 
 @pytest.mark.slow
 def test_web_serves_the_file_on_loopback_until_ctrl_c(recording: Path, tmp_path: Path) -> None:
-    while True:
-        port = free_port()
-        if port < 65534 and port_free("127.0.0.1", port + 1):
-            break
+    port = free_port_pair()
     proc = subprocess.Popen(
         [str(LEGWS), "view", str(recording), "--web", f"127.0.0.1:{port}"],
         cwd=tmp_path,

@@ -30,15 +30,6 @@ from tests.browser import chromium_missing, chromium_screenshot, require
 from tests.net import free_port_pair
 
 
-@pytest.fixture(autouse=True)
-def _rerun_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    runtime = tmp_path / "xdg-runtime"
-    runtime.mkdir(mode=0o700)
-    monkeypatch.setenv("RERUN_TELEMETRY_ENABLED", "false")
-    monkeypatch.setenv("MESA_SHADER_CACHE_DIR", str(tmp_path / "mesa"))
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
-
-
 def free_target() -> WebTarget:
     """A target on 127.0.0.1 whose page port and the next (gRPC) are both free."""
     return parse_web_target(str(free_port_pair()))
