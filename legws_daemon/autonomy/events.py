@@ -113,9 +113,7 @@ class Commit(Event):
         return d
 
     def text(self) -> str:
-        if self.single:
-            return commit_text(self.goal, round(self.p, 4), how="single")
-        how: How = "confirmed" if self.confirmed else "inferred"
+        how: How = "single" if self.single else "confirmed" if self.confirmed else "inferred"
         return commit_text(self.goal, round(self.p, 4), how=how)
 
 

@@ -41,6 +41,7 @@ from legws_daemon.telemetry.rerun_log import (
     EE_ARCHETYPE,
     EE_PATH,
     GOALS_DOC,
+    POSTERIOR_PREFIX,
     STAGE_ARCHETYPE,
     STAGES_DOC,
     TELEMETRY_FORMAT,
@@ -48,9 +49,6 @@ from legws_daemon.telemetry.rerun_log import (
 )
 
 StageKey = int | str | None
-
-#: Where the daemon plots the posterior of a goal: this prefix and the escaped goal name.
-POSTERIOR_PREFIX = "plots/posterior/"
 
 
 @dataclass(frozen=True, slots=True)

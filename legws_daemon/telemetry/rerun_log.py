@@ -98,11 +98,14 @@ _PLANNED = 0xFFFFFF50  # faint outlines
 _OVERRUN = 0xE03030FF
 _PALETTE = (0x1F77B4FF, 0xFF7F0EFF, 0x2CA02CFF, 0xD62728FF, 0x9467BDFF, 0x8C564BFF,
             0xE377C2FF, 0x17BECFFF, 0xBCBD22FF, 0x7F7F7FFF)  # fmt: skip
-_COLOUR_LEVELS = 50
+#: A label's probability is rounded to this many steps, so it is re-sent only on a visible change.
+_LABEL_STEPS = 50
 _UNKNOWN_HALF_SIZE = (0.025, 0.025, 0.025)
 #: The threshold and budget lines are constants: one point every this many ticks draws them.
 _THRESHOLD_EVERY = 10
 STATUS_DOC = "status"
+#: Where the posterior of a goal is plotted: this prefix and the escaped goal name.
+POSTERIOR_PREFIX = "plots/posterior/"
 COMMITS_PLOT = "plots/commits"
 TIMING = "plots/timing"
 #: Seconds :meth:`RerunLog.close` waits for a sink that already failed a check.
@@ -173,7 +176,7 @@ def default_blueprint() -> rrb.Blueprint:
                 rrb.TimeSeriesView(
                     name="posterior",
                     origin="/plots",
-                    contents=["/plots/posterior/**", "/plots/threshold", f"/{COMMITS_PLOT}"],
+                    contents=[f"/{POSTERIOR_PREFIX}**", "/plots/threshold", f"/{COMMITS_PLOT}"],
                     axis_y=rrb.ScalarAxis(range=(0.0, 1.0), zoom_lock=True),
                     plot_legend=rrb.PlotLegend(corner="LeftTop"),
                 ),
@@ -556,7 +559,6 @@ class RerunLog:
         self._goal_object: dict[str, str] = {}
         self._object_goals: dict[str, list[str]] = {}
         self._objects: dict[str, _ObjectState] = {}
-        self._sizes: dict[str, tuple[float, float, float]] = {}
         self._shapes: dict[str, _Shape] = {}
         self._committed_outline: bytes | None = None
         self._status: tuple[str | None, ...] | None = None
@@ -786,7 +788,6 @@ class RerunLog:
     def _reset_stage(
         self, scene: Scene, goals: GoalSet, goal_objects: Mapping[str, str], p_thresh: float
     ) -> None:
-        self._sizes = {name: _half_size(scene, name) for name in scene.objects}
         shapes = {name: _shape_of(scene, name) for name in scene.objects}
         # objects gone, or drawn as another shape now (the old archetype would stay)
         self._pending_clears.extend(
@@ -807,7 +808,7 @@ class RerunLog:
     def _posterior_path(self, goal: str) -> str:
         path = self._paths.get(goal)
         if path is None:
-            path = self._paths[goal] = f"plots/posterior/{_part(goal)}"
+            path = self._paths[goal] = POSTERIOR_PREFIX + _part(goal)
         return path
 
     # --- per tick ------------------------------------------------------------------------------
@@ -975,13 +976,13 @@ class RerunLog:
         self._stream.log("world/committed", box)
 
     def _object_label(self, name: str, posterior: Mapping[str, float] | None) -> str:
-        """The object's name, then its probability (quantised to a colour step, so the
+        """The object's name, then its probability (in :data:`_LABEL_STEPS` steps, so the
         label is re-sent only when it visibly changes) while inferring."""
         goals = self._object_goals.get(name)
         if not goals or posterior is None:
             return name
         p = min(max(sum(float(posterior.get(g, 0.0)) for g in goals), 0.0), 1.0)
-        return f"{name} {round(p * _COLOUR_LEVELS) / _COLOUR_LEVELS:.2f}"
+        return f"{name} {round(p * _LABEL_STEPS) / _LABEL_STEPS:.2f}"
 
     def _log_arrows(self, ee: FloatArray, joystick: FloatArray | None, command: FloatArray) -> None:
         fast = self._fast

@@ -14,7 +14,7 @@ posterior points.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -71,10 +71,6 @@ class RobotDrawing:
     @property
     def every(self) -> int:
         return self._every
-
-    @property
-    def has_meshes(self) -> bool:
-        return self._visual is not None
 
     def log_static(self) -> None:
         """The meshes and boxes of every link (once; static)."""
@@ -161,10 +157,3 @@ class RobotDrawing:
             self._line = key
             strip = [self._fast.strips("LineStrips3D:strips", pos)]
             self._log(LINKS_PATH, strip)
-
-
-def link_paths(visual: RobotVisual) -> Sequence[str]:
-    """The entity paths of the drawn links (for tests and readers)."""
-    return [
-        f"{ROBOT_PATH}/{rr.escape_entity_path_part(visual.links[i])}" for i in visual.drawn_links
-    ]
