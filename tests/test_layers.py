@@ -30,7 +30,9 @@ LAYERS = [
     "autonomy",  # the shared-autonomy state machine
     "daemon",  # the service around it
     "joystick",  # publishers and the simulated user
+    "tracking",  # a camera tracker of the objects: fiducial markers, the sim camera
     "design",  # layout optimisation and stage plans
+    "placement",  # printable placement mats of planned layouts
     "sim",  # the paper's protocol on the stand-in
     "demo",
     "cli",

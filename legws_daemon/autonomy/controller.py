@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any, assert_never
 
@@ -50,8 +50,12 @@ from legws_daemon.autonomy.inputs import (
 )
 from legws_daemon.autonomy.layouts import LayoutBook
 from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
+from legws_daemon.autonomy.placing import PlacementReport
 from legws_daemon.autonomy.recovery import Recovery
+from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
@@ -64,7 +68,7 @@ from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan, PlannedDecision
 from legws_daemon.task.runner import TaskRun, scene_graph
-from legws_daemon.task.targets import Held, held_object
+from legws_daemon.task.targets import Held, goal_set, held_object
 
 #: The assistance target of a reset, which no cancel interrupts.
 RESET_TARGET = "(reset)"
@@ -153,6 +157,9 @@ class Controller:
         self.decisions = 0
         self._motion: FloatArray = np.zeros(3)  # the EE velocity sent last tick
         self.layouts = LayoutBook(layout, plan)
+        #: the placed layout as a tracker reports it (None until one does)
+        self.placement: PlacementReport | None = None
+        self._placed_cache: tuple[tuple[Any, ...], tuple[float, float, int]] | None = None
         self.graph = graph if graph is not None else scene_graph(scene)
         self.task = TaskRun(self.graph, scene)
         self._place(self.layouts.layout)
@@ -240,27 +247,63 @@ class Controller:
         self._place(self.layouts.layout)
         self._begin_stage()
 
-    def observe(self, poses: Layout) -> None:
-        """Object poses reported on ``legws/<robot>/objects`` (a real robot's tracker).
+    def observe(self, poses: Layout, unseen: Collection[str] = ()) -> None:
+        """A tracker's report on ``legws/<robot>/objects``: measured poses, and the objects
+        it does not see (they keep their pose: an unseen object is never moved).
 
-        Inference of the next decision uses them. The current decision's certificate is
-        recomputed from them; when it is no longer positive (and the plan's was), a
-        :class:`~legws_daemon.autonomy.events.Misplaced` warning names the object to move
-        back and where to.
+        Inference of the next decision uses the movable objects' poses; the current
+        decision's certificates are recomputed from them and the placement judged
+        (:meth:`check_placement`).
         """
-        if not self.layouts.observe(poses, self.scene.movable):
+        now = self.clock()
+        if not self.layouts.observe(poses, unseen, self.scene.objects, self.scene.movable, now):
             return
         self.planner.set_layout(self.layouts.layout)
-        if len(self.stage.targets) < 2 or self.task.finished:
-            return
-        current = self._decision_certificate(self.layouts.layout)
-        self.stage.observed_certificate = current
-        warning = self.layouts.misplaced(
-            self.decisions, self.stage.name, self.stage.goal_names, current,
-            self.stage.certificate, self._decision_certificate,
+        self.check_placement(now)
+
+    def check_placement(self, now: float | None = None) -> PlacementReport | None:
+        """Judge the placed layout (:attr:`placement`) and say what to move while it is not
+        certified (:meth:`LayoutBook.guide`); ``None`` until a tracker reports. The daemon
+        calls it at the status rate, so objects a tracker stopped reporting turn unseen."""
+        if not self.layouts.tracking or self.task.finished:
+            self.placement = None
+            return None
+        now = self.clock() if now is None else now
+        layout = self.layouts.layout
+        should = {**self.scene.poses(), **self.layouts.planned}
+        symmetry = {n: g.symmetry for n, g in self.scene.grasps.items()}
+        objects = self.layouts.placements(now, should, symmetry)
+        current = commit = certified_goals = None
+        certified: bool | None = None
+        if len(self.stage.targets) >= 2:
+            current, commit, certified_goals = self._placed_certificates(layout)
+            self.stage.observed_certificate = current
+            unseen = set(self.stage.goal_names) & {o.name for o in objects if o.state == "unseen"}
+            certified = current > 0 and not unseen
+        report = PlacementReport(
+            self.stage.name, objects, current, self.stage.certificate, commit,
+            certified_goals, certified,
         )  # fmt: skip
-        if warning is not None:
-            self.emit(warning)
+        self.placement = report
+        event = self.layouts.guide(report, self.decisions, now, self._decision_certificate)
+        if event is not None:
+            self.emit(event)
+        return report
+
+    def _placed_certificates(self, layout: Layout) -> tuple[float, float, int]:
+        """``J``, ``K`` and the commit-certified count of the decision in ``layout`` (the
+        last answer kept: a tracker reports the same layout many times)."""
+        key = (self.decisions, tuple(sorted(layout.items())))
+        if self._placed_cache is None or self._placed_cache[0] != key:
+            goals = self.stage_goals(layout)
+            commit = certify_commit(goals, self.params)
+            value = (certify(goals, self.params).objective, commit.objective, commit.certified)
+            self._placed_cache = (key, value)
+        return self._placed_cache[1]
+
+    def stage_goals(self, layout: Layout) -> GoalSet:
+        """The current decision's candidates' targets in ``layout``, seen from home."""
+        return goal_set(self.task.targets(layout), self.scene.home)
 
     def _decision_certificate(self, layout: Layout) -> float:
         return certificate_of(self.task, layout, self.scene, self.params)

@@ -331,17 +331,52 @@ class PlanDropped(Event):
 
 @dataclass(frozen=True, slots=True)
 class Misplaced(Event):
-    """Reported object poses make the decision's certificate non-positive."""
+    """Reported object poses leave the decision's placed layout uncertified: every object
+    off its outline with the correction in words, the unseen ones, and the object whose
+    move back gains the most (``move``, ``to``: its planned pose)."""
 
     kind: ClassVar[EventKind] = "warning"
     certificate: float
-    planned_certificate: float
-    move: str
-    to: dict[str, float]
+    planned_certificate: float | None
+    commit_certificate: float | None
+    move: str | None
+    to: dict[str, float] | None
+    corrections: tuple[str, ...]  # "cup: 4 cm left, turn 20° anticlockwise"
+    unseen: tuple[str, ...]
     stage: str
 
     def detail(self) -> dict[str, Any]:
         d = Event.detail(self)
+        for key in ("certificate", "planned_certificate", "commit_certificate"):
+            if d[key] is not None:
+                d[key] = round(d[key], 4)
+        return d
+
+    def text(self) -> str:
+        what = list(self.corrections) + [f"{n}: unseen" for n in self.unseen]
+        planned = (
+            ""
+            if self.planned_certificate is None
+            else (f", planned {self.planned_certificate:+.2f}")
+        )
+        return (
+            f"warning placement of {self.stage} NOT certified (J {self.certificate:+.2f}"
+            f"{planned}): {'; '.join(what)}"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Placed(Event):
+    """The placed layout of the decision is certified again (after a :class:`Misplaced`)."""
+
+    kind: ClassVar[EventKind] = "placed"
+    stage: str
+    certificate: float
+    commit_certificate: float | None
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
         d["certificate"] = round(self.certificate, 4)
-        d["planned_certificate"] = round(self.planned_certificate, 4)
+        if self.commit_certificate is not None:
+            d["commit_certificate"] = round(self.commit_certificate, 4)
         return d

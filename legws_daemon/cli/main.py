@@ -21,6 +21,7 @@ from legws_daemon.cli.demo import demo_cmd
 from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
 from legws_daemon.cli.optimize import optimize_cmd
+from legws_daemon.cli.placement import placement_cmd
 from legws_daemon.cli.plan import plan_cmd
 from legws_daemon.cli.recording import recording_group
 from legws_daemon.cli.render import render_cmd
@@ -29,6 +30,7 @@ from legws_daemon.cli.scenes import scenes_cmd
 from legws_daemon.cli.secure import secure_group
 from legws_daemon.cli.sim_user import sim_user_cmd
 from legws_daemon.cli.taskgraph import taskgraph_group
+from legws_daemon.cli.track import track_group
 from legws_daemon.cli.view import view_cmd
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.validation import printable
@@ -56,9 +58,11 @@ cli.add_command(replay_cmd)
 cli.add_command(recording_group)
 cli.add_command(demo_cmd)
 cli.add_command(plan_cmd)
+cli.add_command(placement_cmd)
 cli.add_command(taskgraph_group)
 cli.add_command(secure_group)
 cli.add_command(view_cmd)
+cli.add_command(track_group)
 
 
 def _fail(message: str) -> int:

@@ -389,8 +389,8 @@ class DaemonService:
         self._telemetry_unreported = 0
         self._telemetry_last: TelemetryReport | None = None
         self._logged_stage: object = None
-        self._objects_lock = threading.Lock()
-        self._objects: dict[str, ObjectPose] = {}
+        #: a tracker's reports for the loop, oldest first: (poses, unseen objects)
+        self._objects: deque[tuple[dict[str, ObjectPose], tuple[str, ...]]] = deque(maxlen=8)
         self.objects_rejected = 0
         self.objects_error: str | None = None
         #: stops heard on ``legws/<robot>/stop/<role>``, for the loop: (role, message, error)
@@ -487,6 +487,7 @@ class DaemonService:
             "transport": "authenticated" if cfg.transport_problem is None else "unauthenticated",
             "insecure_transport": cfg.insecure_transport,
             "realtime_priority": self.realtime_priority,
+            "placement": c.placement.status() if c.placement is not None else None,
         }
         if state is not None:
             data["ee"] = {
@@ -543,8 +544,7 @@ class DaemonService:
             self.objects_error = str(err)
             return
         poses = {n: ObjectPose(p.x, p.y, p.yaw) for n, p in msg.objects.items()}
-        with self._objects_lock:
-            self._objects.update(poses)
+        self._objects.append((poses, tuple(msg.unseen)))
 
     def _on_stop(self, sample: zenoh.Sample) -> None:
         """zenoh thread: a stop on ``legws/<robot>/stop/<role>``; the loop carries it out
@@ -575,10 +575,10 @@ class DaemonService:
         return True
 
     def _apply_objects(self) -> None:
-        with self._objects_lock:
-            poses, self._objects = self._objects, {}
-        if poses and self.controller is not None:
-            self.controller.observe(poses)
+        """The tracker's reports that came since the last tick, in order."""
+        while self._objects and self.controller is not None:
+            poses, unseen = self._objects.popleft()
+            self.controller.observe(poses, unseen)
 
     def _run_commands(self, install: bool = True) -> int:
         """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
@@ -757,6 +757,21 @@ class DaemonService:
             out[name] = (position, np.array([np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]))
         return out
 
+    @staticmethod
+    def _corrections(c: Controller) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each misplaced object's move: from where it stands to where it should (3-D)."""
+        if c.placement is None:
+            return {}
+        out = {}
+        for o in c.placement.misplaced:
+            seen = c.layouts.seen.get(o.name)
+            if seen is None or o.move is None:
+                continue
+            p, z = seen[0], c.scene.z_center(o.name)
+            start = np.array([p.x, p.y, z])
+            out[o.name] = (start, start + np.array([o.move["x"], o.move["y"], 0.0]))
+        return out
+
     def _log_tick(self, rec: TickRecord, slack: float | None) -> None:
         tel, c, worker = self.config.telemetry, self.controller, self.worker
         if tel is None or c is None or rec.state is None or worker is None:
@@ -787,6 +802,8 @@ class DaemonService:
             operator=_operator_text(self.inbox.operator()),
             fault=c.fault,
             stage=c.stage.name,
+            placement=tuple(c.placement.lines()) if c.placement is not None else None,
+            corrections=self._corrections(c),
             droppable=True,
         )
 
@@ -952,6 +969,7 @@ class DaemonService:
             slack = None
             if rec.tick % status_every == 0:
                 slack = c.live_slack()
+                c.check_placement()  # objects a tracker stopped reporting turn unseen
                 self._publish_status(status_pub, rec, slack)
             self._log_tick(rec, slack)
             self._report_telemetry()

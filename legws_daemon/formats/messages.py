@@ -101,6 +101,39 @@ class OperatorInfo(BaseModel):
     session: SessionId | None = None
 
 
+class PlanarPose(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    x: Coordinate
+    y: Coordinate
+    yaw: Angle = 0.0
+
+
+class ObjectPlacementStatus(BaseModel):
+    """One tracked object: placed, misplaced (with the move that corrects it) or unseen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    state: Literal["placed", "misplaced", "unseen"]
+    text: str
+    move: PlanarPose | None = None
+    age: Finite | None = None
+
+
+class PlacementStatus(BaseModel):
+    """The placed layout of the current decision as a tracker reports it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    stage: Label
+    certified: StrictBool | None
+    certificate: Finite | None
+    planned_certificate: Finite | None
+    commit_certificate: Finite | None
+    commit_certified: Seq | None
+    objects: Annotated[dict[Label, ObjectPlacementStatus], Field(max_length=64)]
+
+
 class StatusMessage(_Message):
     robot: Label
     seq: Seq
@@ -132,6 +165,8 @@ class StatusMessage(_Message):
     insecure_transport: StrictBool = False
     #: the control loop's SCHED_FIFO priority; 0: normal scheduling
     realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
+    #: the placed layout as a tracker reports it (``legws track``); None until one does
+    placement: PlacementStatus | None = None
 
 
 EventKind = Literal[
@@ -151,6 +186,7 @@ EventKind = Literal[
     "operator",
     "deadman",
     "input_rejected",
+    "placed",
 ]
 
 
@@ -183,14 +219,6 @@ class CommandRequest(_Message):
         return self
 
 
-class PlanarPose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    x: Coordinate
-    y: Coordinate
-    yaw: Angle = 0.0
-
-
 class ObjectsMessage(_Message):
     """Where objects really are (a tracker, or a person with a tape measure): planar poses
     in the robot base frame. The daemon recomputes the certificate from them."""
@@ -198,6 +226,8 @@ class ObjectsMessage(_Message):
     seq: Seq
     stamp: Finite
     objects: Annotated[dict[Label, PlanarPose], Field(max_length=64)]
+    #: objects the sender looked for and did not see (they keep their last pose)
+    unseen: Annotated[list[Label], Field(max_length=64)] = []
     source: Label = "unknown"
 
 

@@ -29,6 +29,7 @@ from legws_daemon.formats.validation import (
     Positive,
     Quat,
     field_error,
+    field_path,
     nonzero_quaternion,
     read_toml,
     validate,
@@ -126,6 +127,49 @@ class WorkspaceSpec(_Model):
         return self
 
 
+#: Fiducial dictionaries of OpenCV's ``cv2.aruco`` a scene's markers may come from
+#: (``DICT_`` left off), and how many markers each holds.
+MARKER_DICTIONARIES: dict[str, int] = {
+    "4X4_50": 50,
+    "4X4_100": 100,
+    "5X5_100": 100,
+    "6X6_250": 250,
+    "APRILTAG_36h11": 587,
+}
+MarkerDictionary = Literal["4X4_50", "4X4_100", "5X5_100", "6X6_250", "APRILTAG_36h11"]
+#: A marker's printed side (its black square, without the white margin around it): from
+#: 1 cm (about 7 pixels at 1.4 mm per pixel: the smallest a 640 x 480 camera over the table
+#: still reads) to 30 cm.
+MarkerSide = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0.01, le=0.3)]
+MarkerId = Annotated[int, Strict(), Field(ge=0, le=999)]
+
+
+class MarkerSpec(_Model):
+    """The fiducial marker stuck on an object: centred on its top face, the marker's image
+    x axis (its top edge, left to right) along the object's x axis."""
+
+    id: MarkerId
+    size: MarkerSide
+
+
+class TableMarkerSpec(_Model):
+    """A fiducial marker lying on the table at a known pose (the camera's extrinsics come
+    from these): centre ``x``, ``y`` (robot base frame) and ``yaw`` of its image x axis."""
+
+    id: MarkerId
+    size: MarkerSide
+    x: CellXY
+    y: CellXY
+    yaw: Angle = 0.0
+
+
+class MarkersSpec(_Model):
+    """Which fiducial markers a camera tracker finds (``legws track``)."""
+
+    dictionary: MarkerDictionary = "4X4_50"
+    table: Annotated[list[TableMarkerSpec], Field(min_length=1, max_length=16)]
+
+
 class ObjectSpec(_Model):
     name: Name
     label: str | None = None
@@ -138,6 +182,7 @@ class ObjectSpec(_Model):
     x: CellXY
     y: CellXY
     yaw: Angle = 0.0
+    marker: MarkerSpec | None = None
 
     @model_validator(mode="after")
     def _size(self) -> ObjectSpec:
@@ -155,7 +200,26 @@ class ObjectSpec(_Model):
                     f"the {self.shape}'s {what} is {extent:.4g} m; objects measure "
                     f"{MIN_EXTENT:g} to {MAX_EXTENT:g} m",
                 )
+        if self.marker is not None:
+            room = marker_room(self.shape, self.size)
+            if room is None:
+                raise field_error(("marker",), "a sphere has no flat top to carry a marker")
+            if self.marker.size > room + 1e-9:
+                raise field_error(
+                    ("marker", "size"),
+                    f"a marker of {self.marker.size:g} m does not fit on the {self.shape}'s "
+                    f"top face (at most {room:.4g} m)",
+                )
         return self
+
+
+def marker_room(shape: str, size: list[float] | tuple[float, ...]) -> float | None:
+    """The largest marker side that fits on an object's top face (``None``: no flat top)."""
+    if shape == "box":
+        return min(size[0], size[1])
+    if shape == "cylinder":
+        return size[0] * 2**0.5  # a square inscribed in the top disc
+    return None
 
 
 def _extents(shape: str, size: list[float]) -> list[tuple[str, float]]:
@@ -188,6 +252,7 @@ class SceneSpec(_Model):
     objects: Annotated[list[ObjectSpec], Field(min_length=2, max_length=MAX_OBJECTS)]
     places: Annotated[list[PlaceSpec], Field(max_length=MAX_OBJECTS)] = []
     goals: list[Name] | None = None
+    markers: MarkersSpec | None = None
 
     @model_validator(mode="after")
     def _names(self) -> SceneSpec:
@@ -221,7 +286,45 @@ class SceneSpec(_Model):
                 f"a scene has at most {MAX_GOALS} candidate goals (movable objects, or the "
                 f"list goals), has {len(candidates)}",
             )
+        self._check_markers()
         return self
+
+    def _check_markers(self) -> None:
+        """Marker ids unique and in the dictionary; objects carry markers only with a
+        ``[markers]`` table; table markers lie on the table."""
+        with_marker = [(i, o) for i, o in enumerate(self.objects) if o.marker is not None]
+        if self.markers is None:
+            if with_marker:
+                i, _ = with_marker[0]
+                raise field_error(
+                    ("objects", i, "marker"),
+                    "objects carry markers but the scene has no [markers] table (the "
+                    "dictionary and the markers on the table)",
+                )
+            return
+        count = MARKER_DICTIONARIES[self.markers.dictionary]
+        ids: list[tuple[tuple[int | str, ...], int]] = [
+            (("markers", "table", j, "id"), m.id) for j, m in enumerate(self.markers.table)
+        ]
+        ids += [(("objects", i, "marker", "id"), o.marker.id) for i, o in with_marker if o.marker]
+        seen: dict[int, tuple[int | str, ...]] = {}
+        for loc, marker_id in ids:
+            if marker_id >= count:
+                raise field_error(
+                    loc, f"the dictionary {self.markers.dictionary} has markers 0..{count - 1}"
+                )
+            if marker_id in seen:
+                raise field_error(
+                    loc, f"marker {marker_id} is used twice (also at {field_path(seen[marker_id])})"
+                )
+            seen[marker_id] = loc
+        ws = self.workspace
+        (cx, cy), (sx, sy) = ws.table_center, ws.table_size
+        for j, m in enumerate(self.markers.table):
+            if abs(m.x - cx) + m.size / 2 > sx / 2 or abs(m.y - cy) + m.size / 2 > sy / 2:
+                raise field_error(
+                    ("markers", "table", j), f"the marker at {[m.x, m.y]} is not on the table"
+                )
 
 
 def load_scene_spec(path: Path) -> SceneSpec:

@@ -14,7 +14,7 @@ primitives (only without meshes; hidden in renders), 4 grasp markers.
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import mujoco
@@ -141,9 +141,18 @@ class World:
             are its collision shapes. Without them the model compiles ~25x faster (20 ms)
             and kinematics is the same, but collisions use the robot description's coarse
             primitives, which are conservative (low side grasps hit the table).
+        decorate: called with the composed ``MjSpec`` just before it is compiled, to add
+            what only a picture needs (e.g. the tracker's textured marker decals, which
+            must not collide: ``contype = conaffinity = 0``).
     """
 
-    def __init__(self, scene: Scene, *, visual: bool = True) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        visual: bool = True,
+        decorate: Callable[[mujoco.MjSpec], None] | None = None,
+    ) -> None:
         self.scene = scene
         spec = mujoco.MjSpec()
         spec.modelname = f"legws_{scene.name}"
@@ -176,6 +185,8 @@ class World:
             )
         frame = spec.worldbody.add_frame(pos=[0.0, 0.0, 0.0])
         spec.attach(_robot_spec(visual), prefix=PREFIX, frame=frame)
+        if decorate is not None:
+            decorate(spec)
         try:
             self.model = spec.compile()
         except (ValueError, mujoco.FatalError) as err:  # e.g. a mesh it cannot read

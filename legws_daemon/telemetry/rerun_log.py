@@ -9,12 +9,14 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
   opening; ``world/ee`` (EE frame, plus the exact float64 pose as ``legws.EePose``),
   ``world/ee_trail``, ``world/objects/<obj>`` (the object's shape and colour, labelled with
   its name and, while inferring, its probability), ``world/committed`` (an outline around
-  the committed object), ``world/joystick``, ``world/command``.
+  the committed object), ``world/joystick``, ``world/command``, ``world/placement`` (with a
+  tracker: arrows from each misplaced object to where it should stand).
 * Plots, each in its own view: ``plots/posterior/<goal>`` with ``plots/threshold`` and
   ``plots/commits`` (a marker at each commit); ``plots/slack``; ``plots/timing/tick_ms``,
   ``plots/timing/budget_ms`` and ``plots/timing/overruns``.
-* ``status`` (a panel: mode, operator, phase, fault, stage), ``log`` (commits, cancels,
-  faults; every row tagged with its stage), ``status/mode``.
+* ``status`` (a panel: mode, operator, phase, fault, stage; with a tracker, the placement:
+  certified or not, J and K, each object not in place with its correction), ``log``
+  (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
 * ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
   document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
   stage's name and index, scene, robot, threshold and goal -> object map), static: the
@@ -104,6 +106,10 @@ _UNKNOWN_HALF_SIZE = (0.025, 0.025, 0.025)
 #: The threshold and budget lines are constants: one point every this many ticks draws them.
 _THRESHOLD_EVERY = 10
 STATUS_DOC = "status"
+#: Arrows from misplaced objects to their planned poses (a tracker's report).
+PLACEMENT_PATH = "world/placement"
+#: Their colour: orange.
+_MISPLACED = (255, 140, 0)
 #: Where the posterior of a goal is plotted: this prefix and the escaped goal name.
 POSTERIOR_PREFIX = "plots/posterior/"
 COMMITS_PLOT = "plots/commits"
@@ -562,6 +568,7 @@ class RerunLog:
         self._shapes: dict[str, _Shape] = {}
         self._committed_outline: bytes | None = None
         self._status: tuple[str | None, ...] | None = None
+        self._corrections = b""
         self._stage_name: str | None = None
         self._goal_colours: dict[str, int] = {}
         self._open_series: set[str] = set()  # plots with a line in progress
@@ -835,6 +842,8 @@ class RerunLog:
         operator: str | None = None,
         fault: str | None = None,
         stage: str | None = None,
+        placement: tuple[str, ...] | None = None,
+        corrections: Mapping[str, tuple[FloatArray, FloatArray]] | None = None,
     ) -> None:
         """Log one control tick (see the module docstring for the entities). Never raises.
 
@@ -843,7 +852,10 @@ class RerunLog:
         the fingers' opening (m, :func:`~legws_daemon.robot.visual.finger_half_gap`);
         ``phase``, ``operator``, ``fault`` (``None``: none) and ``stage`` (the task's
         current stage, also one without inference; default: the last set up) fill the
-        status panel."""
+        status panel. ``placement``: the lines of a tracker's placement report (the
+        verdict, then each object not in place), shown in the status panel;
+        ``corrections``: the misplaced objects' moves, from where each stands to where it
+        should (``world/placement``)."""
         if self._closed:
             return
         posterior = posterior or None  # an empty posterior (no goals in the stage) is none
@@ -862,7 +874,8 @@ class RerunLog:
             if mode != self._mode:
                 self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
                 self._mode = mode
-            self._log_status((mode, operator, phase, fault, stage), committed)
+            self._log_status((mode, operator, phase, fault, stage), committed, placement)
+            self._log_corrections(corrections or {})
             self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("tick", exc)
@@ -879,11 +892,16 @@ class RerunLog:
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("robot", exc)
 
-    def _log_status(self, fields: tuple[str | None, ...], committed: str | None) -> None:
+    def _log_status(
+        self,
+        fields: tuple[str | None, ...],
+        committed: str | None,
+        placement: tuple[str, ...] | None = None,
+    ) -> None:
         """The status panel, re-sent when a field changes."""
         mode, operator, phase, fault, stage = fields
         stage = stage or self._stage_name
-        key = (mode, operator, phase, fault, stage, committed)
+        key = (mode, operator, phase, fault, stage, committed, *(placement or ()))
         if key == self._status:
             return
         self._status = key
@@ -894,9 +912,32 @@ class RerunLog:
                 f"**stage** {_md(stage or '-')}",
                 f"**committed** {_md(committed or '-')} · {fault_text}",
                 f"**operator** {_md(operator or 'none')}",
+                *(_md(line) for line in placement or ()),
             ]
         )
         self._stream.log(STATUS_DOC, rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN))
+
+    def _log_corrections(self, corrections: Mapping[str, tuple[FloatArray, FloatArray]]) -> None:
+        """Arrows from where each misplaced object stands to where it should (re-sent when
+        they change; cleared when all are in place)."""
+        names = sorted(corrections)
+        key = b"".join(
+            n.encode() + np.asarray(corrections[n], dtype=np.float64).tobytes() for n in names
+        )
+        if key == self._corrections:
+            return
+        self._corrections = key
+        if not names:
+            self._stream.log(PLACEMENT_PATH, rr.Clear(recursive=False))
+            return
+        start = np.array([corrections[n][0] for n in names], dtype=np.float64)
+        end = np.array([corrections[n][1] for n in names], dtype=np.float64)
+        self._stream.log(
+            PLACEMENT_PATH,
+            rr.Arrows3D(
+                origins=start, vectors=end - start, labels=names, colors=[_MISPLACED], radii=0.004
+            ),
+        )
 
     def _drop(self, what: str, exc: Exception) -> None:
         self.dropped += 1

@@ -177,19 +177,35 @@ def test_a_misplaced_object_is_named_when_the_certificate_is_lost(rig: Rig) -> N
     assert planned is not None
     assert planned > 0
     stapler = rig.c.layouts.planned["black_stapler"]
+    mug = rig.c.layouts.planned["white_mug"]
     # a tracker reports the mug right next to the stapler: the goals can no longer be told apart
-    rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.02, stapler.y + 0.01, 0.0)})
+    at = ObjectPose(stapler.x + 0.02, stapler.y + 0.01, 0.0)
+    rig.c.observe({"white_mug": at})
     kind, detail = rig.events[-1]
     assert kind == "warning"
     assert detail["move"] == "white_mug"
     assert detail["certificate"] <= 0 < detail["planned_certificate"]
-    mug = rig.c.layouts.planned["white_mug"]
     assert detail["to"] == {"x": mug.x, "y": mug.y, "yaw": mug.yaw}
+    (text,) = detail["corrections"]
+    dy = round(abs(mug.y - at.y) * 100)
+    assert text.startswith(f"white_mug: {dy} cm {'left' if mug.y > at.y else 'right'}")
+    assert detail["unseen"] == []
+    report = rig.c.placement
+    assert report is not None
+    assert report.certified is False
+    assert [o.name for o in report.misplaced] == ["white_mug"]
     n = len(rig.events)
-    rig.c.observe({"white_mug": ObjectPose(stapler.x + 0.021, stapler.y + 0.01, 0.0)})
-    assert len(rig.events) == n  # said once per decision and object
-    # moved back: the certificate is positive again, no warning
+    rig.c.observe({"white_mug": ObjectPose(at.x + 0.001, at.y, 0.0)})
+    assert len(rig.events) == n  # the same objects are off: said again only after a while
+    # moved back: the certificate is positive again, and the daemon says so once
     rig.c.observe({"white_mug": mug})
     assert rig.c.stage.observed_certificate == pytest.approx(planned)
-    rig.c.observe({"unknown_thing": mug, "table": mug})  # not movable objects: ignored
+    kind, detail = rig.events[-1]
+    assert kind == "placed"
+    assert detail["stage"] == rig.c.stage.name
+    assert detail["certificate"] == round(planned, 4)
+    assert rig.c.placement is not None
+    assert rig.c.placement.certified is True
+    n = len(rig.events)
+    rig.c.observe({"unknown_thing": mug, "table": mug})  # not objects of the scene: ignored
     assert len(rig.events) == n

@@ -65,7 +65,55 @@ def _fix_all_but_one(d: dict[str, Any]) -> None:
         o["movable"] = False
 
 
+def _markers(*objects: tuple[int, dict[str, Any]], **table: Any) -> Mutation:
+    """A ``[markers]`` table with one table marker (``table`` changes it), and markers on
+    the objects ``(index, marker)``."""
+
+    def mutate(d: dict[str, Any]) -> None:
+        d["markers"] = {"table": [{"id": 0, "size": 0.05, "x": 0.3, "y": 0.45, **table}]}
+        for i, marker in objects:
+            d["objects"][i]["marker"] = marker
+
+    return mutate
+
+
 BAD_SCENES = [
+    pytest.param(
+        lambda d: d["objects"][1].update(marker={"id": 3, "size": 0.03}),
+        ["objects[1].marker", "[markers]"],
+        id="marker-without-markers-table",
+    ),
+    pytest.param(
+        _markers((1, {"id": 0, "size": 0.03})),
+        ["objects[1].marker.id", "twice"],
+        id="marker-id-twice",
+    ),
+    pytest.param(
+        _markers((1, {"id": 50, "size": 0.03})),
+        ["objects[1].marker.id", "0..49"],
+        id="marker-id-out",
+    ),
+    pytest.param(
+        _markers((1, {"id": 5, "size": 0.05})),
+        ["objects[1].marker.size", "does not fit"],
+        id="marker-too-big",
+    ),
+    pytest.param(
+        _markers(x=0.0),
+        ["markers.table[0]", "not on the table"],
+        id="table-marker-off-table",
+    ),
+    pytest.param(
+        lambda d: d.update(markers={"table": []}), ["markers.table"], id="no-table-marker"
+    ),
+    pytest.param(
+        lambda d: d.update(markers={"dictionary": "3X3_9", "table": []}),
+        ["markers.dictionary"],
+        id="unknown-dictionary",
+    ),
+    pytest.param(
+        _markers((1, {"id": 5, "size": 0.001})), ["objects[1].marker.size"], id="marker-too-small"
+    ),
     pytest.param(_top(schema_version=2), ["schema_version"], id="schema-version-2"),
     pytest.param(_top(schema_version="1"), ["schema_version"], id="schema-version-string"),
     pytest.param(lambda d: d.pop("schema_version"), ["schema_version"], id="no-schema-version"),

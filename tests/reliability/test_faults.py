@@ -517,9 +517,10 @@ def test_a_disk_that_fills_up_is_reported_and_control_continues(
             pub.push([0.0, 0.0, 0.8], 1.0)
             time.sleep(0.2)
             assert ee(m)[2] - p0[2] > 0.02
+            # status at 10 Hz keeps flowing (over 3 s, so a loaded CI machine's pauses average out)
             n = len(m.status)
-            time.sleep(1.0)
-            assert len(m.status) - n >= 8
+            time.sleep(3.0)
+            assert len(m.status) - n >= 20
             assert m.latest()["mode"] == "teleop"  # type: ignore[index]
             assert "fault" not in m.kinds()
     finally:

@@ -1,0 +1,1 @@
+"""Where the objects really stand: fiducial markers seen by a camera (``legws track``)."""
