@@ -22,7 +22,6 @@ import os
 import sys
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -241,7 +240,6 @@ class TrackStats:
     frames: int = 0
     dropped: int = 0
     published: int = 0
-    seen: Counter[str] = field(default_factory=Counter)
     started: float = field(default_factory=time.monotonic)
 
     def rate(self) -> float:
@@ -265,14 +263,12 @@ class Absence:
 
 
 class Warnings:
-    """One-line warnings on standard error, the same text at most every
-    :data:`WARNING_INTERVAL` seconds."""
+    """One-line warnings to ``write``, the same text at most every :data:`WARNING_INTERVAL`
+    seconds."""
 
-    def __init__(self, write: Callable[[str], None] | None = None) -> None:
+    def __init__(self, write: Callable[[str], None]) -> None:
         self._last: dict[str, float] = {}
-        self._write = write or (
-            lambda text: print(f"legws track: warning: {text}", file=sys.stderr)
-        )
+        self._write = write
 
     def __call__(self, text: str) -> None:
         now = time.monotonic()
@@ -352,7 +348,6 @@ def track(
             frame = tracker.process(image)
             for text in frame.warnings:
                 warn(text)
-            stats.seen.update(frame.poses.keys())
             send(frame, absence.update(frame), stamp)
             stats.published += 1
             if on_frame is not None:
