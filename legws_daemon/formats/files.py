@@ -57,6 +57,7 @@ LIMITS: dict[str, int] = {
     "recording": 64 * 1024 * MiB,
     "password file": 64 * KiB,
     "certificate": 256 * KiB,
+    "camera calibration": 64 * KiB,
     "text": 1 * MiB,
 }
 

@@ -521,7 +521,7 @@ def save_calibration(cal: Calibration, path: Path) -> Path:
 
 def load_calibration(path: Path) -> Calibration:
     """Read a calibration file; any error is one line naming the file and the field."""
-    return calibration_from_data(read_json(path, "text"), str(path))
+    return calibration_from_data(read_json(path, "camera calibration"), str(path))
 
 
 def scaled_intrinsics(

@@ -250,6 +250,30 @@ def test_status_panel_and_timing(tmp_path: Path, episode: Episode) -> None:
         RerunLog(f"save:{tmp_path / 'y.rrd'}", robot="r", tick_period=0.0)
 
 
+def test_placement_guidance_is_in_the_panel_and_drawn_as_arrows(
+    tmp_path: Path, episode: Episode
+) -> None:
+    path = tmp_path / "placement.rrd"
+    lines = ("placement NOT certified: J -0.09", "banana: 6 cm right")
+    at, to = np.array([0.6, 0.2, 0.02]), np.array([0.6, 0.14, 0.02])
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode, stage="pick")
+        base = tick_kwargs(episode, 0, None)
+        log.log_tick(0, 0.0, **base)  # no tracker yet
+        log.log_tick(1, 0.05, **base, placement=lines, corrections={"banana": (at, to)})
+        log.log_tick(2, 0.10, **base, placement=lines, corrections={"banana": (at, to)})
+        log.log_tick(3, 0.15, **base, placement=("placement certified: J +0.05",), corrections={})
+    docs = _rows(path, "status", "TextDocument:text")
+    assert [t for t, _ in docs] == [0, 1, 3]  # re-sent only when the lines change
+    assert "banana: 6 cm right" in docs[1][1][0]
+    assert "placement certified" in docs[2][1][0]
+    arrows = _rows(path, "world/placement", "Arrows3D:vectors")
+    assert [t for t, _ in arrows] == [1]
+    np.testing.assert_allclose(arrows[0][1][0], to - at, atol=1e-6)
+    assert _rows(path, "world/placement", "Arrows3D:labels")[0][1] == ["banana"]
+    assert 3 in [t for t, _ in _rows(path, "world/placement", "Clear:is_recursive")]
+
+
 def test_fast_batches_match_the_archetypes() -> None:
     """The Arrow arrays built without the archetype converters are the archetypes' own."""
     fast = _fast()
