@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import click
@@ -26,3 +27,26 @@ class FiniteFloat(click.FloatRange):
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return number
+
+
+class PixelSize(click.ParamType[tuple[int, int]]):
+    """``WIDTHxHEIGHT`` in pixels (``800x500``), each side within ``min_side..max_side``."""
+
+    name = "WIDTHxHEIGHT"
+
+    def __init__(self, min_side: int, max_side: int) -> None:
+        self.min_side, self.max_side = min_side, max_side
+
+    def convert(
+        self, value: Any, param: click.Parameter | None, ctx: click.Context | None
+    ) -> tuple[int, int]:
+        if isinstance(value, tuple):
+            return value  # a default given as a pair
+        match = re.fullmatch(r"\s*(\d{1,5})\s*[xX]\s*(\d{1,5})\s*", str(value))
+        if not match:
+            self.fail(f"expected WIDTHxHEIGHT in pixels, e.g. 1600x1000, got {value!r}", param, ctx)
+        width, height = int(match[1]), int(match[2])
+        lo, hi = self.min_side, self.max_side
+        if not (lo <= width <= hi and lo <= height <= hi):
+            self.fail(f"expected {lo}-{hi} pixels a side, got {value!r}", param, ctx)
+        return width, height

@@ -15,7 +15,6 @@ SIGINT or SIGTERM ends a run cleanly (the session closed, exit 0).
 
 from __future__ import annotations
 
-import re
 import time
 from contextlib import closing
 from pathlib import Path
@@ -24,7 +23,7 @@ from typing import TYPE_CHECKING
 import click
 
 from legws_daemon.cli.joystick import DEFAULT_PROFILE
-from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.cli.numbers import FiniteFloat, PixelSize
 from legws_daemon.cli.track_calibrate import calibrate_cmd
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import load_profile_named
@@ -38,15 +37,6 @@ if TYPE_CHECKING:
 DEFAULT_RATE = 15.0
 #: A progress line on standard error this often, s.
 PROGRESS_EVERY = 5.0
-
-
-def _size(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d{1,4})x(\d{1,4})", text)
-    if m is None or not (16 <= int(m[1]) <= 4096 and 16 <= int(m[2]) <= 4096):
-        raise InputError(
-            f"expected WIDTHxHEIGHT within 16..4096 pixels, got {text!r}", field="--size"
-        )
-    return int(m[1]), int(m[2])
 
 
 @click.group("track", invoke_without_command=True)
@@ -77,7 +67,13 @@ def _size(text: str) -> tuple[int, int]:
     show_default=True,
     help="Frames tracked and published per second, at most.",
 )
-@click.option("--size", default="640x480", show_default=True, help="Picture size of sim:.")
+@click.option(
+    "--size",
+    type=PixelSize(16, 4096),
+    default="640x480",
+    show_default=True,
+    help="Picture size of sim:, WIDTHxHEIGHT.",
+)
 @click.option(
     "--duration",
     type=FiniteFloat(min=0.0, min_open=True),
@@ -93,7 +89,7 @@ def track_group(
     profile: Path,
     zenoh_config: Path | None,
     rate: float,
-    size: str,
+    size: tuple[int, int],
     duration: float | None,
 ) -> None:
     """Track the objects' markers with a camera; publish their poses to the daemon."""
@@ -105,7 +101,7 @@ def track_group(
 
     prof = load_profile_named(profile)
     warn = Warnings(lambda text: click.echo(f"legws: warning: {text}", err=True))
-    the_scene, src = _open_source(source, camera, scene, calibration, _size(size), warn)
+    the_scene, src = _open_source(source, camera, scene, calibration, size, warn)
     with closing(src):
         tracker = Tracker(the_scene, src.intrinsics)
         k = src.intrinsics.matrix

@@ -12,14 +12,13 @@
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import tempfile
 from pathlib import Path
 
 import click
 
-from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.cli.numbers import FiniteFloat, PixelSize
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.screenshot import (
     MAX_SIDE,
@@ -39,20 +38,6 @@ from legws_daemon.telemetry.web_viewer import (
 DEFAULT_SIZE = (1600, 1000)
 
 
-def _parse_size(
-    _ctx: click.Context, _param: click.Parameter, value: str | None
-) -> tuple[int, int] | None:
-    if value is None:
-        return None
-    match = re.fullmatch(r"\s*(\d{1,5})\s*[xX]\s*(\d{1,5})\s*", value)
-    if not match:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 1600x1000, got {value!r}")
-    width, height = int(match[1]), int(match[2])
-    if not (MIN_SIDE <= width <= MAX_SIDE and MIN_SIDE <= height <= MAX_SIDE):
-        raise click.BadParameter(f"expected {MIN_SIDE}-{MAX_SIDE} pixels a side, got {value!r}")
-    return width, height
-
-
 @click.command("view")
 @click.argument("recording", type=click.Path(path_type=Path))
 @click.option(
@@ -69,7 +54,7 @@ def _parse_size(
 )
 @click.option(
     "--size",
-    callback=_parse_size,
+    type=PixelSize(MIN_SIDE, MAX_SIDE),
     help=f"window size WIDTHxHEIGHT in pixels (default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})",
 )
 @click.option(
