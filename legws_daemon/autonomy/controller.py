@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from typing import Any, assert_never
 
@@ -24,7 +24,13 @@ import numpy as np
 
 from legws_daemon.autonomy.assistant import Assistant
 from legws_daemon.autonomy.cancel import CancelDetector
-from legws_daemon.autonomy.decision import Inference, StageState, certificate_of, live_slack
+from legws_daemon.autonomy.decision import (
+    Inference,
+    StageState,
+    certificate_of,
+    decision_goals,
+    live_slack,
+)
 from legws_daemon.autonomy.events import (
     AssistFailed,
     Cancel,
@@ -55,7 +61,6 @@ from legws_daemon.autonomy.recovery import Recovery
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.geometry import FloatArray
-from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
@@ -68,7 +73,7 @@ from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan, PlannedDecision
 from legws_daemon.task.runner import TaskRun, scene_graph
-from legws_daemon.task.targets import Held, goal_set, held_object
+from legws_daemon.task.targets import Held, held_object
 
 #: The assistance target of a reset, which no cancel interrupts.
 RESET_TARGET = "(reset)"
@@ -255,8 +260,17 @@ class Controller:
         decision's certificates are recomputed from them and the placement judged
         (:meth:`check_placement`).
         """
+        self.observe_all([(poses, unseen)])
+
+    def observe_all(self, reports: Sequence[tuple[Layout, Collection[str]]]) -> None:
+        """Several reports in the order they came (:meth:`observe`), judged once: only the
+        layout after the last one matters."""
         now = self.clock()
-        if not self.layouts.observe(poses, unseen, self.scene.objects, self.scene.movable, now):
+        known = [
+            self.layouts.observe(poses, unseen, self.scene.objects, self.scene.movable, now)
+            for poses, unseen in reports
+        ]
+        if not any(known):
             return
         self.planner.set_layout(self.layouts.layout)
         self.check_placement(now)
@@ -295,15 +309,11 @@ class Controller:
         last answer kept: a tracker reports the same layout many times)."""
         key = (self.decisions, tuple(sorted(layout.items())))
         if self._placed_cache is None or self._placed_cache[0] != key:
-            goals = self.stage_goals(layout)
+            goals = decision_goals(self.task, layout, self.scene)
             commit = certify_commit(goals, self.params)
             value = (certify(goals, self.params).objective, commit.objective, commit.certified)
             self._placed_cache = (key, value)
         return self._placed_cache[1]
-
-    def stage_goals(self, layout: Layout) -> GoalSet:
-        """The current decision's candidates' targets in ``layout``, seen from home."""
-        return goal_set(self.task.targets(layout), self.scene.home)
 
     def _decision_certificate(self, layout: Layout) -> float:
         return certificate_of(self.task, layout, self.scene, self.params)

@@ -64,11 +64,16 @@ class StageState:
         raise KeyError(goal)
 
 
+def decision_goals(task: TaskRun, layout: Mapping[str, ObjectPose], scene: Scene) -> GoalSet:
+    """The targets of the decision ``task`` offers, in ``layout``, seen from home."""
+    return goal_set(task.targets(layout), scene.home)
+
+
 def certificate_of(
     task: TaskRun, layout: Mapping[str, ObjectPose], scene: Scene, params: Params
 ) -> float:
     """``J`` of the decision ``task`` offers, its targets in ``layout``, seen from home."""
-    return certify(goal_set(task.targets(layout), scene.home), params).objective
+    return certify(decision_goals(task, layout, scene), params).objective
 
 
 class Inference:

@@ -575,10 +575,12 @@ class DaemonService:
         return True
 
     def _apply_objects(self) -> None:
-        """The tracker's reports that came since the last tick, in order."""
-        while self._objects and self.controller is not None:
-            poses, unseen = self._objects.popleft()
-            self.controller.observe(poses, unseen)
+        """The tracker's reports that came since the last tick, in order, judged once."""
+        reports = []
+        while self._objects:
+            reports.append(self._objects.popleft())
+        if reports and self.controller is not None:
+            self.controller.observe_all(reports)
 
     def _run_commands(self, install: bool = True) -> int:
         """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
