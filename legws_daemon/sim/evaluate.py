@@ -33,9 +33,12 @@ from legws_daemon.sim.protocol import Evaluator, PickResult, km_sample, metrics
 from legws_daemon.sim.statistics import (
     LEVEL,
     RESAMPLES,
+    RateInterval,
     km_counts,
     km_median_counts,
     percentile_interval,
+    rate_interval,
+    ratio_interval,
     resample_counts,
 )
 from legws_daemon.workers import worker_context
@@ -48,6 +51,7 @@ INTERVAL_KEYS = (
     "commit_rate_min_goal",
     "wrong_commit_rate",
     "accuracy",
+    "completion_committed",
     "t_infer_mean",
     "t_infer_km_median",
 )
@@ -172,6 +176,8 @@ class GroupStats:
         self.true = np.zeros(len(groups))
         self.wrong = np.zeros(len(groups))
         self.correct = np.zeros(len(groups))
+        self.acted = np.zeros(len(groups))
+        self.completed = np.zeros(len(groups))
         self.t_sum = np.zeros(len(groups))
         self.t_count = np.zeros(len(groups))
         self.goal_hits = np.zeros(shape)
@@ -182,6 +188,9 @@ class GroupStats:
                 self.true[g] += p.commit_true
                 self.wrong[g] += p.committed is not None and p.committed != p.true_goal
                 self.correct[g] += p.correct
+                if p.feasible and (p.committed is not None or p.confirmed is not None):
+                    self.acted[g] += 1
+                    self.completed[g] += p.completed
                 if p.commit_time is not None:
                     self.t_sum[g] += p.commit_time
                     self.t_count[g] += 1
@@ -197,7 +206,7 @@ class GroupStats:
     def statistics(self, counts: FloatArray) -> dict[str, FloatArray]:
         """Each key of :data:`INTERVAL_KEYS` for every row of ``counts`` (``(B, G)``: how
         often each group is drawn); ``nan`` where undefined (no pick, no timed commit, no
-        pick with inference), ``inf`` for a Kaplan–Meier median never reached."""
+        pick with inference, no pick acted on), ``inf`` for a Kaplan–Meier median never reached."""
 
         def ratio(num: FloatArray, den: FloatArray) -> FloatArray:
             top, bottom = counts @ num, counts @ den
@@ -218,6 +227,7 @@ class GroupStats:
             "commit_rate_min_goal": min_goal,
             "wrong_commit_rate": ratio(self.wrong, self.n),
             "accuracy": ratio(self.correct, self.n),
+            "completion_committed": ratio(self.completed, self.acted),
             "t_infer_mean": ratio(self.t_sum, self.t_count),
             "t_infer_km_median": np.where(
                 counts @ self.km_subjects > 0, km_median_counts(u, counts @ d, counts @ r), np.nan
@@ -244,6 +254,45 @@ class GroupStats:
 
 def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
+
+
+def interval_seed(seed: int, group: str) -> list[int]:
+    """The seed of a report's bootstrap over ``group`` (``"layouts"`` or ``"runs"``)."""
+    return [seed, 0xB007, {"layouts": 0, "runs": 1}[group]]
+
+
+def group_intervals(report: dict[str, Any], group: str) -> dict[str, Any] | None:
+    """The intervals over ``group`` (``"layouts"``, ``"runs"``) of a :func:`run_eval`
+    report, ``None`` when it has none.
+
+    A report written before ``completion_committed`` was among :data:`INTERVAL_KEYS` gets
+    that interval recomputed from its ``per_layout`` rows (completed and acted-on picks per
+    layout, or per run): the same groups in the same order and the same seeded resamples, so
+    it is the interval :func:`run_eval` gives now. Without usable rows it stays absent.
+    """
+    a = report["aggregate"]
+    iv = a.get("intervals") or {}
+    ci: dict[str, Any] | None = iv.get(group)
+    if ci is None or "completion_committed" in ci:
+        return ci
+    rows: list[dict[str, Any]] = report.get("per_layout") or []
+    if not rows or not all("completion_committed" in r and "episodes" in r for r in rows):
+        return ci
+    keys = [r.get("run") if group == "runs" else r.get("index") for r in rows]
+    if any(k is None for k in keys):
+        return ci
+    order = list(dict.fromkeys(keys))
+    if len(order) != ci.get("groups"):
+        return ci
+    num, den = np.zeros(len(order)), np.zeros(len(order))
+    for r, key in zip(rows, keys, strict=True):
+        c = counts_of(r)
+        num[order.index(key)] += c["completed"]
+        den[order.index(key)] += c["acted_on"]
+    rng = np.random.default_rng(interval_seed(int(report["seed"]), group))
+    out = ratio_interval(num, den, rng, int(iv.get("resamples", RESAMPLES)),
+                         float(iv.get("level", LEVEL)))  # fmt: skip
+    return {**ci, "completion_committed": None if out is None else [out[0], out[1]]}
 
 
 def run_eval(
@@ -329,7 +378,7 @@ def run_eval(
         "resamples": resamples,
         "layouts": {
             "groups": len(layouts),
-            **GroupStats(by_layout).intervals([seed, 0xB007, 0], resamples),
+            **GroupStats(by_layout).intervals(interval_seed(seed, "layouts"), resamples),
         },
     }
     runs = list(dict.fromkeys(e.run for e in elites)) if elites is not None else []
@@ -339,7 +388,7 @@ def run_eval(
                   for run in runs]  # fmt: skip
         intervals["runs"] = {
             "groups": len(runs),
-            **GroupStats(by_run).intervals([seed, 0xB007, 1], resamples),
+            **GroupStats(by_run).intervals(interval_seed(seed, "runs"), resamples),
         }
     aggregate = {
         **metrics(all_picks),
@@ -380,6 +429,144 @@ def run_eval(
     return report
 
 
+# --- the whole numbers behind the rates, and their intervals -------------------------------
+
+#: The rates that get an interval, with the counts they are ``k`` of ``n`` of.
+RATE_KEYS = (
+    "commit_true_rate",
+    "commit_rate_min_goal",
+    "wrong_commit_rate",
+    "accuracy",
+    "completion_committed",
+)
+
+
+def counts_of(m: dict[str, Any]) -> dict[str, Any]:
+    """The counts behind the rates of a :func:`~legws_daemon.sim.protocol.metrics` dict
+    (``aggregate``, a ``per_layout`` or ``by_elite`` row): its ``counts``, or for a report
+    written before they were kept, the same recovered from the rates. That is exact: every
+    rate is ``k / n`` in floating point with ``n`` = ``episodes`` (``round`` gives ``k``
+    back), every pick order picks every goal once (``episodes / M`` picks per goal), and
+    ``completion_committed`` is completed over acted-on picks; with none of them completed
+    the acted-on picks are the committed and the confirmed ones."""
+    if isinstance(m.get("counts"), dict):
+        counts: dict[str, Any] = m["counts"]
+        return counts
+    n = int(m["episodes"])
+
+    def k(rate: float | None, of: int = n) -> int:
+        return 0 if rate is None else round(rate * of)
+
+    completed = k(m.get("completion_rate"))
+    share = m.get("completion_committed")
+    if share is None:
+        acted = 0
+    elif share > 0:
+        acted = round(completed / share)
+    else:
+        acted = k((m.get("commit_rate") or 0.0) + (m.get("confirmed_rate") or 0.0))
+    by_goal: dict[str, float] = m.get("commit_rate_by_goal") or {}
+    per_goal = n // len(by_goal) if by_goal and n % len(by_goal) == 0 else 0
+    return {
+        "picks": n,
+        "commit_true": k(m.get("commit_true_rate")),
+        "wrong_commit": k(m.get("wrong_commit_rate")),
+        "correct": k(m.get("accuracy")),
+        "acted_on": acted,
+        "completed": completed,
+        "goal_picks": {g: per_goal for g in by_goal} if per_goal else {},
+        "goal_commit_true": {g: k(r, per_goal) for g, r in by_goal.items()} if per_goal else {},
+    }
+
+
+def _worst_goal(counts: dict[str, Any]) -> tuple[int, int] | None:
+    """``(k, n)`` of the goal with the lowest commit rate on the true goal: of those tied at
+    100 %, the one with the fewest picks (the weakest bound); at 0 %, the most (the
+    tightest); ``None`` without per-goal counts."""
+    picks: dict[str, int] = counts.get("goal_picks") or {}
+    hits: dict[str, int] = counts.get("goal_commit_true") or {}
+    pairs = [(hits[g], n) for g, n in picks.items() if n > 0 and g in hits]
+    if not pairs:
+        return None
+    low = min(pairs, key=lambda kn: kn[0] / kn[1])
+    tied = [kn for kn in pairs if kn[0] * low[1] == low[0] * kn[1]]
+    if low[0] == low[1]:
+        return min(tied, key=lambda kn: kn[1])
+    return max(tied, key=lambda kn: kn[1])
+
+
+def rate_counts(m: dict[str, Any], key: str) -> tuple[int, int] | None:
+    """``(k, n)`` of the rate ``key`` of :data:`RATE_KEYS` in the metrics dict ``m``
+    (:func:`counts_of`); ``None`` when it cannot be told."""
+    c = counts_of(m)
+    if key == "commit_rate_min_goal":
+        return _worst_goal(c)
+    if key == "completion_committed":
+        return int(c["completed"]), int(c["acted_on"])
+    k = {"commit_true_rate": "commit_true", "wrong_commit_rate": "wrong_commit",
+         "accuracy": "correct"}[key]  # fmt: skip
+    return int(c[k]), int(c["picks"])
+
+
+def rate_intervals(m: dict[str, Any], ci: dict[str, Any] | None) -> dict[str, RateInterval | None]:
+    """Every rate of :data:`RATE_KEYS` in ``m`` with its interval (:func:`rate_interval`):
+    Clopper–Pearson where every pick or none succeeded, else the bootstrap of ``ci`` (one
+    group's ``intervals``, or ``None``); ``None`` for a rate that is undefined or whose counts
+    cannot be told."""
+    out: dict[str, RateInterval | None] = {}
+    for key in RATE_KEYS:
+        kn = rate_counts(m, key) if m.get(key) is not None else None
+        out[key] = None if kn is None else rate_interval(*kn, (ci or {}).get(key))
+    return out
+
+
+def format_rate(
+    r: RateInterval | None, digits: int = 1, bound_digits: int = 1, unit: str = " %"
+) -> str:
+    """A rate with its interval, in per cent: ``76.1 % [69.0, 83.0]`` (the bootstrap),
+    ``100.0 % [≥ 98.8]`` / ``0.0 % [≤ 1.2]`` (Clopper–Pearson, every pick / no pick of ``n``),
+    ``75.0 % (no spread)`` (every group the same), or the rate alone. Bootstrap bounds take
+    ``digits`` decimals, the Clopper–Pearson ones ``bound_digits``."""
+    if r is None or r.rate is None:
+        return "—"
+    value = f"{100 * r.rate:.{digits}f}{unit}"
+    if r.kind == "at_least" and r.low is not None:
+        return f"{value} [≥ {100 * r.low:.{bound_digits}f}]"
+    if r.kind == "at_most" and r.high is not None:
+        return f"{value} [≤ {100 * r.high:.{bound_digits}f}]"
+    if r.kind == "no_spread":
+        return f"{value} (no spread)"
+    if r.kind == "bootstrap" and r.low is not None and r.high is not None:
+        return f"{value} [{100 * r.low:.{digits}f}, {100 * r.high:.{digits}f}]"
+    return value
+
+
+#: What every rate and time of the protocol holds for (method.md §2), in words.
+USER_MODEL = (
+    "the simulated user of method.md §2 (aimed straight at the goal's grasp at full "
+    "deflection, white Gaussian velocity noise σ = {sigma:g} m/s, the deflection clipped to "
+    "|u| ≤ 1, i.e. speed ≤ v_max = {v_max:g} m/s; confirming at the grasp), on the MuJoCo "
+    "stand-in; not a given person"
+)
+
+#: The notation of the intervals on rates, said once above every table that has them.
+RATE_NOTATION = (
+    "Rates with 95 % intervals: `[low, high]` a percentile bootstrap over the groups "
+    "(layouts or optimisation runs, which accounts for the picks of one layout being alike); "
+    "where every pick counted succeeded (k = n) or none did (k = 0) the bootstrap cannot leave "
+    "100 % or 0 %, so `[≥ low]` / `[≤ high]` is the Clopper–Pearson bound on k of n picks "
+    "instead (picks taken as independent; n: all picks, for the worst goal that goal's, for "
+    "completion the picks acted on); `(no spread)`: every group has the same rate, so "
+    "resampling them gives no interval."
+)
+
+
+def user_model(params: dict[str, Any] | None) -> str:
+    """:data:`USER_MODEL` with a report's ``params`` (method.md §2's values without)."""
+    p = params or {}
+    return USER_MODEL.format(sigma=p.get("sigma", 0.03), v_max=p.get("v_max", 0.05))
+
+
 def _pct(x: float | None) -> str:
     return "—" if x is None else f"{100 * x:.1f} %"
 
@@ -416,11 +603,10 @@ def _km(m: dict[str, Any]) -> str:
 
 def _person_row(label: str, m: dict[str, Any], ci: dict[str, Any] | None) -> str:
     c = ci or {}
+    rates = rate_intervals(m, ci)
+    cells = " | ".join(format_rate(rates[key]) for key in RATE_KEYS)
     return (
-        f"| {label} | {_with_ci(_pct(m['commit_true_rate']), c.get('commit_true_rate'), True)} "
-        f"| {_with_ci(_pct(m['commit_rate_min_goal']), c.get('commit_rate_min_goal'), True)} "
-        f"| {_with_ci(_pct(m['wrong_commit_rate']), c.get('wrong_commit_rate'), True)} "
-        f"| {_with_ci(_pct(m['accuracy']), c.get('accuracy'), True)} "
+        f"| {label} | {cells} "
         f"| {_with_ci(_sec(m['t_infer_mean']), c.get('t_infer_mean'), False)} "
         f"| {_with_ci(_km(m), c.get('t_infer_km_median'), False)} "
         f"| {m['t_infer_km_picks']} ({m['t_infer_km_events']}) |"
@@ -429,7 +615,7 @@ def _person_row(label: str, m: dict[str, Any], ci: dict[str, Any] | None) -> str
 
 PERSON_HEADER = (
     "| {what} | commit on the true goal | min over goals | wrong commit | accuracy "
-    "| T_infer mean (s) | T_infer KM median (s) | KM picks (events) |"
+    "| completed, acted on | T_infer mean (s) | T_infer KM median (s) | KM picks (events) |"
 )
 
 
@@ -459,12 +645,13 @@ def markdown(report: dict[str, Any]) -> str:
         f"| {a['infeasible_picks']} | {a['episodes']} "
         f"| {_rate(report['timing']['episodes_per_second'])} |",
         "",
-        f"As the person sees them (method.md §9), with {100 * iv['level']:.0f} % intervals "
-        f"(percentile bootstrap, {iv['resamples']} resamples of the groups; none with one "
-        "group):",
+        f"As the person sees them (method.md §9), for {user_model(report.get('params'))}.",
+        "",
+        RATE_NOTATION.replace("95 %", f"{100 * iv['level']:.0f} %")
+        + f" Bootstrap: {iv['resamples']} resamples; none with one group.",
         "",
         PERSON_HEADER.format(what="intervals over"),
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
         _person_row(f"layouts ({iv['layouts']['groups']})", a, iv["layouts"]),
     ]
     if "runs" in iv:
@@ -481,7 +668,7 @@ def markdown(report: dict[str, Any]) -> str:
             f"Per elite (1: each run's best verified; {len(report['runs'])} runs):",
             "",
             PERSON_HEADER.format(what="elite"),
-            "|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         lines += [_person_row(str(row["position"]), row, None) for row in report["by_elite"]]
     source = "by_elite" in report
@@ -509,10 +696,20 @@ def markdown(report: dict[str, Any]) -> str:
 
 __all__ = [
     "INTERVAL_KEYS",
+    "RATE_KEYS",
+    "RATE_NOTATION",
+    "USER_MODEL",
     "Elite",
     "GroupStats",
+    "counts_of",
+    "format_rate",
+    "group_intervals",
+    "interval_seed",
     "load_elites",
     "markdown",
     "random_layouts",
+    "rate_counts",
+    "rate_intervals",
     "run_eval",
+    "user_model",
 ]

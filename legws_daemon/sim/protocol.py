@@ -219,6 +219,13 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
     ``None`` when the survival never falls to one half (the median is beyond
     ``t_infer_km_max_time``) or there is no pick with inference; ``t_infer_km_picks`` and
     ``t_infer_km_events`` count its subjects and events.
+
+    ``counts`` holds the whole numbers behind the rates, for intervals that need them (a
+    Clopper–Pearson bound where every pick, or none, succeeded): ``picks`` (the denominator
+    of every rate over all picks), ``commit_true``, ``wrong_commit``, ``correct``,
+    ``acted_on`` and ``completed`` (those of them completed: the denominator and numerator
+    of ``completion_committed``), and per true goal ``goal_picks`` and
+    ``goal_commit_true`` (those of ``commit_rate_by_goal``).
     """
     n = len(picks)
     ran = [p for p in picks if p.feasible]
@@ -230,6 +237,18 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
     failures = Counter(p.failure for p in picks if p.failure is not None)
     by_goal = commit_by_goal(picks)
     km_times, km_observed = km_sample(picks)
+    goal_picks = Counter(p.true_goal for p in picks)
+    goal_hits = Counter(p.true_goal for p in picks if p.commit_true)
+    counts = {
+        "picks": n,
+        "commit_true": sum(p.commit_true for p in picks),
+        "wrong_commit": len(wrong),
+        "correct": sum(p.correct for p in picks),
+        "acted_on": len(acted),
+        "completed": sum(p.completed for p in acted),
+        "goal_picks": {g: goal_picks[g] for g in sorted(goal_picks)},
+        "goal_commit_true": {g: goal_hits[g] for g in sorted(goal_picks)},
+    }
     return {
         "episodes": n,
         "accuracy": sum(p.correct for p in picks) / n if n else None,
@@ -253,6 +272,7 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
         "t_infer_km_picks": len(km_times),
         "t_infer_km_events": sum(km_observed),
         "t_infer_km_max_time": max(km_times) if km_times else None,
+        "counts": counts,
     }
 
 

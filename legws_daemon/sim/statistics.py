@@ -1,25 +1,36 @@
-"""Statistics of the protocol's report (method.md §9): Kaplan–Meier and the group bootstrap.
+"""Statistics of the protocol's report (method.md §9): Kaplan–Meier, the group bootstrap and
+the exact binomial bound of a rate at 0 % or 100 %.
 
-Pure numpy. Times to a commit are right-censored (a pick that ends without one tells only
-that the commit did not come before its end), so their median is the Kaplan–Meier median.
+Numpy (and, for the exact bound, scipy's incomplete beta). Times to a commit are
+right-censored (a pick that ends without one tells only that the commit did not come before
+its end), so their median is the Kaplan–Meier median.
 Picks of one layout are not independent (same geometry), so intervals resample *groups*
 (layouts, or optimisation runs) with replacement and recompute the statistic over the pooled
 picks of the resampled groups (a percentile bootstrap).
 
 Undefined values are ``nan`` (e.g. a mean over no commits); a Kaplan–Meier median that is
 never reached (the survival stays above one half) is ``inf``.
+
+A rate where every pick succeeded (or none did) has a bootstrap interval of one point,
+``[100, 100]``, whatever the number of picks: no resample can hold a failure that never
+happened. :func:`rate_interval` gives such a rate the exact (Clopper–Pearson) bound on its
+``k`` of ``n`` picks instead (:func:`~legws_daemon.core.montecarlo.clopper_pearson`, picks
+taken as independent), and keeps the bootstrap over groups, which accounts for the picks of
+one layout being alike, for every other rate.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TypeVar
+from dataclasses import dataclass
+from typing import Literal, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray, IntArray
+from legws_daemon.core.montecarlo import clopper_pearson
 from legws_daemon.errors import InputError
 
 T = TypeVar("T")
@@ -194,9 +205,90 @@ def bootstrap_ci(
     return bootstrap_ci_counts(g, each, rng, n, level)
 
 
+def ratio_interval(
+    numerator: ArrayLike,
+    denominator: ArrayLike,
+    rng: np.random.Generator,
+    n: int = RESAMPLES,
+    level: float = LEVEL,
+) -> tuple[float, float] | None:
+    """Percentile bootstrap interval of a pooled ratio ``sum(numerator) / sum(denominator)``
+    over groups (``(G,)`` per-group sums, e.g. completed and acted-on picks per layout),
+    resampling the groups with replacement; ``None`` as :func:`bootstrap_ci_counts`."""
+    num = np.asarray(numerator, dtype=np.float64).reshape(-1)
+    den = np.asarray(denominator, dtype=np.float64).reshape(-1)
+    if num.shape != den.shape:
+        raise InputError(f"{num.size} numerators but {den.size} denominators")
+
+    def ratio(counts: FloatArray) -> FloatArray:
+        top, bottom = counts @ num, counts @ den
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out: FloatArray = np.where(bottom > 0, top / np.where(bottom > 0, bottom, 1), np.nan)
+        return out
+
+    return bootstrap_ci_counts(num.size, ratio, rng, n, level)
+
+
+#: How a rate's interval was obtained (:class:`RateInterval`).
+IntervalKind = Literal["bootstrap", "at_least", "at_most", "no_spread", "none"]
+
+
+@dataclass(frozen=True, slots=True)
+class RateInterval:
+    """A rate ``k / n`` with its 95 % interval.
+
+    Attributes:
+        k, n: the picks that succeeded, of how many.
+        kind: ``"at_least"`` (``k = n``: ``low`` is the Clopper–Pearson lower bound, ``high``
+            is 1), ``"at_most"`` (``k = 0``: ``high`` is the Clopper–Pearson upper bound,
+            ``low`` 0), ``"bootstrap"`` (``low``, ``high``: the percentile bootstrap over
+            groups), ``"no_spread"`` (``0 < k < n`` and the bootstrap is one point: every
+            group has the same rate, so resampling them says nothing; no interval is given),
+            ``"none"`` (no bootstrap: a single group; or no picks).
+        low, high: the bounds, or ``None``.
+    """
+
+    k: int
+    n: int
+    kind: IntervalKind
+    low: float | None
+    high: float | None
+
+    @property
+    def rate(self) -> float | None:
+        return self.k / self.n if self.n else None
+
+
+def rate_interval(
+    k: int,
+    n: int,
+    bootstrap: Sequence[float | None] | None = None,
+    level: float = LEVEL,
+) -> RateInterval:
+    """The interval of a rate of ``k`` successes in ``n`` picks (see the module docstring):
+    the Clopper–Pearson bound at level ``level`` where ``k = n`` or ``k = 0``, else the
+    ``bootstrap`` interval ``(low, high)`` over groups (``None``: none was made)."""
+    if n < 0 or not 0 <= k <= max(n, 0):
+        raise InputError(f"need 0 <= k <= n, got {k}/{n}")
+    if n == 0:
+        return RateInterval(k, n, "none", None, None)
+    if k == n:
+        return RateInterval(k, n, "at_least", clopper_pearson(k, n, level)[0], 1.0)
+    if k == 0:
+        return RateInterval(k, n, "at_most", 0.0, clopper_pearson(k, n, level)[1])
+    if bootstrap is None or bootstrap[0] is None or bootstrap[1] is None:
+        return RateInterval(k, n, "none", None, None)
+    low, high = float(bootstrap[0]), float(bootstrap[1])
+    if low == high:
+        return RateInterval(k, n, "no_spread", None, None)
+    return RateInterval(k, n, "bootstrap", low, high)
+
+
 __all__ = [
     "LEVEL",
     "RESAMPLES",
+    "IntervalKind",
+    "RateInterval",
     "bootstrap_ci",
     "bootstrap_ci_counts",
     "kaplan_meier",
@@ -205,5 +297,7 @@ __all__ = [
     "km_median_counts",
     "km_survival",
     "percentile_interval",
+    "rate_interval",
+    "ratio_interval",
     "resample_counts",
 ]
