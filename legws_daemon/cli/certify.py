@@ -33,9 +33,11 @@ from legws_daemon.core.montecarlo import (
     monte_carlo_commit,
 )
 from legws_daemon.core.params import COST_FORMS, RANGES, CostForm, Params, range_problem
+from legws_daemon.core.user_model import SimulatedUser
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
+from legws_daemon.formats.operator_file import load_operator
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
 from legws_daemon.scene.layout_file import dump_json, load_layout
@@ -64,13 +66,21 @@ def certificate_report(
 
 
 def commit_report(cert: CommitCertificate, mc: dict[str, GoalCommitRate] | None) -> dict[str, Any]:
-    """The ``commit`` (and ``monte_carlo_commit``) fields of ``legws certify --commit``."""
+    """The ``commit`` (and ``monte_carlo_commit``) fields of ``legws certify --commit``. A
+    goal the operator's nominal never reaches (method.md §10) has ``reachable: false`` and
+    ``null`` for its fraction and slacks; ``objective`` (K) is then ``null`` too."""
     tau_c, tau_w = cert.thresholds
+    goals = {}
+    for name, g in cert.goals.items():
+        entry = asdict(g)
+        if not g.reachable:
+            entry |= {"fraction": None, "slack_at_arrival": None, "wrong_commit_slack": None}
+        goals[name] = entry
     out: dict[str, Any] = {
         "commit": {
-            "objective": cert.objective,
+            "objective": cert.objective if math.isfinite(cert.objective) else None,
             "certified": cert.certified,
-            "goals": {name: asdict(g) for name, g in cert.goals.items()},
+            "goals": goals,
             "tau_commit": tau_c,
             "tau_wrong": tau_w,
             "quantile": cert.quantile,
@@ -136,9 +146,17 @@ def _table(rows: list[list[str]], header: list[str]) -> str:
 
 def render_text(report: dict[str, Any], goals: GoalSet) -> str:
     p = report["params"]
+    who = report.get("operator")
+    whom = (
+        f"for operator {who['name']} ({_model_text(who['model'])}"
+        f"{', the robot clipping |u| <= 1' if who['clipped'] else ''})"
+        if who
+        else "for section 2's simulated user (white noise, aimed straight, full deflection)"
+    )
     lines = [
         f"Certificate of {report['source']}: M = {goals.m}, cost {p['cost']}, beta {p['beta']}, "
         f"alpha {p['alpha']}, z = {report['quantile']:.3f}",
+        whom,
         "",
         _table(
             [
@@ -191,9 +209,20 @@ def render_text(report: dict[str, Any], goals: GoalSet) -> str:
     return "\n".join(lines)
 
 
+def _model_text(model: dict[str, Any]) -> str:
+    return (
+        f"s {model['speed']:.2f}, sigma {model['sigma']:.3f} m/s, rho {model['rho']:.2f}, "
+        f"bias {model['bias_deg']:+.1f}°, {model['steering']}"
+    )
+
+
 def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
     c = report["commit"]
     p = report["params"]
+
+    def num(x: float | None, digits: int = 3) -> str:
+        return "—" if x is None else f"{x:.{digits}f}"
+
     rows = []
     for name in goals.names:
         g = c["goals"][name]
@@ -202,32 +231,51 @@ def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
             [
                 name,
                 "",
-                f"{g['fraction']:.3f}",
+                num(g["fraction"]),
                 "—" if crossing is None else str(crossing),
-                str(g["arrival_steps"]),
-                f"{g['slack_at_arrival']:.3f}",
-                f"{g['wrong_commit_slack']:.3f}",
+                str(g["arrival_steps"]) if g["reachable"] else "never",
+                num(g["slack_at_arrival"]),
+                num(g["wrong_commit_slack"]),
+                "—" if g["progress"] is None else f"{100 * g['progress']:.0f} %",
                 "yes" if g["certified"] else "NO",
             ]
         )
-    user = "speed-clipped user" if c["user"]["clipped"] else "unclipped user of §2"
+    if report.get("operator"):
+        user = f"operator {report['operator']['name']}" + (
+            ", robot's clip" if c["user"]["clipped"] else ""
+        )
+    else:
+        user = "speed-clipped user" if c["user"]["clipped"] else "unclipped user of §2"
     form = "exact-sum form" if c["form"] == "sum" else "even split"
+    k = c["objective"]
     lines = [
         f"Commit certificate (method.md §9, {user}, {form}): commit at p >= {p['p_thresh']}, "
         f"tau_c = {c['tau_commit']:.3f}, tau_w = {c['tau_wrong']:.3f}, z_c = {c['quantile']:.3f}",
         "",
         _table(
             rows,
-            ["goal", "", "kappa", "commit step", "arrival", "c(T_a)", "w", "certified"],
+            [
+                "goal",
+                "",
+                "kappa",
+                "commit step",
+                "arrival",
+                "c(T_a)",
+                "w",
+                "of the way",
+                "certified",
+            ],
         ),
         "",
-        f"commit objective K = {c['objective']:.4f}, {c['certified']} of {goals.m} goals "
+        f"commit objective K = {num(k, 4)}, {c['certified']} of {goals.m} goals "
         "commit-certified: "
         + (
             f"every goal's first commit is on it by step t_c with probability >= "
             f"{1 - p['alpha']:.2f}"
-            if c["objective"] <= 1.0
+            if k is not None and k <= 1.0
             else "NOT every goal (K > 1)"
+            if k is not None
+            else "NOT every goal (a goal the operator does not reach)"
         ),
     ]
     mc = report.get("monte_carlo_commit")
@@ -279,10 +327,19 @@ def _commit_text(report: dict[str, Any], goals: GoalSet) -> list[str]:
     "--seed", type=int, default=0, show_default=True, help="Seed of the Monte Carlo check."
 )
 @click.option(
-    "--clip-speed",
-    is_flag=True,
-    help="Monte Carlo with the robot's speed clip |v| <= v_max (with --commit, also the "
-    "commit certificate of that slower user).",
+    "--operator",
+    "operator_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Certify for a person: an operator file (legws operator fit|calibrate); the "
+    "certificates use its certify_with model (method.md §10) with the robot's clip, and "
+    "--monte-carlo simulates that operator.",
+)
+@click.option(
+    "--clip-speed/--no-clip-speed",
+    default=None,
+    help="The robot's speed clip |v| <= v_max: in the Monte Carlo, and in the commit "
+    "certificate of that slower user (with --operator: in every certificate). Default: off "
+    "for section 2's user, on with --operator.",
 )
 @click.option(
     "--commit",
@@ -314,7 +371,8 @@ def certify_cmd(
     sigma: float | None,
     trials: int | None,
     seed: int,
-    clip_speed: bool,
+    operator_file: Path | None,
+    clip_speed: bool | None,
     with_commit: bool,
     commit_form: str,
     export_goals: Path | None,
@@ -351,34 +409,51 @@ def certify_cmd(
         params = replace(params, beta=beta)
     if sigma is not None:
         params = replace(params, sigma=sigma)
+    person = load_operator(operator_file) if operator_file is not None else None
+    clip = clip_speed if clip_speed is not None else person is not None
+    operator = person.certify_with if person is not None else None
+    # who the Monte Carlo simulates: the operator certified, or section 2's user (clipped)
+    who = SimulatedUser(operator, clip=clip) if operator is not None else None
     if trials is not None:
         check_trials(
-            goals, params, trials, commit_forms=int(with_commit), clip_speed=clip_speed,
+            goals, params, trials, commit_forms=int(with_commit), clip_speed=clip, user=who,
             field="--monte-carlo",
         )  # fmt: skip
 
-    cert = certify(goals, params)
+    # section 2's user keeps section 4's J (the clip only in its Monte Carlo and commit)
+    user = operator.motion(params, clip) if operator is not None else None
+    cert = certify(goals, params, operator, user)
     mc = settings = None
     if trials is not None:
-        mc = monte_carlo(goals, params, trials, seed, clip_speed=clip_speed)[params.cost]
+        mc = monte_carlo(goals, params, trials, seed, clip_speed=clip, user=who)[params.cost]
         settings = {
             "trials": trials,
             "seed": seed,
-            "clip_speed": clip_speed,
+            "clip_speed": clip,
             "confidence": CONFIDENCE,
+            "simulated": "operator (certify_with)" if who is not None else "section 2's user",
         }
     report = certificate_report(cert, params, mc, settings, source)
+    if person is not None:
+        report["operator"] = {
+            "name": person.name,
+            "source": person.source,
+            "model": person.certify_with.as_dict(),
+            "clipped": clip,
+        }
     if with_commit:
         # with --clip-speed the commit is certified for the robot's slower, clipped user
-        user = clipped_user(params) if clip_speed else unclipped_user(params)
-        commit = certify_commit(goals, params, user, commit_form)
+        motion = user
+        if motion is None:
+            motion = clipped_user(params) if clip else unclipped_user(params)
+        commit = certify_commit(goals, params, motion, commit_form, operator)
         rates = None
         if trials is not None:
             steps = [commit.goals[n].step for n in goals.names]
             rng = np.random.default_rng([seed, 9])
-            rates = monte_carlo_commit(goals, params, trials, rng, steps, clip_speed=clip_speed)
+            rates = monte_carlo_commit(goals, params, trials, rng, steps, clip_speed=clip, user=who)
         report |= commit_report(commit, rates)
-        report["commit"]["user"] = asdict(user) | {"clipped": clip_speed}
+        report["commit"]["user"] = asdict(motion) | {"clipped": clip}
         report["commit"]["form"] = commit_form
     require_finite(report)
     if export_goals is not None:

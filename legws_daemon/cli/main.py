@@ -20,6 +20,7 @@ from legws_daemon.cli.daemon import daemon_cmd
 from legws_daemon.cli.demo import demo_cmd
 from legws_daemon.cli.eval import eval_cmd
 from legws_daemon.cli.joystick import joystick_group
+from legws_daemon.cli.operator import operator_group
 from legws_daemon.cli.optimize import optimize_cmd
 from legws_daemon.cli.placement import placement_cmd
 from legws_daemon.cli.plan import plan_cmd
@@ -63,6 +64,7 @@ cli.add_command(taskgraph_group)
 cli.add_command(secure_group)
 cli.add_command(view_cmd)
 cli.add_command(track_group)
+cli.add_command(operator_group)
 
 
 def _fail(message: str) -> int:

@@ -26,8 +26,18 @@ from scipy.special import ndtri
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.operator import (
+    MAX_HORIZON_STEPS,
+    OperatorModel,
+    UserMotion,
+    ar1_sum_variance,
+    horizon_steps,
+    nominal_path,
+)
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+
+__all__ = ["MAX_HORIZON_STEPS", "horizon_steps"]  # re-exported for their older importers
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,35 +75,12 @@ class NominalTerms:
     sensitivity: FloatArray  # (B, M, M, 3) a_ij
 
 
-#: Longest horizon accepted (at 20 Hz, 83 minutes); longer means nonsensical inputs.
-MAX_HORIZON_STEPS = 100_000
-
-
 def upper_quantile(tail: ArrayLike) -> FloatArray | float:
     """``Phi^-1(1 - tail)``, the standard normal quantile with ``tail`` above it, computed as
     ``-Phi^-1(tail)``: exact for any tail down to the smallest double (``1 - tail`` rounds
     to 1, and the quantile to infinity, once ``tail`` is below ~1e-16)."""
     z = -ndtri(np.asarray(tail, dtype=np.float64))
     return float(z) if np.ndim(z) == 0 else np.asarray(z, dtype=np.float64)
-
-
-def horizon_steps(distance: ArrayLike, params: Params) -> IntArray:
-    """``T = ceil(eta |p_g* - p0| / (v_max dt))`` (at least one step).
-
-    Raises:
-        InputError: when a horizon exceeds :data:`MAX_HORIZON_STEPS`.
-    """
-    d = np.asarray(distance, dtype=np.float64)
-    raw = params.horizon_fraction * d / (params.v_max * params.dt)
-    if not np.all(raw <= MAX_HORIZON_STEPS):
-        raise InputError(
-            f"a goal {float(np.max(d)):.3g} m away needs {float(np.max(raw)):.3g} steps of "
-            f"{params.v_max * params.dt:.3g} m; at most {MAX_HORIZON_STEPS} are accepted "
-            f"(check v_max, dt and the positions)"
-        )
-    # Guard against 7.000000000001 becoming 8 through floating-point noise.
-    steps = np.ceil(raw - 1e-9).astype(np.int64)
-    return np.asarray(np.maximum(steps, 1), dtype=np.int64)
 
 
 def goal_arrays(
@@ -138,6 +125,8 @@ def nominal_terms(
     goal_rotations: ArrayLike,
     symmetry: ArrayLike,
     params: Params,
+    operator: OperatorModel | None = None,
+    user: UserMotion | None = None,
 ) -> NominalTerms:
     """Nominal trajectories, costs and sensitivities for a batch of layouts.
 
@@ -148,16 +137,25 @@ def nominal_terms(
         goal_rotations: ``(B, M, 3, 3)`` grasp orientations.
         symmetry: ``(M,)`` or ``(B, M)`` symmetry orders.
         params: model parameters (``cost`` selects the form).
+        operator: who steers (method.md §10; default section 2's user): the nominal follows
+            its aim, bias and steering.
+        user: the per-step moments of its deflection (default: the operator's as written,
+            :meth:`OperatorModel.motion`); only ``speed`` matters here.
     """
     p0, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
-    step = params.v_max * params.dt
+    operator, user = who_steers(params, operator, user)
+    step = user.speed * params.v_max * params.dt
 
     trans0, rot_term = start_terms(p0, R0, pg, Rg, symmetry, params)  # (B, M) each
     delta = pg - p0  # (B, M, 3)
     dist_start = trans0 + rot_term
-    steps = horizon_steps(trans0, params)
+    steps = horizon_steps(trans0, params, user.speed)
     length = np.asarray(steps * step, dtype=np.float64)
-    endpoint = p0 + length[..., None] * safe_unit(delta)  # (B, M, 3)
+    if operator.straight:
+        endpoint = p0 + length[..., None] * safe_unit(delta)  # (B, M, 3)
+    else:  # the closed loop's own path, at its horizon
+        path = nominal_path(p0, pg, operator, user, params, int(steps.max()))
+        endpoint = np.take_along_axis(path, (steps - 1)[..., None, None], axis=-2)[..., 0, :]
 
     # Distances from the nominal end of true goal i to every goal j.
     diff = endpoint[:, :, None, :] - pg[:, None, :, :]  # (B, i, j, 3)
@@ -176,6 +174,29 @@ def nominal_terms(
     return NominalTerms(steps, length, endpoint, dist_start, rot_term, costs, sensitivity)
 
 
+def who_steers(
+    params: Params, operator: OperatorModel | None, user: UserMotion | None
+) -> tuple[OperatorModel, UserMotion]:
+    """The operator (default: section 2's user of ``params``) and the per-step moments of
+    its deflection (default: the operator's as written, unclipped)."""
+    op = operator if operator is not None else OperatorModel.paper(params)
+    return op, user if user is not None else op.motion(params)
+
+
+def step_spread(sensitivity: FloatArray, way: FloatArray | None, user: UserMotion) -> FloatArray:
+    """``a^T C a`` of one step's deflection covariance ``C`` (deflection units²) for
+    sensitivities ``(..., 3)``: isotropic, ``along`` on the unit way ``(..., 3)`` and
+    ``across`` off it when the nominal keeps its direction (``way``), else the wider of
+    the two on every axis (a bound: the direction turns along a curved nominal)."""
+    a2 = np.einsum("...k,...k->...", sensitivity, sensitivity)
+    if user.isotropic:
+        return np.asarray(user.along**2 * a2, dtype=np.float64)
+    if way is None:
+        return np.asarray(user.widest**2 * a2, dtype=np.float64)
+    a_u = np.einsum("...k,...k->...", sensitivity, way)
+    return np.asarray(user.across**2 * a2 + (user.along**2 - user.across**2) * a_u**2, np.float64)
+
+
 def certify_batch(
     p0: ArrayLike,
     R0: ArrayLike,
@@ -183,14 +204,34 @@ def certify_batch(
     goal_rotations: ArrayLike,
     symmetry: ArrayLike,
     params: Params,
+    operator: OperatorModel | None = None,
+    user: UserMotion | None = None,
 ) -> CertificateBatch:
-    """Certificate of B layouts at once; see :func:`nominal_terms` for the arguments."""
-    t = nominal_terms(p0, R0, goal_positions, goal_rotations, symmetry, params)
+    """Certificate of B layouts at once; see :func:`nominal_terms` for the arguments.
+
+    Under an operator (method.md §10) the margin variance is
+    ``beta^2 a^T C a S_rho(T) v_max^2 dt^2``: ``C`` the per-step covariance of its
+    deflection (:func:`step_spread`), ``S_rho(T)`` the variance of a sum of ``T`` AR(1)
+    terms (:func:`~legws_daemon.core.operator.ar1_sum_variance`). For section 2's user this
+    is section 4's ``beta^2 |a|^2 T sigma^2 dt^2`` exactly."""
+    operator, user = who_steers(params, operator, user)
+    t = nominal_terms(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
     m = t.costs.shape[1]
     c_true = np.einsum("bii->bi", t.costs)
     margin = params.beta * (t.costs - c_true[:, :, None])
-    a2 = np.einsum("bijk,bijk->bij", t.sensitivity, t.sensitivity)
-    variance = params.beta**2 * (t.steps * (params.sigma * params.dt) ** 2)[:, :, None] * a2
+    sums = ar1_sum_variance(t.steps, user.rho)  # (B, M)
+    if user == operator.motion(params):
+        # the model as written: section 4's variance (bit for bit for section 2's user)
+        a2 = np.einsum("bijk,bijk->bij", t.sensitivity, t.sensitivity)
+        variance = params.beta**2 * (sums * (operator.sigma * params.dt) ** 2)[:, :, None] * a2
+    else:
+        way = None
+        if operator.straight:  # the way to each true goal i, for every alternative j
+            start = np.asarray(p0, dtype=np.float64)
+            way = np.broadcast_to(safe_unit(t.endpoint - start)[:, :, None, :], t.sensitivity.shape)
+        spread = step_spread(t.sensitivity, way, user)
+        per_step = (params.v_max * params.dt) ** 2
+        variance = params.beta**2 * per_step * sums[:, :, None] * spread
     quantile = float(upper_quantile(params.alpha / (m - 1)))
     slack = margin - quantile * np.sqrt(variance)
     eye = np.eye(m, dtype=bool)
@@ -227,8 +268,14 @@ class Certificate:
         return min(self.pairs, key=lambda p: p.slack)
 
 
-def certify(goals: GoalSet, params: Params) -> Certificate:
-    """Certificate of one goal set: all ``M (M - 1)`` ordered pairs and the objective."""
+def certify(
+    goals: GoalSet,
+    params: Params,
+    operator: OperatorModel | None = None,
+    user: UserMotion | None = None,
+) -> Certificate:
+    """Certificate of one goal set: all ``M (M - 1)`` ordered pairs and the objective (for
+    ``operator`` with the moments ``user``: :func:`certify_batch`)."""
     batch = certify_batch(
         goals.x0.position,
         goals.x0.rotation,
@@ -236,6 +283,8 @@ def certify(goals: GoalSet, params: Params) -> Certificate:
         goals.rotations[None],
         goals.symmetry,
         params,
+        operator,
+        user,
     )
     pairs = tuple(
         PairCertificate(

@@ -39,30 +39,47 @@ deflection along the way and across it; :func:`clipped_user` computes them for t
 clip, and the same computation then certifies the commit in the robot's own time
 (``legws certify --commit --clip-speed``). The default is section 9's unclipped user
 exactly (mean 1, standard deviation ``sigma / v_max`` on every axis).
+
+**Under an operator** (method.md §10, :mod:`~legws_daemon.core.operator`) the same
+computation runs along that operator's nominal — straight at its speed ``s`` without bias
+and with free steering (the closed form above), else its noise-free closed loop with bias
+and quantised steering (:func:`_path_terms`) — with ``T_a`` the first step closer than
+``v_max dt`` to the goal, and every variance's ``t`` replaced by ``S_rho(t)``, the variance
+of a sum of ``t`` AR(1) terms. Section 2's user gives section 9 exactly (bit for bit).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
-from functools import lru_cache
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
 from legws_daemon.core.certificate import (
-    MAX_HORIZON_STEPS,
     goal_arrays,
     start_terms,
+    step_spread,
     upper_quantile,
+    who_steers,
 )
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.operator import (
+    OperatorModel,
+    UserMotion,
+    ar1_sum_variance,
+    arrival_steps,
+    nominal_path,
+    nominal_steps,
+)
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+
+__all__ = ["UserMotion", "arrival_steps"]  # re-exported for their older importers
 
 #: Forms of the commit slack: section 9's even split of the budget, or the exact sum.
 COMMIT_FORMS = ("min", "sum")
@@ -70,59 +87,24 @@ COMMIT_FORMS = ("min", "sum")
 #: Elements of the largest intermediate array ``(B, M, T, M)`` built at once; batches are
 #: split by layouts to stay below it (~32 MB of float64 each), and one layout whose
 #: ``M x T x M`` is larger by its true goals (rows), down to one row of ``T x M`` elements
-#: (at most 64 goals x 100,000 steps: 51 MB): memory stays bounded whatever the horizon.
+#: (at most 64 goals x 100,000 steps: 51 MB): memory stays bounded whatever the horizon. A
+#: curved nominal (an operator's bias or quantised steering) builds ``(B, M, T, M, 3)``
+#: arrays and takes a quarter of it.
 CHUNK_ELEMENTS = 4_000_000
 #: A nominal point this close to a goal coincides with it (its distance term has no
 #: gradient), m.
 _COINCIDENT = 1e-12
 
 
-@dataclass(frozen=True, slots=True)
-class UserMotion:
-    """Per-step moments of the user's deflection ``u`` relative to the unit way ``e`` to the
-    goal (in units of ``v_max``).
-
-    Attributes:
-        speed: ``E[u . e]``, the mean advance per step.
-        along: standard deviation of ``u . e``.
-        across: standard deviation of ``u`` on each axis across the way.
-    """
-
-    speed: float
-    along: float
-    across: float
-
-
 def unclipped_user(params: Params) -> UserMotion:
     """Section 2's model as the certificate takes it: ``u = e + eps / v_max``."""
-    s = params.sigma / params.v_max
-    return UserMotion(1.0, s, s)
-
-
-#: Gauss-Hermite nodes per axis of the clipped user's moments (three axes).
-_QUADRATURE_NODES = 96
-
-
-@lru_cache(maxsize=64)
-def _clipped_moments(noise: float) -> tuple[float, float, float]:
-    x, w = np.polynomial.hermite_e.hermegauss(_QUADRATURE_NODES)  # weight exp(-x^2 / 2)
-    w = w / w.sum()
-    a = 1.0 + noise * x[:, None, None]  # along the way
-    b = noise * x[None, :, None]
-    c = noise * x[None, None, :]
-    weight = w[:, None, None] * w[None, :, None] * w[None, None, :]
-    scale = 1.0 / np.maximum(np.sqrt(a * a + b * b + c * c), 1.0)
-    mean = float(np.sum(weight * a * scale))
-    along = float(np.sum(weight * (a * scale) ** 2)) - mean**2
-    across = float(np.sum(weight * (b * scale) ** 2))
-    return mean, math.sqrt(max(along, 0.0)), math.sqrt(across)
+    return OperatorModel.paper(params).motion(params)
 
 
 def clipped_user(params: Params) -> UserMotion:
     """The moments of the robot's user: ``u = clip(e + eps / v_max)`` to norm 1 (method.md
-    §2), by deterministic Gauss-Hermite quadrature (accurate to ~1e-4)."""
-    mean, along, across = _clipped_moments(round(params.sigma / params.v_max, 12))
-    return UserMotion(mean, along, across)
+    §2), by deterministic quadrature (:func:`~legws_daemon.core.operator.clipped_moments`)."""
+    return OperatorModel.paper(params).motion(params, clip=True)
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,6 +122,11 @@ class CommitBatch:
         count: ``(B,)`` commit-certified goals.
         thresholds: ``(tau_c, tau_w)``.
         quantile: ``z_c``.
+        progress: ``(B, M)`` the promise in distance (method.md §10): the nominal's path
+            length at ``t_c`` over ``|p_g* - p0|`` (``nan`` without a certified step).
+        reachable: ``(B, M)`` the operator's nominal arrives (within 10^4 steps); an
+            unreachable goal is not certified, its ``kappa`` is ``inf`` and its slacks
+            ``nan``.
     """
 
     fraction: FloatArray
@@ -152,6 +139,8 @@ class CommitBatch:
     count: IntArray
     thresholds: tuple[float, float]
     quantile: float
+    progress: FloatArray
+    reachable: NDArray[np.bool_]
 
 
 def thresholds(m: int, p_thresh: float) -> tuple[float, float]:
@@ -159,23 +148,6 @@ def thresholds(m: int, p_thresh: float) -> tuple[float, float]:
     on ``g`` needs its margin at or below ``-tau_w``."""
     odds = p_thresh / (1.0 - p_thresh)
     return math.log((m - 1) * odds), math.log(odds)
-
-
-def arrival_steps(distance: ArrayLike, params: Params, speed: float = 1.0) -> IntArray:
-    """``T_a = floor(|p_g* - p0| / (speed v_max dt))`` (1e-9 guard, at least one step).
-
-    Raises:
-        InputError: when a horizon exceeds :data:`MAX_HORIZON_STEPS`.
-    """
-    d = np.asarray(distance, dtype=np.float64)
-    raw = d / (speed * params.v_max * params.dt)
-    if not np.all(raw <= MAX_HORIZON_STEPS):
-        raise InputError(
-            f"a goal {float(np.max(d)):.3g} m away needs {float(np.max(raw)):.3g} steps of "
-            f"{params.v_max * params.dt:.3g} m; at most {MAX_HORIZON_STEPS} are accepted"
-        )
-    # 7.999999999 steps of noise is 8 steps
-    return np.asarray(np.maximum(np.floor(raw + 1e-9), 1).astype(np.int64), dtype=np.int64)
 
 
 def commit_batch(
@@ -187,36 +159,37 @@ def commit_batch(
     params: Params,
     user: UserMotion | None = None,
     form: str = "min",
+    operator: OperatorModel | None = None,
 ) -> CommitBatch:
     """Commit certificate of B layouts at once (arguments as
-    :func:`~legws_daemon.core.certificate.certify_batch`; ``user``: the user's motion,
-    default section 9's unclipped model; ``form``: the commit slack's, ``"min"`` of section
-    9 or the exact ``"sum"``)."""
-    user = user or unclipped_user(params)
+    :func:`~legws_daemon.core.certificate.certify_batch`; ``operator``: who steers,
+    method.md §10, default section 2's user; ``user``: the per-step moments of its
+    deflection, default the operator's as written; ``form``: the commit slack's, ``"min"``
+    of section 9 or the exact ``"sum"``)."""
     if form not in COMMIT_FORMS:
         raise InputError(
             f"unknown commit form {form!r}; known: {', '.join(COMMIT_FORMS)}",
             field="--commit-form",
         )
-    p0, pg, rot_term, trans0, t_a = _setup(
-        p0, R0, goal_positions, goal_rotations, symmetry, params, user
-    )
-    b, m = pg.shape[:2]
+    bt = _Batch.of(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
+    b, m = bt.pg.shape[:2]
     tau_c, tau_w = thresholds(m, params.p_thresh)
     z_c = float(upper_quantile(params.alpha / (2 * (m - 1))))
 
     fraction, step, c_arrival, w = (np.zeros((b, m)) for _ in range(4))
-    for sl, rows in _pieces(t_a):
+    for sl, rows in bt.pieces():
         fraction[sl, rows], step[sl, rows], c_arrival[sl, rows], w[sl, rows] = _chunk(
-            p0, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, form,
-            tau_c, tau_w, z_c, rows,
-        )  # fmt: skip
+            bt.part(sl), params, form, tau_c, tau_w, z_c, rows
+        )
+    lost = ~bt.reachable
+    fraction[lost], step[lost], c_arrival[lost], w[lost] = np.inf, -1, np.nan, np.nan
     step_i = np.asarray(step, dtype=np.int64)
     certified = (step_i > 0) & (w >= 0.0)
+    progress = np.where(certified, step_i * bt.step_length / bt.trans0, np.nan)
     return CommitBatch(
         fraction=fraction,
         step=step_i,
-        arrival_steps=t_a,
+        arrival_steps=np.where(bt.reachable, bt.t_a, 0),
         slack_at_arrival=c_arrival,
         wrong_commit_slack=w,
         certified=np.asarray(certified),
@@ -224,40 +197,79 @@ def commit_batch(
         count=np.asarray(certified.sum(axis=1), dtype=np.int64),
         thresholds=(tau_c, tau_w),
         quantile=z_c,
+        progress=np.asarray(progress, dtype=np.float64),
+        reachable=bt.reachable,
     )
 
 
-def _setup(
-    p0: ArrayLike,
-    R0: ArrayLike,
-    goal_positions: ArrayLike,
-    goal_rotations: ArrayLike,
-    symmetry: ArrayLike,
-    params: Params,
-    user: UserMotion,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray]:
-    """``(p0, p_g, rotation terms, distances, T_a)`` of a batch."""
-    p0_, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
-    b, m = pg.shape[:2]
-    sym = np.broadcast_to(np.asarray(symmetry), (b, m))
-    trans0, rot_term = start_terms(p0_, R0, pg, Rg, sym, params)  # (B, M) each
-    t_a = arrival_steps(trans0, params, user.speed)
-    return p0_, pg, rot_term, trans0, t_a
+@dataclass(frozen=True, slots=True)
+class _Batch:
+    """A batch's start, goals, who steers and each true goal's arrival (``t_a`` at least 1
+    so that every row computes; ``reachable`` says whose arrival is real)."""
+
+    p0: FloatArray
+    pg: FloatArray  # (b, M, 3)
+    rot_term: FloatArray  # (b, M)
+    trans0: FloatArray  # (b, M)
+    t_a: IntArray  # (b, M)
+    reachable: NDArray[np.bool_]  # (b, M)
+    operator: OperatorModel
+    user: UserMotion
+    step_length: float  # the nominal's advance per step, m
+
+    @classmethod
+    def of(
+        cls,
+        p0: ArrayLike,
+        R0: ArrayLike,
+        goal_positions: ArrayLike,
+        goal_rotations: ArrayLike,
+        symmetry: ArrayLike,
+        params: Params,
+        operator: OperatorModel | None,
+        user: UserMotion | None,
+    ) -> _Batch:
+        op, motion = who_steers(params, operator, user)
+        p0_, pg, Rg = goal_arrays(p0, goal_positions, goal_rotations)
+        b, m = pg.shape[:2]
+        sym = np.broadcast_to(np.asarray(symmetry), (b, m))
+        trans0, rot_term = start_terms(p0_, R0, pg, Rg, sym, params)  # (B, M) each
+        if op.straight:
+            t_a = arrival_steps(trans0, params, motion.speed)
+        else:
+            t_a = nominal_steps(p0_, pg, op, motion, params)[0]
+        reachable = np.asarray(t_a > 0)
+        step = motion.speed * params.v_max * params.dt
+        return cls(p0_, pg, rot_term, trans0, np.maximum(t_a, 1), reachable, op, motion, step)
+
+    def part(self, sl: slice) -> _Batch:
+        return replace(
+            self, pg=self.pg[sl], rot_term=self.rot_term[sl], trans0=self.trans0[sl],
+            t_a=self.t_a[sl], reachable=self.reachable[sl],
+        )  # fmt: skip
+
+    def pieces(self) -> Iterator[tuple[slice, slice]]:
+        """:func:`_pieces` of the batch (a quarter of the elements for a curved nominal,
+        whose arrays carry 3-vectors)."""
+        limit = CHUNK_ELEMENTS if self.operator.straight else CHUNK_ELEMENTS // 4
+        return _pieces(self.t_a, limit)
 
 
-def _pieces(t_a: IntArray) -> Iterator[tuple[slice, slice]]:
+def _pieces(t_a: IntArray, limit: int | None = None) -> Iterator[tuple[slice, slice]]:
     """``(layouts, true goals)`` pieces of a batch whose ``(b, rows, T, M)`` arrays hold at
-    most :data:`CHUNK_ELEMENTS` elements (at least one layout and one row each). Every row
-    of a layout is computed on its own, so the pieces give exactly the unsplit result."""
+    most ``limit`` (:data:`CHUNK_ELEMENTS`) elements (at least one layout and one row
+    each). Every row of a layout is computed on its own, so the pieces give exactly the
+    unsplit result."""
+    limit = CHUNK_ELEMENTS if limit is None else limit
     b, m = t_a.shape
     t_max = int(t_a.max()) if b else 1
     per_layout = m * m * t_max
-    if per_layout <= CHUNK_ELEMENTS:
-        chunk = CHUNK_ELEMENTS // per_layout
+    if per_layout <= limit:
+        chunk = limit // per_layout
         for s in range(0, b, chunk):
             yield slice(s, s + chunk), slice(0, m)
         return
-    rows = max(1, CHUNK_ELEMENTS // (m * t_max))
+    rows = max(1, limit // (m * t_max))
     for s in range(b):
         for r in range(0, m, rows):
             yield slice(s, s + 1), slice(r, r + rows)
@@ -271,6 +283,7 @@ def commit_chance_batch(
     symmetry: ArrayLike,
     params: Params,
     user: UserMotion | None = None,
+    operator: OperatorModel | None = None,
 ) -> FloatArray:
     """Estimated chance that each goal's first commit comes before arrival, ``(B, M)``.
 
@@ -282,23 +295,22 @@ def commit_chance_batch(
     ``Phi(max_t c0(t) / sd(t))``. It ignores the correlation over steps (the real first
     passage is likelier) and the union over alternatives (less likely); measured against
     the Monte Carlo of :func:`~legws_daemon.core.montecarlo.simulate_commits` in the tests
-    and in ``benchmarks/commit_ceiling.py``.
+    and in ``benchmarks/commit_ceiling.py``. A goal the operator does not reach gets 0.
     """
-    user = user or unclipped_user(params)
-    p0_, pg, rot_term, trans0, t_a = _setup(
-        p0, R0, goal_positions, goal_rotations, symmetry, params, user
-    )
-    b, m = pg.shape[:2]
+    bt = _Batch.of(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
+    b, m = bt.pg.shape[:2]
     _, tau_w = thresholds(m, params.p_thresh)
     out = np.zeros((b, m))
-    for sl, rows in _pieces(t_a):
-        t, margin, sd = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, rows)
+    for sl, rows in bt.pieces():
+        part = bt.part(sl)
+        t, margin, sd = _terms(part, params, rows)
         others = _others(m, rows)
         c0, weight, total = _posterior_slack(np.where(others, margin, np.inf), tau_w)
         spread = (weight * np.where(others, sd, 0.0)).sum(axis=-1) / total  # 0 on the true goal
         z = c0 / np.maximum(spread, 1e-12)
-        z = np.where(t[None, None, :] <= t_a[sl, rows][:, :, None], z, -np.inf)
+        z = np.where(t[None, None, :] <= part.t_a[:, rows][:, :, None], z, -np.inf)
         out[sl, rows] = ndtr(z.max(axis=-1))
+    out[~bt.reachable] = 0.0
     return np.asarray(out, dtype=np.float64)
 
 
@@ -310,49 +322,62 @@ def commit_time_batch(
     symmetry: ArrayLike,
     params: Params,
     user: UserMotion | None = None,
+    operator: OperatorModel | None = None,
 ) -> FloatArray:
     """Each goal's noise-free commit time in seconds, ``(B, M)``: when the posterior of the
     nominal reaches ``p`` (the zero crossing of ``c0(t)`` of :func:`commit_chance_batch`,
     interpolated between steps from ``c0(0) = -tau_c``), which is also the median commit
     time of that surrogate. A goal whose nominal never commits before arrival gets
     ``T_a dt (1 + max(0, -c0(T_a)))``: later than any commit, and worse the further from
-    one. Not a certificate: the search surrogate of ``--objective time``."""
-    user = user or unclipped_user(params)
-    p0_, pg, rot_term, trans0, t_a = _setup(
-        p0, R0, goal_positions, goal_rotations, symmetry, params, user
-    )
-    b, m = pg.shape[:2]
+    one; a goal the operator does not reach gets ``inf``. Not a certificate: the search
+    surrogate of ``--objective time``."""
+    bt = _Batch.of(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
+    b, m = bt.pg.shape[:2]
     tau_c, tau_w = thresholds(m, params.p_thresh)
     out = np.zeros((b, m))
-    for sl, rows in _pieces(t_a):
-        t, margin, _ = _terms(p0_, pg[sl], rot_term[sl], trans0[sl], t_a[sl], params, user, rows)
+    for sl, rows in bt.pieces():
+        part = bt.part(sl)
+        t, margin, _ = _terms(part, params, rows)
         c0 = _posterior_slack(np.where(_others(m, rows), margin, np.inf), tau_w)[0]  # (b, i, T)
-        t_rows = t_a[sl, rows]
+        t_rows = part.t_a[:, rows]
         c0 = np.where(t[None, None, :] <= t_rows[:, :, None], c0, -np.inf)
         has, _, crossing = _first_crossing(c0, tau_c)
         c_end = np.take_along_axis(c0, (t_rows - 1)[..., None], -1)[..., 0]
         late = t_rows * (1.0 + np.maximum(0.0, -c_end))
         out[sl, rows] = np.where(has, crossing, late) * params.dt
+    out[~bt.reachable] = np.inf
     return np.asarray(out, dtype=np.float64)
 
 
-def commit_time_estimate(goals: GoalSet, params: Params) -> float:
+def commit_time_estimate(
+    goals: GoalSet, params: Params, operator: OperatorModel | None = None
+) -> float:
     """``T``: the mean over the goals of :func:`commit_time_batch` for the robot's
-    speed-clipped user, seconds (the ``time`` design objective of one goal set)."""
-    return _goal_set_mean(commit_time_batch, goals, params)
+    speed-clipped user (or ``operator`` with the robot's clip), seconds (the ``time``
+    design objective of one goal set)."""
+    return _goal_set_mean(commit_time_batch, goals, params, operator)
 
 
-def commit_rate_estimate(goals: GoalSet, params: Params) -> float:
+def commit_rate_estimate(
+    goals: GoalSet, params: Params, operator: OperatorModel | None = None
+) -> float:
     """``R``: the mean over the goals of :func:`commit_chance_batch` for the robot's
-    speed-clipped user (the ``rate`` design objective of one goal set)."""
-    return _goal_set_mean(commit_chance_batch, goals, params)
+    speed-clipped user (or ``operator`` with the robot's clip; the ``rate`` design objective
+    of one goal set)."""
+    return _goal_set_mean(commit_chance_batch, goals, params, operator)
 
 
-def _goal_set_mean(batch: Callable[..., FloatArray], goals: GoalSet, params: Params) -> float:
-    """The mean over one goal set's goals of a batched estimate, clipped user."""
+def _goal_set_mean(
+    batch: Callable[..., FloatArray],
+    goals: GoalSet,
+    params: Params,
+    operator: OperatorModel | None,
+) -> float:
+    """The mean over one goal set's goals of a batched estimate, with the robot's clip."""
+    op = operator if operator is not None else OperatorModel.paper(params)
     values = batch(
         goals.x0.position, goals.x0.rotation, goals.positions[None], goals.rotations[None],
-        goals.symmetry, params, clipped_user(params),
+        goals.symmetry, params, op.motion(params, clip=True), op,
     )  # fmt: skip
     return float(values.mean())
 
@@ -390,51 +415,41 @@ def _first_crossing(c: FloatArray, tau_c: float) -> tuple[NDArray[np.bool_], Int
     return np.asarray(has), np.asarray(first, dtype=np.int64), np.asarray(crossing)
 
 
-def _terms(
-    p0: FloatArray,
-    pg: FloatArray,
-    rot_term: FloatArray,
-    trans0: FloatArray,
-    t_a: IntArray,
-    params: Params,
-    user: UserMotion,
-    rows: slice,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+def _terms(bt: _Batch, params: Params, rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(t, m_ij(t), sqrt(v_ij(t)))`` along the nominal of each true goal ``i`` in ``rows``
     up to their longest ``T_a``, against every goal ``j``: steps ``(T,)``, margins and
-    standard deviations ``(b, i, T, j)``."""
+    standard deviations ``(b, i, T, j)``. The variance is
+    ``beta^2 v_max^2 dt^2 S_rho(t) a^T C a`` (``C`` the per-step covariance of the
+    deflection, :func:`~legws_daemon.core.certificate.step_spread`), section 9's
+    ``beta^2 |a|^2 t sigma^2 dt^2`` for its user."""
+    if not bt.operator.straight:
+        return _path_terms(bt, params, rows)
+    pg, rot_term, trans0, user = bt.pg, bt.rot_term, bt.trans0, bt.user
     b, m = pg.shape[:2]
     true = np.arange(m)[rows]  # the true goals' indices
     k = len(true)
-    step_len = user.speed * params.v_max * params.dt
-    n_t = int(t_a[:, rows].max())
+    step_len = bt.step_length
+    n_t = int(bt.t_a[:, rows].max())
     t = np.arange(1, n_t + 1, dtype=np.float64)  # (T,)
     s = (t * step_len)[None, None, :, None]  # (1, 1, T, 1) distance travelled
     dist_start = trans0 + rot_term  # (b, M)
     eye = true[:, None] == np.arange(m)[None, :]  # (i, j): j is the true goal i
     # Distances from the nominal pbar_t = p0 + s u_i to every goal j, from scalars alone:
     # |pbar_t - p_j|^2 = |p0 - p_j|^2 + 2 s (p0 - p_j).u_i + s^2 (no (b, i, T, j, 3) arrays).
-    u = safe_unit(pg[:, rows] - p0)  # (b, i, 3)
-    e = np.einsum("bik,bjk->bij", u, p0 - pg)[:, :, None, :]  # (b, i, 1, j)
+    u = safe_unit(pg[:, rows] - bt.p0)  # (b, i, 3)
+    e = np.einsum("bik,bjk->bij", u, bt.p0 - pg)[:, :, None, :]  # (b, i, 1, j)
     q = (trans0**2)[:, None, None, :]
     along = (trans0[:, rows, None, None] - s) * eye[None, :, None, :]  # |pbar_t - p_i|, exact
     trans_now = np.where(
         eye[None, :, None, :], along, np.sqrt(np.maximum(q + 2 * s * e + s * s, 0))
     )
-    dist_now = trans_now + rot_term[:, None, None, :]
-    length = np.broadcast_to(t * step_len, (b, k, n_t))
-    costs = path_costs(length, dist_now, dist_start[:, None, None, :], params.cost)
-    at_true = np.broadcast_to(true[None, :, None, None], (b, k, n_t, 1))
-    c_true = np.take_along_axis(costs, at_true, axis=-1)[..., 0]  # (b, i, T)
-    margin = params.beta * (costs - c_true[..., None])  # (b, i, T, j)
+    margin = _margins(trans_now, rot_term, dist_start, t * step_len, true, params)
 
     # |a_ij|^2 = |unit_j / S_j - unit_i / S_i|^2 with unit_g = (pbar - p_g) / |pbar - p_g|
     # (zero where the point coincides) and unit_i = -u_i before arrival.
-    if params.cost == "dragan":
-        scale = np.broadcast_to(np.mean(dist_start, axis=1)[:, None], (b, m))
-    else:
-        scale = dist_start
+    scale = _scales(dist_start, params)
     on_j = trans_now > _COINCIDENT
+    at_true = np.broadcast_to(true[None, :, None, None], (b, k, n_t, 1))
     on_i = np.take_along_axis(on_j, at_true, axis=-1)  # (b, i, T, 1)
     s_j = scale[:, None, None, :]
     s_i = scale[:, rows, None, None]
@@ -445,20 +460,71 @@ def _terms(
     a_u = np.where(on_j, (e + s) / np.where(on_j, trans_now, 1.0), 0.0) / s_j + on_i / s_i
     per_step = (params.v_max * params.dt) ** 2
     spread = user.across**2 * a2 + (user.along**2 - user.across**2) * a_u**2
-    var = params.beta**2 * per_step * t[None, None, :, None] * np.maximum(spread, 0.0)
+    sums = ar1_sum_variance(t, user.rho)
+    var = params.beta**2 * per_step * sums[None, None, :, None] * np.maximum(spread, 0.0)
     sd = np.sqrt(np.maximum(var, 0.0))
 
     return t, margin, sd
 
 
-def _chunk(
-    p0: FloatArray,
-    pg: FloatArray,
+def _margins(
+    trans_now: FloatArray,
     rot_term: FloatArray,
-    trans0: FloatArray,
-    t_a: IntArray,
+    dist_start: FloatArray,
+    length: FloatArray,
+    true: IntArray,
     params: Params,
-    user: UserMotion,
+) -> FloatArray:
+    """``m_ij(t) = beta (C_j - C_i)`` from the distances ``(b, i, T, j)`` of the nominal to
+    every goal and its path lengths ``(T,)``."""
+    b, k, n_t, _ = trans_now.shape
+    dist_now = trans_now + rot_term[:, None, None, :]
+    costs = path_costs(
+        np.broadcast_to(length, (b, k, n_t)), dist_now, dist_start[:, None, None, :], params.cost
+    )
+    at_true = np.broadcast_to(true[None, :, None, None], (b, k, n_t, 1))
+    c_true = np.take_along_axis(costs, at_true, axis=-1)[..., 0]  # (b, i, T)
+    return np.asarray(params.beta * (costs - c_true[..., None]), dtype=np.float64)
+
+
+def _scales(dist_start: FloatArray, params: Params) -> FloatArray:
+    """The cost's normaliser per goal ``(b, M)``: ``D`` (dragan) or ``d(x0, g)`` (ratio)."""
+    b, m = dist_start.shape
+    if params.cost == "dragan":
+        return np.broadcast_to(np.mean(dist_start, axis=1)[:, None], (b, m))
+    return dist_start
+
+
+def _path_terms(
+    bt: _Batch, params: Params, rows: slice
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`_terms` along a curved nominal (an operator's bias or quantised steering):
+    from the nominal's own points, with the wider of the per-step standard deviations on
+    every axis (:func:`~legws_daemon.core.certificate.step_spread`)."""
+    pg, user = bt.pg, bt.user
+    m = pg.shape[1]
+    true = np.arange(m)[rows]
+    n_t = int(bt.t_a[:, rows].max())
+    t = np.arange(1, n_t + 1, dtype=np.float64)
+    path = nominal_path(bt.p0, pg[:, rows], bt.operator, user, params, n_t)  # (b, i, T, 3)
+    diff = path[:, :, :, None, :] - pg[:, None, None, :, :]  # (b, i, T, j, 3)
+    trans_now = np.sqrt(np.einsum("bitjk,bitjk->bitj", diff, diff))
+    dist_start = bt.trans0 + bt.rot_term
+    margin = _margins(trans_now, bt.rot_term, dist_start, t * bt.step_length, true, params)
+    on = trans_now > _COINCIDENT
+    unit = np.where(on[..., None], diff / np.where(on, trans_now, 1.0)[..., None], 0.0)
+    grad = unit / _scales(dist_start, params)[:, None, None, :, None]
+    at_true = np.broadcast_to(true[None, :, None, None, None], (*grad.shape[:3], 1, 3))
+    sensitivity = grad - np.take_along_axis(grad, at_true, axis=-2)
+    spread = step_spread(sensitivity, None, user)
+    sums = ar1_sum_variance(t, user.rho)
+    var = params.beta**2 * (params.v_max * params.dt) ** 2 * sums[None, None, :, None] * spread
+    return t, margin, np.sqrt(np.maximum(var, 0.0))
+
+
+def _chunk(
+    bt: _Batch,
+    params: Params,
     form: str,
     tau_c: float,
     tau_w: float,
@@ -467,9 +533,9 @@ def _chunk(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """``(kappa, t_c or -1, c(T_a), w)`` of a chunk of layouts and the true goals ``rows``,
     each ``(b, rows)``."""
-    m = pg.shape[1]
-    t, margin, sd = _terms(p0, pg, rot_term, trans0, t_a, params, user, rows)
-    t_a = t_a[:, rows]
+    m = bt.pg.shape[1]
+    t, margin, sd = _terms(bt, params, rows)
+    t_a = bt.t_a[:, rows]
     valid = t[None, None, :] <= t_a[:, :, None]  # (b, i, T)
     others = _others(m, rows)  # (1, i, 1, j)
     lower = np.where(others, margin - z_c * sd, np.inf)  # (b, i, T, j)
@@ -506,6 +572,8 @@ class GoalCommit:
     wrong_commit_slack: float
     certified: bool
     crossing_step: int | None  # first step with c(t) >= 0 (even when w < 0), else None
+    progress: float | None = None  # path length at t_c over |p_g* - p0| (certified only)
+    reachable: bool = True  # False: the operator's nominal never arrives (kappa inf)
 
 
 @dataclass(frozen=True, slots=True)
@@ -520,9 +588,14 @@ class CommitCertificate:
 
 
 def certify_commit(
-    goals: GoalSet, params: Params, user: UserMotion | None = None, form: str = "min"
+    goals: GoalSet,
+    params: Params,
+    user: UserMotion | None = None,
+    form: str = "min",
+    operator: OperatorModel | None = None,
 ) -> CommitCertificate:
-    """Commit certificate of one goal set: ``K``, certified goals and each goal's terms."""
+    """Commit certificate of one goal set: ``K``, certified goals and each goal's terms (for
+    ``operator``, default section 2's user, with the moments ``user``: :func:`commit_batch`)."""
     batch = commit_batch(
         goals.x0.position,
         goals.x0.rotation,
@@ -532,6 +605,7 @@ def certify_commit(
         params,
         user,
         form,
+        operator,
     )
     per_goal = {}
     for i, name in enumerate(goals.names):
@@ -545,6 +619,8 @@ def certify_commit(
             wrong_commit_slack=float(batch.wrong_commit_slack[0, i]),
             certified=cert,
             crossing_step=t_c if t_c > 0 else None,
+            progress=float(batch.progress[0, i]) if cert else None,
+            reachable=bool(batch.reachable[0, i]),
         )
     return CommitCertificate(
         objective=float(batch.objective[0]),

@@ -21,19 +21,20 @@ goal-steps (about a minute).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import betaincinv
 
-from legws_daemon.core.certificate import horizon_steps, start_terms
-from legws_daemon.core.commit import arrival_steps, clipped_user
+from legws_daemon.core.certificate import start_terms
 from legws_daemon.core.costs import path_costs, posterior
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.operator import horizon_steps, mean_deflection, nominal_path, nominal_steps
 from legws_daemon.core.params import CostForm, Params
-from legws_daemon.core.user_model import clip_unit, deflection, noise
+from legws_daemon.core.user_model import OperatorNoise, SimulatedUser, clip_unit
 from legws_daemon.errors import InputError
 
 #: Confidence level of the reported Clopper-Pearson interval (two-sided).
@@ -86,24 +87,50 @@ def _start_terms(goals: GoalSet, params: Params) -> tuple[FloatArray, FloatArray
     return start_terms(p0, x0.rotation, goals.positions, goals.rotations, goals.symmetry, params)
 
 
-def _advance(
-    x: FloatArray,
-    length: FloatArray,
-    target: FloatArray,
-    active: np.ndarray,
-    eps: FloatArray,
-    params: Params,
-    clip_speed: bool,
-) -> None:
-    """One control period of the noisy users ``x`` ``(M, N, 3)`` toward ``target`` with the
-    noise ``eps`` (deflection units), in place; rows where ``active`` ``(M, 1)`` is false stay
-    put. ``length`` accumulates the path."""
-    u = deflection(x, target, eps)
-    if clip_speed:
-        u = clip_unit(u)
-    dx = params.v_max * params.dt * u
-    x += np.where(active[..., None], dx, 0.0)
-    length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+class _Walkers:
+    """The simulated users of a chunk: positions ``(M, N, 3)``, path lengths ``(M, N)``, the
+    AR(1) state of their noise and, with a reaction delay, where they were."""
+
+    def __init__(
+        self, p0: FloatArray, target: FloatArray, n: int, user: SimulatedUser, params: Params
+    ) -> None:
+        m = target.shape[0]
+        self.x = np.broadcast_to(p0, (m, n, 3)).copy()
+        self.length = np.zeros((m, n))
+        self.target = target  # (M, 1, 3)
+        self.user = user
+        self.params = params
+        self.noise = OperatorNoise(user.operator.rho)
+        self.past: deque[FloatArray] = deque([self.x.copy()] * user.delay, maxlen=user.delay + 1)
+
+    def step(self, chunk: Streams, active: np.ndarray) -> None:
+        """One control period toward the targets, in place; rows where ``active``
+        ``(M, 1)`` is false stay put. Each stream draws its innovations (then, for idle
+        ticks, which ticks are idle) in turn: section 2's user draws exactly as before the
+        operator model."""
+        user, params = self.user, self.params
+        m = self.x.shape[0]
+        parts = [(user.draw(g, (m, k), params.v_max), g) for g, k in chunk]
+        w = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts], axis=1)
+        e = self.noise.step(w)
+        seen = self.past[0] if user.delay else self.x
+        u = mean_deflection(seen, self.target, user.operator) + e
+        if user.idle:
+            idle = np.concatenate([g.random((m, w_.shape[1])) < user.idle for w_, g in parts], 1)
+            u = np.where(idle[..., None], 0.0, u)
+        if user.clip:
+            u = clip_unit(u)
+        dx = params.v_max * params.dt * u
+        self.x += np.where(active[..., None], dx, 0.0)
+        self.length += np.where(active, np.sqrt(np.einsum("mnk,mnk->mn", dx, dx)), 0.0)
+        if user.delay:
+            self.past.append(self.x.copy())
+
+
+def _user(params: Params, clip_speed: bool, user: SimulatedUser | None) -> SimulatedUser:
+    """Who is simulated: ``user``, or section 2's user (with the robot's clip when
+    ``clip_speed``)."""
+    return user if user is not None else SimulatedUser.paper(params, clip_speed)
 
 
 # --- cost and memory ------------------------------------------------------------------
@@ -142,21 +169,20 @@ def monte_carlo_work(
     horizon_forms: int = 1,
     commit_forms: int = 0,
     clip_speed: bool = False,
+    user: SimulatedUser | None = None,
 ) -> int:
     """Goal-steps of a Monte Carlo run: ``trials x M x (T + M forms)`` for the check at the
     horizon with ``horizon_forms`` cost forms (every simulated step of every user, and the
     observer once at the horizon), plus ``trials x M x T_a x M x forms`` for the commit
     check with ``commit_forms`` (the observer's posterior over the M goals at every step).
     Either runs at 4 to 16 million goal-steps per second (measured; slowest for few goals)."""
-    trans0, _ = _start_terms(goals, params)
     m = goals.m
     work = 0
     if horizon_forms:
-        steps = int(horizon_steps(trans0, params).max())
+        steps = int(_horizon(goals, params, clip_speed, user).max())
         work += trials * m * (steps + m * horizon_forms)
     if commit_forms:
-        speed = clipped_user(params).speed if clip_speed else 1.0
-        steps = int(arrival_steps(trans0, params, speed).max())
+        steps = int(_commit_arrivals(goals, params, _user(params, clip_speed, user)).max())
         work += trials * m * steps * m * commit_forms
     return work
 
@@ -169,6 +195,7 @@ def check_trials(
     horizon_forms: int = 1,
     commit_forms: int = 0,
     clip_speed: bool = False,
+    user: SimulatedUser | None = None,
     field: str = "trials",
 ) -> None:
     """Refuse a run of more than :data:`MAX_TRIALS` trials or :data:`MAX_WORK` goal-steps
@@ -181,7 +208,7 @@ def check_trials(
         raise InputError(f"expected 1 to {MAX_TRIALS:,} trials, got {trials:,}", field=field)
     per_trial = monte_carlo_work(
         goals, params, 1, horizon_forms=horizon_forms, commit_forms=commit_forms,
-        clip_speed=clip_speed,
+        clip_speed=clip_speed, user=user,
     )  # fmt: skip
     work = trials * per_trial
     if work > MAX_WORK:
@@ -220,34 +247,32 @@ def _sub_slices(trials: int, rows: int, goals: int) -> list[slice]:
     return [slice(s, s + per) for s in range(0, trials, per)]
 
 
-def _noise(chunk: Streams, rows: int, params: Params) -> FloatArray:
-    """One step's noise ``(rows, trials, 3)`` of a chunk, each stream drawing its own."""
-    parts = [noise(g, (rows, n), params.sigma, params.v_max) for g, n in chunk]
-    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
-
-
 # --- the check at the horizon (method.md §4) ------------------------------------------
 
 
 def _roll_to_horizon(
-    goals: GoalSet, params: Params, steps: IntArray, chunk: Streams, clip_speed: bool
+    goals: GoalSet, params: Params, steps: IntArray, chunk: Streams, user: SimulatedUser
 ) -> tuple[FloatArray, FloatArray]:
     """Positions ``(M, n, 3)`` and path lengths ``(M, n)`` of a chunk's users at their
     true goal's horizon."""
-    p0 = goals.x0.position
-    target = goals.positions[:, None, :]  # (M, 1, 3)
-    m = goals.m
     n = sum(k for _, k in chunk)
-    x = np.broadcast_to(p0, (m, n, 3)).copy()
-    length = np.zeros((m, n))
+    walk = _Walkers(goals.x0.position, goals.positions[:, None, :], n, user, params)
     for t in range(int(steps.max())):
-        eps = _noise(chunk, m, params)
-        _advance(x, length, target, (t < steps)[:, None], eps, params, clip_speed)
-    return x, length
+        walk.step(chunk, (t < steps)[:, None])
+    return walk.x, walk.length
 
 
-def _horizon(goals: GoalSet, params: Params) -> IntArray:
-    return horizon_steps(np.linalg.norm(goals.positions - goals.x0.position, axis=1), params)
+def _horizon(
+    goals: GoalSet, params: Params, clip_speed: bool, user: SimulatedUser | None
+) -> IntArray:
+    """The horizons ``T`` the users are checked at: section 4's (also for the clipped user
+    of ``clip_speed``, whose certificate is section 4's), or the horizon of ``user``'s own
+    certificate (method.md §10: at its speed, with the robot's clip when it clips)."""
+    d = np.linalg.norm(goals.positions - goals.x0.position, axis=1)
+    if user is None:
+        return horizon_steps(d, params)
+    motion = user.operator.motion(params, user.clip)
+    return horizon_steps(d, params, motion.speed)
 
 
 def simulate_user(
@@ -257,15 +282,18 @@ def simulate_user(
     rng: np.random.Generator,
     *,
     clip_speed: bool = False,
+    user: SimulatedUser | None = None,
 ) -> HorizonStates:
     """Roll out ``trials`` noisy users per true goal up to that goal's horizon (every end
-    state is returned: ``(M, N, 3)``; :func:`monte_carlo` keeps only the counts)."""
+    state is returned: ``(M, N, 3)``; :func:`monte_carlo` keeps only the counts).
+    ``user``: who steers (default section 2's user, clipped with ``clip_speed``)."""
     if trials < 1:
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
-    check_trials(goals, params, trials, clip_speed=clip_speed)
-    steps = _horizon(goals, params)
+    check_trials(goals, params, trials, clip_speed=clip_speed, user=user)
+    steps = _horizon(goals, params, clip_speed, user)
+    who = _user(params, clip_speed, user)
     parts = [
-        _roll_to_horizon(goals, params, steps, chunk, clip_speed)
+        _roll_to_horizon(goals, params, steps, chunk, who)
         for chunk in _chunks(_streams(rng, trials), goals.m)
     ]
     x = np.concatenate([x for x, _ in parts], axis=1)
@@ -299,8 +327,11 @@ def monte_carlo(
     *,
     clip_speed: bool = False,
     costs: Sequence[CostForm] | None = None,
+    user: SimulatedUser | None = None,
 ) -> dict[CostForm, dict[str, GoalAccuracy]]:
-    """Accuracy at the horizon per true goal, for each requested cost form.
+    """Accuracy at the horizon per true goal, for each requested cost form; ``user``: who
+    steers (default section 2's user, with the robot's clip when ``clip_speed``), checked at
+    the horizon of its own certificate.
 
     The same simulated trajectories serve every cost form (common random numbers), so the
     forms are compared on identical user behaviour. Same seed, same result, whatever the
@@ -313,12 +344,13 @@ def monte_carlo(
     forms: Sequence[CostForm] = costs if costs is not None else (params.cost,)
     if trials < 1:
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
-    check_trials(goals, params, trials, clip_speed=clip_speed, horizon_forms=len(forms))
+    check_trials(goals, params, trials, clip_speed=clip_speed, horizon_forms=len(forms), user=user)
     rng = np.random.default_rng(seed)
-    steps = _horizon(goals, params)
+    steps = _horizon(goals, params, clip_speed, user)
+    who = _user(params, clip_speed, user)
     correct = {form: np.zeros(goals.m, dtype=np.int64) for form in forms}
     for chunk in _chunks(_streams(rng, trials), goals.m):
-        x, length = _roll_to_horizon(goals, params, steps, chunk, clip_speed)
+        x, length = _roll_to_horizon(goals, params, steps, chunk, who)
         states = HorizonStates(x, length, steps)
         for form in forms:
             correct[form] += horizon_correct(goals, params, states, form)
@@ -347,14 +379,16 @@ class CommitRollouts:
             the first commit (the largest projection on the straight way so far), m;
             ``inf`` when none.
         arrival_steps: ``(M,)`` ``T_a`` of each true goal (method.md §9).
-        step_length: ``v_max dt``, m.
+        along: ``(M, T + 1)`` how far along the straight way the nominal of each true goal
+            has come at each step ``0..T`` (m; :func:`nominal_progress`), what the promise
+            counted in progress is counted against.
     """
 
     step: IntArray
     goal: IntArray
     progress: FloatArray
     arrival_steps: IntArray
-    step_length: float
+    along: FloatArray
 
 
 def _commit_chunks(
@@ -362,7 +396,7 @@ def _commit_chunks(
     params: Params,
     trials: int,
     rng: np.random.Generator,
-    clip_speed: bool,
+    user: SimulatedUser,
     forms: Sequence[CostForm],
     rows: IntArray,
 ) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
@@ -371,24 +405,22 @@ def _commit_chunks(
     p0 = goals.x0.position
     m = len(rows)
     target = goals.positions[rows, None, :]
-    # the clipped user is slower: it arrives after the clipped motion's T_a
-    speed = clipped_user(params).speed if clip_speed else 1.0
     trans0, rot = _start_terms(goals, params)
-    t_a = arrival_steps(trans0, params, speed)[rows]
+    t_a = _commit_arrivals(goals, params, user)[rows]
     d0 = trans0 + rot
     way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
     for chunk in _chunks(_streams(rng, trials), m):
         n = sum(k for _, k in chunk)
         subs = _sub_slices(n, m, goals.m)
-        x = np.broadcast_to(p0, (m, n, 3)).copy()
-        length = np.zeros((m, n))
+        walk = _Walkers(p0, target, n, user, params)
         furthest = np.zeros((m, n))
         first_step = {f: np.zeros((m, n), dtype=np.int64) for f in forms}
         first_goal = {f: np.full((m, n), -1, dtype=np.int64) for f in forms}
         first_progress = {f: np.full((m, n), np.inf) for f in forms}
         for t in range(1, int(t_a.max(initial=0)) + 1):
             active = (t <= t_a)[:, None]  # (m, 1)
-            _advance(x, length, target, active, _noise(chunk, m, params), params, clip_speed)
+            walk.step(chunk, active)
+            x, length = walk.x, walk.length
             furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
             for sub in subs:
                 diff = x[:, sub, None, :] - goals.positions[None, None, :, :]
@@ -410,9 +442,25 @@ def _commit_rows(goals: GoalSet, true_goals: Sequence[int] | None) -> IntArray:
     return np.asarray(true_goals, dtype=np.int64)
 
 
-def _commit_arrivals(goals: GoalSet, params: Params, clip_speed: bool) -> IntArray:
-    speed = clipped_user(params).speed if clip_speed else 1.0
-    return arrival_steps(_start_terms(goals, params)[0], params, speed)
+def _commit_arrivals(goals: GoalSet, params: Params, user: SimulatedUser) -> IntArray:
+    """``T_a`` of each goal for the certificate of ``user``'s model (its speed, with the
+    robot's clip when it clips; at least one step for a goal it never reaches)."""
+    motion = user.operator.motion(params, user.clip)
+    t_a, _ = nominal_steps(goals.x0.position, goals.positions, user.operator, motion, params)
+    return np.asarray(np.maximum(t_a, 1), dtype=np.int64)
+
+
+def nominal_progress(goals: GoalSet, params: Params, user: SimulatedUser, steps: int) -> FloatArray:
+    """How far along the straight way to each goal its certificate's nominal has come at
+    each step ``0..steps``, ``(M, steps + 1)`` (m): the projection of the nominal's point
+    (``t s v_max dt`` on a straight nominal)."""
+    operator = user.operator
+    motion = operator.motion(params, user.clip)
+    p0 = goals.x0.position
+    path = nominal_path(p0, goals.positions, operator, motion, params, max(1, steps))
+    way = safe_unit(goals.positions - p0)
+    along = np.einsum("mtk,mk->mt", path - p0, way)[:, :steps]
+    return np.asarray(np.concatenate([np.zeros((goals.m, 1)), along], axis=1), np.float64)
 
 
 def simulate_commits(
@@ -424,12 +472,15 @@ def simulate_commits(
     clip_speed: bool = False,
     costs: Sequence[CostForm] | None = None,
     true_goals: Sequence[int] | None = None,
+    user: SimulatedUser | None = None,
 ) -> dict[CostForm, CommitRollouts]:
     """Roll out ``trials`` noisy users per true goal for ``T_a`` steps and record each
     observer's first commit, for each cost form on the same trajectories. With
     ``clip_speed`` the users are the robot's (speed clipped to ``v_max``) and ``T_a`` is
-    that slower motion's (:func:`~legws_daemon.core.commit.clipped_user`). ``true_goals``
-    limits the rollouts to those true goals (the other rows stay without a commit).
+    that slower motion's (:func:`~legws_daemon.core.commit.clipped_user`); ``user`` is any
+    simulated operator (method.md §10), rolled out for its own certificate's ``T_a``.
+    ``true_goals`` limits the rollouts to those true goals (the other rows stay without a
+    commit).
 
     Every trial's first commit is returned (``(M, N)`` arrays per form);
     :func:`monte_carlo_commit` keeps only the counts, in bounded memory."""
@@ -437,12 +488,14 @@ def simulate_commits(
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
     forms: Sequence[CostForm] = costs if costs is not None else (params.cost,)
     check_trials(
-        goals, params, trials, horizon_forms=0, commit_forms=len(forms), clip_speed=clip_speed
-    )
+        goals, params, trials, horizon_forms=0, commit_forms=len(forms), clip_speed=clip_speed,
+        user=user,
+    )  # fmt: skip
+    who = _user(params, clip_speed, user)
     rows = _commit_rows(goals, true_goals)
-    parts = list(_commit_chunks(goals, params, trials, rng, clip_speed, forms, rows))
-    t_a_all = _commit_arrivals(goals, params, clip_speed)
-    step = params.v_max * params.dt
+    parts = list(_commit_chunks(goals, params, trials, rng, who, forms, rows))
+    t_a_all = _commit_arrivals(goals, params, who)
+    along = nominal_progress(goals, params, who, int(t_a_all.max()))
     out: dict[CostForm, CommitRollouts] = {}
     for f in forms:
         steps = np.zeros((goals.m, trials), dtype=np.int64)
@@ -450,7 +503,7 @@ def simulate_commits(
         progress = np.full((goals.m, trials), np.inf)
         for target, i in ((steps, 0), (chosen, 1), (progress, 2)):
             target[rows] = np.concatenate([part[f][i] for part in parts], axis=1)
-        out[f] = CommitRollouts(steps, chosen, progress, t_a_all, step)
+        out[f] = CommitRollouts(steps, chosen, progress, t_a_all, along)
     return out
 
 
@@ -463,9 +516,9 @@ class GoalCommitRate:
             ``by_step`` (the certified commit step, or ``T_a`` when the goal has none).
         lower95, upper95: its Clopper-Pearson interval.
         rate_by_progress: fraction whose first commit is on the true goal before they
-            first came further along the way than ``by_step`` nominal steps (``by_step v_max
-            dt``): the promise in distance rather than time, which is what a slower
-            (speed-clipped) user gets.
+            first came further along the way than the nominal at ``by_step``
+            (:func:`nominal_progress`): the promise in distance rather than time, which is
+            what a slower user gets.
         progress_upper95: the Clopper-Pearson upper bound of ``rate_by_progress``.
         wrong: fraction whose first commit (before arrival) is on another goal.
         before_arrival: fraction whose first commit is on the true goal before arrival.
@@ -491,7 +544,7 @@ def commit_rates(
     count up to arrival)."""
     limits = _limits(rollouts.arrival_steps, by_step)
     counts = _commit_counts(
-        (rollouts.step, rollouts.goal, rollouts.progress), limits, rollouts.step_length
+        (rollouts.step, rollouts.goal, rollouts.progress), limits, rollouts.along
     )
     return _rates(counts, limits, rollouts.step.shape[1], names)
 
@@ -504,6 +557,7 @@ def monte_carlo_commit(
     by_step: Sequence[int | None],
     *,
     clip_speed: bool = False,
+    user: SimulatedUser | None = None,
 ) -> dict[str, GoalCommitRate]:
     """:func:`commit_rates` of :func:`simulate_commits` (same rollouts, same numbers) for
     the parameters' cost form, keeping only the counts: memory stays within
@@ -514,13 +568,17 @@ def monte_carlo_commit(
     """
     if trials < 1:
         raise InputError(f"expected at least 1 trial, got {trials}", field="trials")
-    check_trials(goals, params, trials, horizon_forms=0, commit_forms=1, clip_speed=clip_speed)
-    limits = _limits(_commit_arrivals(goals, params, clip_speed), by_step)
-    step_length = params.v_max * params.dt
+    check_trials(
+        goals, params, trials, horizon_forms=0, commit_forms=1, clip_speed=clip_speed, user=user
+    )
+    who = _user(params, clip_speed, user)
+    t_a = _commit_arrivals(goals, params, who)
+    limits = _limits(t_a, by_step)
+    along = nominal_progress(goals, params, who, int(max(t_a.max(), max(limits))))
     total = np.zeros((4, goals.m), dtype=np.int64)
     rows = np.arange(goals.m)
-    for part in _commit_chunks(goals, params, trials, rng, clip_speed, (params.cost,), rows):
-        total += _commit_counts(part[params.cost], limits, step_length)
+    for part in _commit_chunks(goals, params, trials, rng, who, (params.cost,), rows):
+        total += _commit_counts(part[params.cost], limits, along)
     return _rates(total, limits, trials, goals.names)
 
 
@@ -530,17 +588,18 @@ def _limits(arrival: IntArray, by_step: Sequence[int | None]) -> list[int]:
 
 
 def _commit_counts(
-    first: tuple[IntArray, IntArray, FloatArray], limits: Sequence[int], step_length: float
+    first: tuple[IntArray, IntArray, FloatArray], limits: Sequence[int], along: FloatArray
 ) -> IntArray:
     """``(4, M)`` counts per true goal of first commits: on it by its limit step, on it
-    before coming further along the way than the limit's distance, on another goal, and on
-    it before arrival."""
+    before coming further along the way than the nominal at the limit step (``along``), on
+    another goal, and on it before arrival."""
     step, goal, progress = first
     out = np.zeros((4, len(limits)), dtype=np.int64)
     for i, limit in enumerate(limits):
         on_true = goal[i] == i
         out[0, i] = np.sum(on_true & (step[i] <= limit))
-        out[1, i] = np.sum(on_true & (progress[i] <= limit * step_length + 1e-12))
+        reach = along[i, min(limit, along.shape[1] - 1)]
+        out[1, i] = np.sum(on_true & (progress[i] <= reach + 1e-12))
         out[2, i] = np.sum((goal[i] >= 0) & ~on_true)
         out[3, i] = np.sum(on_true)
     return out

@@ -26,6 +26,7 @@ import errno
 import os
 import secrets
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
 
@@ -58,8 +59,13 @@ LIMITS: dict[str, int] = {
     "password file": 64 * KiB,
     "certificate": 256 * KiB,
     "camera calibration": 64 * KiB,
+    "teleoperation trace": 256 * MiB,
+    "operator": 64 * KiB,
     "text": 1 * MiB,
 }
+#: Longest line of a file read line by line (:func:`read_lines`): a trace's tick is ~100
+#: bytes.
+MAX_LINE = 64 * KiB
 
 _CHUNK = 1 * MiB
 
@@ -168,6 +174,58 @@ def read_limited(path: Path, kind: str = "text") -> bytes:
             source=str(path),
         )
     return b"".join(parts)
+
+
+def read_lines(path: Path, kind: str = "text") -> Iterator[tuple[int, str]]:
+    """``(line number, text)`` of each line of a regular UTF-8 file of ``kind``, read as it
+    goes (never the whole file at once: memory stays at one chunk), with the checks of
+    :func:`read_limited`; a line longer than :data:`MAX_LINE` is refused, naming it.
+
+    Raises:
+        InputError: one line naming the file (and the line where that is the problem).
+    """
+    path = Path(path)
+    regular_file(path, kind)
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as err:
+        raise _cannot(err, path) from None
+    try:
+        _check_regular(os.fstat(fd), path, kind)
+        limit = limit_of(kind)
+        total, number, rest = 0, 0, b""
+        while True:
+            try:
+                chunk = os.read(fd, _CHUNK)
+            except OSError as err:
+                raise _cannot(err, path) from None
+            total += len(chunk)
+            if total > limit:
+                raise InputError(
+                    f"grew beyond the {_size(limit)} allowed for a {kind} file while it was read",
+                    source=str(path),
+                )
+            lines = (rest + chunk).split(b"\n")
+            rest = lines.pop() if chunk else b""
+            if len(rest) > MAX_LINE:
+                raise InputError(
+                    f"line {number + len(lines) + 1} is longer than {_size(MAX_LINE)}",
+                    source=str(path),
+                )
+            for raw in lines:
+                number += 1
+                if len(raw) > MAX_LINE:
+                    raise InputError(f"line {number} is longer than {_size(MAX_LINE)}",
+                                     source=str(path))  # fmt: skip
+                try:
+                    yield number, raw.decode("utf-8")
+                except UnicodeDecodeError:
+                    raise InputError(f"line {number}: not UTF-8 text", source=str(path)) from None
+            if not chunk:
+                return
+    finally:
+        os.close(fd)
 
 
 # --- writing -------------------------------------------------------------------------

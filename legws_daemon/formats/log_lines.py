@@ -39,3 +39,48 @@ def parse_commit(text: str) -> CommitLine | None:
         return None
     how: How = match["how"] or "inferred"  # type: ignore[assignment]
     return CommitLine(match["goal"], p, how) if math.isfinite(p) else None
+
+
+# --- calibration (legws operator calibrate, method.md §10) ---------------------------------
+
+_REACH = re.compile(
+    r"^calibration reach=(?P<i>\d+) of=(?P<n>\d+) target=(?P<x>\S+),(?P<y>\S+),(?P<z>\S+)$"
+)
+_REACHED = re.compile(r"^calibration reach=(?P<i>\d+) done$")
+
+
+class ReachLine(NamedTuple):
+    """A calibration reach begins (``target`` set) or ends (``target`` ``None``)."""
+
+    reach: int
+    of: int | None
+    target: tuple[float, float, float] | None
+
+
+def reach_text(index: int, of: int, target: tuple[float, float, float]) -> str:
+    """The line of a reach's start: ``calibration reach=3 of=20 target=0.61,-0.12,0.25``
+    (0.1 mm)."""
+    x, y, z = (f"{float(v):.4f}" for v in target)
+    return f"calibration reach={index} of={of} target={x},{y},{z}"
+
+
+def reached_text(index: int) -> str:
+    """The line of a reach's end (the EE arrived at its target)."""
+    return f"calibration reach={index} done"
+
+
+def parse_reach(text: str) -> ReachLine | None:
+    """The calibration reach a text-log line begins or ends, else ``None``."""
+    done = _REACHED.match(text)
+    if done is not None:
+        return ReachLine(int(done["i"]), None, None)
+    match = _REACH.match(text)
+    if match is None:
+        return None
+    try:
+        target = (float(match["x"]), float(match["y"]), float(match["z"]))
+    except ValueError:
+        return None
+    if not all(math.isfinite(v) and abs(v) <= 100.0 for v in target):
+        return None
+    return ReachLine(int(match["i"]), int(match["n"]), target)

@@ -299,6 +299,72 @@ def read_ee_path(path: Path | str, stage: StageKey = None) -> EePath:
     )
 
 
+class Teleoperation(NamedTuple):
+    """Every tick's EE position with the deflection that reached the controller and the
+    mode, ordered by tick (recordings from before these were logged have none: empty).
+
+    Attributes:
+        ticks, stages: ``(K,)`` the tick and the stage index it was logged in.
+        positions: ``(K, 3)``.
+        deflections: ``(K, 3)``; ``NaN`` on a tick without input (deadman).
+        modes: the controller's mode at each tick.
+    """
+
+    ticks: IntArray
+    stages: IntArray
+    positions: FloatArray
+    deflections: FloatArray
+    modes: tuple[str, ...]
+
+
+def read_teleoperation(path: Path | str) -> Teleoperation:
+    """:class:`Teleoperation` of a recording (what ``legws operator trace`` reads)."""
+    p = Path(path)
+    rows: list[tuple[int, int, list[float], list[float], str]] = []
+    for batch in _batches(p, EE_PATH):
+        if batch.static:
+            continue
+        ticks = batch.column("tick")
+        positions = batch.column(f"{EE_ARCHETYPE}:position")
+        stages = batch.column(f"{EE_ARCHETYPE}:stage")
+        deflections = batch.column(f"{EE_ARCHETYPE}:deflection")
+        modes = batch.column(f"{EE_ARCHETYPE}:mode")
+        if not (ticks and positions and stages and deflections and modes):
+            continue
+        for tick, pos, st, u, mode in zip(
+            ticks, positions, stages, deflections, modes, strict=True
+        ):
+            if tick is None or not (pos and st and mode) or u is None:
+                continue
+            deflection = list(u) if len(u) == 3 else [math.nan] * 3
+            rows.append((tick, st[0], list(pos), deflection, str(mode[0])))
+    rows.sort(key=lambda r: (r[0], r[1]))
+    return Teleoperation(
+        np.array([r[0] for r in rows], dtype=np.int64),
+        np.array([r[1] for r in rows], dtype=np.int64),
+        np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 3),
+        np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 3),
+        tuple(r[4] for r in rows),
+    )
+
+
+def read_text_lines(path: Path | str) -> list[tuple[int, int | None, str]]:
+    """``(tick, stage index, text)`` of every row of the ``log`` entity, in logging order."""
+    p = Path(path)
+    rows: list[tuple[int, bytes, int | None, str]] = []
+    for batch in _batches(p, TEXT_LOG):
+        ticks, texts = batch.column("tick"), batch.column("TextLog:text")
+        if batch.static or not ticks or not texts:
+            continue
+        row_ids = batch.column("rerun.controls.RowId")
+        stages = batch.column(f"{STAGE_ARCHETYPE}:stage") or [None] * len(ticks)
+        for tick, row_id, text, st in zip(ticks, row_ids, texts, stages, strict=True):
+            if tick is not None and text:
+                rows.append((tick, row_id, st[0] if st else None, text[0]))
+    rows.sort(key=lambda r: (r[0], r[1]))
+    return [(tick, st, text) for tick, _, st, text in rows]
+
+
 def _text_rows(path: Path, stage: StageKey) -> list[tuple[int, float | None, str, str]]:
     """``(tick, seconds, level, text)`` of the ``log`` entity, in logging order."""
     want = _stage_index(path, stage)

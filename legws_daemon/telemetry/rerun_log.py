@@ -279,7 +279,14 @@ def _fast() -> _Fast:
         ),
         rr.DynamicArchetype(
             EE_ARCHETYPE,
-            components={"position": [0.0] * 3, "quaternion": [0.0] * 4, "t": 0.0, "stage": 0},
+            components={
+                "position": [0.0] * 3,
+                "quaternion": [0.0] * 4,
+                "t": 0.0,
+                "stage": 0,
+                "deflection": [0.0] * 3,
+                "mode": "teleop",
+            },
         ),
         rr.DynamicArchetype(STAGE_ARCHETYPE, components={"stage": 0}),
     )
@@ -867,7 +874,7 @@ class RerunLog:
             self._robot.log_poses(tick, link_positions, link_rotations)
             if gripper_half_gap is not None:
                 self._robot.log_fingers(float(gripper_half_gap))
-            ee = self._log_ee(t, ee_position, ee_quaternion)
+            ee = self._log_ee(t, ee_position, ee_quaternion, joystick, mode)
             self._log_objects(objects, posterior, committed)
             self._log_arrows(ee, joystick, command)
             self._log_plots(tick, posterior, slack, tick_seconds)
@@ -950,9 +957,19 @@ class RerunLog:
         self._stream.set_time("tick", sequence=tick)
         self._stream.set_time("time", duration=t)
 
-    def _log_ee(self, t: float, position: FloatArray, quaternion: FloatArray) -> FloatArray:
+    def _log_ee(
+        self,
+        t: float,
+        position: FloatArray,
+        quaternion: FloatArray,
+        joystick: FloatArray | None = None,
+        mode: str = "",
+    ) -> FloatArray:
+        """The EE pose of the tick, with the deflection that reached the controller (empty
+        when none: deadman) and the mode: what ``legws operator trace`` reads back."""
         p = np.array(position, dtype=np.float64).reshape(3)
         q = np.array(quaternion, dtype=np.float64).reshape(4)
+        u = [] if joystick is None else np.asarray(joystick, dtype=np.float64).ravel()[:3].tolist()
         fast = self._fast
         pose = [
             fast.fixed("Transform3D:translation", p),
@@ -961,6 +978,8 @@ class RerunLog:
             fast.plain(f"{EE_ARCHETYPE}:quaternion", q.tolist()),
             fast.plain(f"{EE_ARCHETYPE}:t", [float(t)]),
             fast.plain(f"{EE_ARCHETYPE}:stage", [self._stage]),
+            fast.plain(f"{EE_ARCHETYPE}:deflection", u),
+            fast.plain(f"{EE_ARCHETYPE}:mode", [mode]),
         ]
         if not self._ee_axes_sent:
             self._stream.log(EE_PATH, rr.TransformAxes3D(0.08), static=True)
