@@ -10,6 +10,12 @@ Each tick reads the robot state once and hands that state to everything that nee
 the observer, the assistance, the command's safety envelope, and (through the record)
 status and telemetry. Modes and transitions: :mod:`.modes`. In every mode, no valid
 joystick input means zero velocity: the joystick is a dead-man switch for assistance too.
+
+Every certificate it computes (the decision's from home, the live slack, the placed
+layout's J and K, those its events carry) is for ``operator`` when one is given (a person's
+operator model, method.md §10), else for section 2's user. In mode ``calibrate``
+(:meth:`Controller.start_calibration`, :mod:`.calibration`) the user drives to one target
+at a time; nothing is inferred, committed or assisted.
 """
 
 from __future__ import annotations
@@ -23,13 +29,16 @@ from typing import Any, assert_never
 import numpy as np
 
 from legws_daemon.autonomy.assistant import Assistant
+from legws_daemon.autonomy.calibration import CalibrationRun, targets_for
 from legws_daemon.autonomy.cancel import CancelDetector
 from legws_daemon.autonomy.decision import (
     Inference,
     StageState,
     certificate_of,
+    commit_for,
     decision_goals,
     live_slack,
+    slack_for,
 )
 from legws_daemon.autonomy.events import (
     AssistFailed,
@@ -58,9 +67,8 @@ from legws_daemon.autonomy.layouts import LayoutBook
 from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
 from legws_daemon.autonomy.placing import PlacementReport
 from legws_daemon.autonomy.recovery import Recovery
-from legws_daemon.core.certificate import certify
-from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
@@ -124,6 +132,8 @@ class Controller:
             optimised objects go to their planned poses (the stand-in moves them; on a real
             robot a ``warning`` says where a person should put them).
         clock: monotonic clock (``legws eval`` passes its simulated one).
+        operator: the person's operator model every certificate is for (``certify_with``
+            of their operator file); ``None``: section 2's user.
     """
 
     def __init__(
@@ -137,9 +147,13 @@ class Controller:
         graph: TaskGraph | None = None,
         plan: Plan | None = None,
         clock: Callable[[], float] = time.monotonic,
+        operator: OperatorModel | None = None,
     ) -> None:
         self.profile = profile
         self.params = params
+        self.operator = operator
+        #: the calibration under way (``None``: none was started)
+        self.calibration: CalibrationRun | None = None
         self.dt = 1.0 / profile.control.rate_hz
         self.emit = emit
         self.clock = clock
@@ -195,7 +209,9 @@ class Controller:
         self.decisions += 1
         if prepared is None:
             self._apply_plan()
-            prepared = StageState.of(self.task, self.layouts.layout, self.scene, self.params)
+            prepared = StageState.of(
+                self.task, self.layouts.layout, self.scene, self.params, self.operator
+            )
         self.stage = prepared
         self.committed = None
         self.inference.stop()
@@ -226,9 +242,14 @@ class Controller:
             self._ask_to_place(moves, decision)
 
     def _ask_to_place(self, moves: Layout, decision: PlannedDecision) -> None:
-        """A robot that cannot move objects: where a person should put them."""
+        """A robot that cannot move objects: where a person should put them (with the
+        planned layout's certificate: the plan's, or the operator's in that layout)."""
         place = {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in moves.items()}
-        self.emit(PlaceObjects(place, self.task.label, decision.certificate))
+        certificate = decision.certificate
+        if self.operator is not None and certificate is not None:
+            with contextlib.suppress(InputError):
+                certificate = self._decision_certificate(dict(self.layouts.planned))
+        self.emit(PlaceObjects(place, self.task.label, certificate))
 
     def _place(self, layout: Layout) -> bool:
         """Objects to ``layout`` (``False``: a person has to put them there); the planner
@@ -310,13 +331,14 @@ class Controller:
         key = (self.decisions, tuple(sorted(layout.items())))
         if self._placed_cache is None or self._placed_cache[0] != key:
             goals = decision_goals(self.task, layout, self.scene)
-            commit = certify_commit(goals, self.params)
-            value = (certify(goals, self.params).objective, commit.objective, commit.certified)
+            commit = commit_for(goals, self.params, self.operator)
+            slack = slack_for(goals, self.params, self.operator)
+            value = (slack, commit.objective, commit.certified)
             self._placed_cache = (key, value)
         return self._placed_cache[1]
 
     def _decision_certificate(self, layout: Layout) -> float:
-        return certificate_of(self.task, layout, self.scene, self.params)
+        return certificate_of(self.task, layout, self.scene, self.params, self.operator)
 
     def posterior(self) -> dict[str, float]:
         return self.inference.posterior()
@@ -327,7 +349,7 @@ class Controller:
         state = self.last_state
         if state is None or self.mode != Mode.TELEOP:
             return None
-        return live_slack(self.stage, state, self.params)
+        return live_slack(self.stage, state, self.params, self.operator)
 
     # --- the tick -------------------------------------------------------------------------
     def _read_state_safely(self) -> RobotState | None:
@@ -354,6 +376,8 @@ class Controller:
             self.last_state = state
             if self.mode == Mode.TELEOP:
                 command = self._teleop(state, inp)
+            elif self.mode == Mode.CALIBRATE:
+                command = self._calibrate(state, inp)
             if self.mode == Mode.ASSIST and self.assistant is not None:
                 command, phase = self._assist(state, inp)
         sent, joints = self._send(state, command)
@@ -396,6 +420,45 @@ class Controller:
         if inp is None:
             return zero()  # deadman: nothing moves, not even the orientation
         return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
+
+    # --- calibration ---------------------------------------------------------------------
+    def start_calibration(self, count: int, seed: int) -> CalibrationRun:
+        """Mode ``calibrate``: ``count`` targets above the table (:mod:`.calibration`; the
+        first from where the EE is), one at a time; inference stops, and loads are refused
+        until the run is over.
+
+        Raises:
+            InputError: ``count`` outside 2..200, no room for the reaches, or no robot state.
+        """
+        state = self._read_state_safely()
+        if state is None:
+            raise InputError("the robot gives no state: no calibration without one")
+        targets = targets_for(self.scene, self.adapter.box, state.ee_position, count, seed)
+        self.inference.stop()
+        self.inference.hold = state.ee_rotation
+        self.assistant = None
+        self.committed = None
+        self.calibration = CalibrationRun(targets, self.dt)
+        self.modes.to(Mode.CALIBRATE)
+        return self.calibration
+
+    def _calibrate(self, state: RobotState, inp: OperatorInput | None) -> Command:
+        """One tick of a calibration: teleoperation toward the target shown (orientation
+        held), the reach recorded; zero on the tick the target is reached, ``idle`` after
+        the last."""
+        run = self.calibration
+        assert run is not None
+        events, drive = run.step(self.ticks, state.ee_position, inp.axes if inp else None)
+        for event in events:
+            self.emit(event)
+        if run.finished:
+            self.modes.to(Mode.IDLE)
+        if not drive or inp is None:
+            return zero()  # reached (the next target appears next tick), or the deadman
+        return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
+
+    def _calibrating(self) -> bool:
+        return self.calibration is not None and not self.calibration.finished
 
     def _context(self, state: RobotState) -> PlanContext:
         held = self.held
@@ -509,6 +572,10 @@ class Controller:
             done = Recovered if self._recovering else Reset
             self._recovering = False
             self.emit(done(self.graph.name))
+            if self.calibration is not None:
+                # home again: the calibration goes on (the interrupted target appears again)
+                self.modes.to(Mode.CALIBRATE if self._calibrating() else Mode.IDLE)
+                return
             self.task = TaskRun(self.graph, self.scene)
             self._place(self.layouts.layout)
             self._begin_stage()
@@ -545,6 +612,8 @@ class Controller:
     def _to_fault(self, reason: str) -> None:
         first = self.modes.to_fault(reason)
         self.assistant = None
+        if self.calibration is not None:
+            self.calibration.interrupt()
         if first:
             self.emit(Fault(reason))
         with contextlib.suppress(LegwsError):
@@ -585,6 +654,8 @@ class Controller:
         the operator's ``reset``. ``by`` is the authenticated role that asked."""
         self.modes.to(Mode.STOPPED)
         self.assistant = None
+        if self.calibration is not None:
+            self.calibration.interrupt()
         try:
             self.adapter.stop_by(by)
         except LegwsError:
@@ -619,6 +690,8 @@ class Controller:
         if dropped.taskgraph == self.graph.name and not self.task.finished:
             with contextlib.suppress(LegwsError):
                 planned = dropped.decision(self.task.label).certificate
+                if self.operator is not None and planned is not None:
+                    planned = self._decision_certificate(dropped.layout_for(self.task.label))
         self.emit(PlanDropped(dropped.taskgraph, self.stage.name, self.stage.certificate, planned))
 
     def prepare(
@@ -630,8 +703,13 @@ class Controller:
     ) -> PreparedLoad:
         """The slow half of ``load_scene`` / ``load_taskgraph``: read and validate what the
         command names and build what a new scene needs. Changes nothing of the running
-        controller (the daemon runs it off the control loop while the robot goes on)."""
+        controller (the daemon runs it off the control loop while the robot goes on).
+
+        Raises:
+            InputError: a calibration is under way (it ends first).
+        """
         assert request.command in LOADS and request.argument is not None
+        self._refuse_during_calibration()
         if request.command == "load_scene":
             return self.prepare_load(scenes(request.argument), None, None)
         graph, scene = graphs(request.argument)
@@ -659,7 +737,7 @@ class Controller:
         graph = graph if graph is not None else scene_graph(scene)
         task = TaskRun(graph, scene)
         moves = None if task.finished else layouts.plan_moves(task.label)
-        stage = StageState.of(task, layouts.layout, scene, self.params)
+        stage = StageState.of(task, layouts.layout, scene, self.params, self.operator)
         prepared = PreparedLoad(scene, graph, plan, layouts, task, stage, moves)
         if scene is self.scene:
             return prepared
@@ -683,6 +761,7 @@ class Controller:
                 the scene in use, which has changed since).
         """
         scene = prepared.scene
+        self._refuse_during_calibration()
         if prepared.adapter is None and scene is not self.scene:
             raise InputError("the scene changed while this load was prepared; send it again")
         with contextlib.suppress(LegwsError):
@@ -710,6 +789,13 @@ class Controller:
         if dropped is not None:
             self._warn_plan_dropped(dropped)
         return loaded.detail(), old
+
+    def _refuse_during_calibration(self) -> None:
+        if self._calibrating():
+            raise InputError(
+                "a calibration is under way: loads are refused until it ends (stop the "
+                "calibration first)"
+            )
 
     def load(
         self,

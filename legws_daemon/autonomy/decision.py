@@ -1,5 +1,11 @@
 """The decision being made: the stage's candidate targets, their certificate, and the
-observer inferring which one the user is going for."""
+observer inferring which one the user is going for.
+
+Every certificate is for one user: section 2's (``operator`` ``None``: the paper's user,
+the certificate's model unclipped, as everywhere before operator models), or a person's
+operator model (method.md §10; ``legws daemon --operator``), whose deflection the robot
+clips: :func:`slack_for` and :func:`commit_for`.
+"""
 
 from __future__ import annotations
 
@@ -11,15 +17,35 @@ from dataclasses import dataclass
 import numpy as np
 
 from legws_daemon.core.certificate import certify
+from legws_daemon.core.commit import CommitCertificate, certify_commit
 from legws_daemon.core.geometry import FloatArray, Pose
 from legws_daemon.core.goals import MIN_GOAL_DISTANCE, GoalSet
 from legws_daemon.core.observer import IntentObserver
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.hardware.base import RobotState
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.runner import TaskRun
 from legws_daemon.task.targets import Target, goal_set
+
+
+def slack_for(goals: GoalSet, params: Params, operator: OperatorModel | None = None) -> float:
+    """``J`` of ``goals`` for section 2's user (``operator`` ``None``), or for ``operator``
+    with the robot's clip (``certify_with`` of an operator file)."""
+    if operator is None:
+        return certify(goals, params).objective
+    return certify(goals, params, operator, operator.motion(params, clip=True)).objective
+
+
+def commit_for(
+    goals: GoalSet, params: Params, operator: OperatorModel | None = None
+) -> CommitCertificate:
+    """``K`` (method.md §9) of ``goals`` for section 2's user, or for ``operator`` with the
+    robot's clip."""
+    if operator is None:
+        return certify_commit(goals, params)
+    return certify_commit(goals, params, operator.motion(params, clip=True), operator=operator)
 
 
 @dataclass
@@ -39,13 +65,21 @@ class StageState:
     observed_certificate: float | None = None
 
     @classmethod
-    def of(cls, task: TaskRun, layout: Layout, scene: Scene, params: Params) -> StageState:
-        """The stage(s) ``task`` offers next, in ``layout``, certified from home."""
+    def of(
+        cls,
+        task: TaskRun,
+        layout: Layout,
+        scene: Scene,
+        params: Params,
+        operator: OperatorModel | None = None,
+    ) -> StageState:
+        """The stage(s) ``task`` offers next, in ``layout``, certified from home (for
+        ``operator``: :func:`slack_for`)."""
         targets = task.targets(layout) if not task.finished else []
         goals_home = cert = None
         if len(targets) >= 2:
             goals_home = goal_set(targets, scene.home)
-            cert = certify(goals_home, params).objective
+            cert = slack_for(goals_home, params, operator)
         return cls(task.label, targets, dict(layout), cert, goals_home)
 
     @property
@@ -70,10 +104,15 @@ def decision_goals(task: TaskRun, layout: Mapping[str, ObjectPose], scene: Scene
 
 
 def certificate_of(
-    task: TaskRun, layout: Mapping[str, ObjectPose], scene: Scene, params: Params
+    task: TaskRun,
+    layout: Mapping[str, ObjectPose],
+    scene: Scene,
+    params: Params,
+    operator: OperatorModel | None = None,
 ) -> float:
-    """``J`` of the decision ``task`` offers, its targets in ``layout``, seen from home."""
-    return certify(decision_goals(task, layout, scene), params).objective
+    """``J`` of the decision ``task`` offers, its targets in ``layout``, seen from home (for
+    ``operator``: :func:`slack_for`)."""
+    return slack_for(decision_goals(task, layout, scene), params, operator)
 
 
 class Inference:
@@ -158,9 +197,12 @@ class Inference:
         return dict(zip(names, (float(p) for p in self.observer.posterior), strict=True))
 
 
-def live_slack(stage: StageState, state: RobotState, params: Params) -> float | None:
+def live_slack(
+    stage: StageState, state: RobotState, params: Params, operator: OperatorModel | None = None
+) -> float | None:
     """The certificate seen from the EE pose ``state`` (how reliably intent can be read
-    from there), or ``None`` (no inference, or the EE sits on a goal)."""
+    from there; for ``operator``: :func:`slack_for`), or ``None`` (no inference, or the EE
+    sits on a goal)."""
     goals = stage.goals_home
     if goals is None:
         return None
@@ -168,4 +210,4 @@ def live_slack(stage: StageState, state: RobotState, params: Params) -> float | 
     if np.min(np.linalg.norm(goals.positions - x0.position, axis=1)) < 2 * MIN_GOAL_DISTANCE:
         return None
     live = GoalSet(goals.names, goals.positions, goals.quaternions, goals.symmetry, x0)
-    return certify(live, params).objective
+    return slack_for(live, params, operator)

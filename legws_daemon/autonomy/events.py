@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from legws_daemon.formats.log_lines import How, commit_text
+from legws_daemon.formats.log_lines import How, commit_text, reach_text, reached_text
 from legws_daemon.formats.messages import EventKind
 
 
@@ -54,12 +54,16 @@ Emit = Callable[[Event], None]
 # --- the run -------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class Started(Event):
+    """The daemon runs: ``certificate`` is the first decision's, for ``operator_model``
+    (``{"name", "model"}`` of the operator file, ``None``: section 2's user)."""
+
     kind: ClassVar[EventKind] = "started"
     adapter: str
     scene: str
     task: str
     stage: str
     certificate: float | None
+    operator_model: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,6 +144,51 @@ class TaskDone(Event):
     kind: ClassVar[EventKind] = "task_done"
     task: str
     history: tuple[tuple[str, str], ...]  # (stage, goal) in order
+
+
+# --- calibration (legws operator calibrate) -----------------------------------------------
+@dataclass(frozen=True, slots=True)
+class CalibrationReach(Event):
+    """A calibration target appears: reach ``reach`` of ``of`` toward ``target`` (m, base
+    frame), ``distance`` from the EE when it appears. Its log line is
+    :func:`~legws_daemon.formats.log_lines.reach_text`, which ``legws operator trace``
+    reads back."""
+
+    kind: ClassVar[EventKind] = "reach"
+    reach: int
+    of: int
+    target: tuple[float, float, float]
+    distance: float
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
+        d["target"] = [round(float(v), 4) for v in self.target]
+        d["distance"] = round(self.distance, 4)
+        return d
+
+    def text(self) -> str:
+        return reach_text(self.reach, self.of, self.target)
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationReached(Event):
+    """The EE arrived at the target of reach ``reach`` (within 2 cm): ``seconds`` of
+    control time and ``ticks`` since it appeared. Its log line is
+    :func:`~legws_daemon.formats.log_lines.reached_text`."""
+
+    kind: ClassVar[EventKind] = "reached"
+    reach: int
+    of: int
+    seconds: float
+    ticks: int
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
+        d["seconds"] = round(self.seconds, 3)
+        return d
+
+    def text(self) -> str:
+        return reached_text(self.reach)
 
 
 # --- faults and operator commands ------------------------------------------------------
@@ -363,6 +412,39 @@ class Misplaced(Event):
             f"warning placement of {self.stage} NOT certified (J {self.certificate:+.2f}"
             f"{planned}): {'; '.join(what)}"
         )
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorOutside(Event):
+    """The live watch (``legws daemon --operator``): the operator model re-fitted over the
+    last ``picks`` completed picks (``estimate``) is outside the operator file's intervals
+    on the unsafe side of each number in ``outside`` (name -> ``{"seen", "certified"}``):
+    the certificates shown are no longer this person's."""
+
+    kind: ClassVar[EventKind] = "warning"
+    operator_watch: str  # "operator alice: rho 0.93 seen, certified for ≤ 0.86"
+    operator: str
+    outside: dict[str, dict[str, float | str]]
+    estimate: dict[str, float | str]
+    picks: int
+
+    def text(self) -> str:
+        return f"warning {self.operator_watch}"
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorInside(Event):
+    """The live watch's estimate is back within the operator file's intervals after an
+    :class:`OperatorOutside` warning."""
+
+    kind: ClassVar[EventKind] = "operator_inside"
+    operator_watch: str
+    operator: str
+    estimate: dict[str, float | str]
+    picks: int
+
+    def text(self) -> str:
+        return self.operator_watch
 
 
 @dataclass(frozen=True, slots=True)

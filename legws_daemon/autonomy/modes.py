@@ -5,6 +5,8 @@
 - ``idle``: the task is done; nothing moves until ``reset`` or a load.
 - ``stopped``: the operator said stop; nothing moves until ``reset`` or a load.
 - ``fault``: the robot failed; zero velocity until ``reset`` (or a load) succeeds.
+- ``calibrate``: ``legws operator calibrate``: the user drives toward one target at a time
+  (teleoperation without an observer, a commit or assistance); ``idle`` after the last.
 
 :class:`ModeMachine` refuses any other transition: a refused transition is a bug, and it
 raises.
@@ -21,19 +23,25 @@ class Mode(StrEnum):
     IDLE = "idle"
     STOPPED = "stopped"
     FAULT = "fault"
+    CALIBRATE = "calibrate"
 
 
 #: Where each mode may go (staying is always allowed).
 TRANSITIONS: dict[Mode, frozenset[Mode]] = {
-    # commit -> assist; task over -> idle; stop; the robot fails
-    Mode.TELEOP: frozenset({Mode.ASSIST, Mode.IDLE, Mode.STOPPED, Mode.FAULT}),
+    # commit -> assist; task over -> idle; stop; the robot fails; a calibration begins
+    Mode.TELEOP: frozenset({Mode.ASSIST, Mode.IDLE, Mode.STOPPED, Mode.FAULT, Mode.CALIBRATE}),
     # cancelled, failed or done with inference next -> teleop; a single-candidate stage
-    # next -> assist (stays); task over -> idle; stop; the robot fails
-    Mode.ASSIST: frozenset({Mode.TELEOP, Mode.IDLE, Mode.STOPPED, Mode.FAULT}),
-    # reset -> assist (home); a load -> teleop / assist / idle; stop; the robot fails
-    Mode.IDLE: frozenset({Mode.ASSIST, Mode.TELEOP, Mode.STOPPED, Mode.FAULT}),
+    # next -> assist (stays); task over -> idle; stop; the robot fails; a reset's way home
+    # done during a calibration -> calibrate
+    Mode.ASSIST: frozenset({Mode.TELEOP, Mode.IDLE, Mode.STOPPED, Mode.FAULT, Mode.CALIBRATE}),
+    # reset -> assist (home); a load -> teleop / assist / idle; stop; the robot fails; a
+    # calibration begins
+    Mode.IDLE: frozenset({Mode.ASSIST, Mode.TELEOP, Mode.STOPPED, Mode.FAULT, Mode.CALIBRATE}),
     Mode.STOPPED: frozenset({Mode.ASSIST, Mode.TELEOP, Mode.IDLE, Mode.FAULT}),
     Mode.FAULT: frozenset({Mode.ASSIST, Mode.TELEOP, Mode.IDLE, Mode.STOPPED}),
+    # the last target reached -> idle; stop; the robot fails (a reset goes home through
+    # assist, then the calibration goes on)
+    Mode.CALIBRATE: frozenset({Mode.IDLE, Mode.STOPPED, Mode.FAULT}),
 }
 
 #: Modes in which nothing may move: the command is zero whatever else is asked.

@@ -16,6 +16,7 @@ from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import open_output, output_path
+from legws_daemon.formats.operator_file import OperatorFile, load_operator
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
@@ -100,6 +101,16 @@ def require_secure_transport(
     )
 
 
+def operator_for(spec: ProfileSpec, operator_file: Path | None) -> OperatorFile | None:
+    """The operator file the certificates are for: ``--operator``, else the profile's
+    ``control.operator`` (validated with the profile), else none (section 2's user)."""
+    if operator_file is not None:
+        return load_operator(operator_file)
+    if spec.control.operator is not None:
+        return load_operator(Path(spec.control.operator))
+    return None
+
+
 def install_stop_handlers(stop: threading.Event) -> None:
     """SIGINT and SIGTERM set ``stop`` (the loop ends within one period)."""
 
@@ -167,6 +178,14 @@ def install_stop_handlers(stop: threading.Event) -> None:
     help="Write one JSON line per tick: timing, the joystick sample used, when the command left.",
 )
 @click.option(
+    "--operator",
+    "operator_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The operator file of the person at the joystick (legws operator calibrate or fit): "
+    "every certificate is for their model, and the live watch re-fits it from the picks "
+    "that complete (default: the profile's control.operator, else the paper's user).",
+)
+@click.option(
     "--allow-motion",
     is_flag=True,
     help="Required for a profile that drives real hardware (adapter other than sim, e.g. "
@@ -190,6 +209,7 @@ def daemon_cmd(
     cost: CostForm | None,
     duration: float | None,
     trace_file: Path | None,
+    operator_file: Path | None,
     allow_motion: bool,
     insecure_transport: bool,
 ) -> int:
@@ -211,6 +231,7 @@ def daemon_cmd(
         output_path(trace_file)  # a device or folder there: one line before anything starts
     spec = load_profile_named(profile)
     require_motion_allowed(spec, allow_motion)
+    operator = operator_for(spec, operator_file)
     if rate is not None:
         control = spec.control.model_copy(update={"rate_hz": rate})
         spec = validate(
@@ -228,6 +249,9 @@ def daemon_cmd(
     params = Params(v_max=spec.control.v_max, dt=1.0 / spec.control.rate_hz)
     if cost is not None:
         params = params.with_cost(cost)
+    if operator is not None:
+        click.echo(f"legws daemon: certificates for operator {operator.name}: "
+                   f"{operator.certify_with.describe()}", err=True)  # fmt: skip
     zcfg = config_from_file(zenoh_config) if zenoh_config else config_from_spec(spec.transport)
     problem = authentication_problem(zcfg)
     where = str(zenoh_config) if zenoh_config else "the profile's [transport]"
@@ -265,5 +289,6 @@ def daemon_cmd(
             plan_loader=cached_catalog_plan,
             transport_problem=problem,
             insecure_transport=insecure,
+            operator=operator,
         )
         return DaemonService(config).run(stop)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from legws_daemon.cli.operator_calibrate import calibrate_cmd
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
@@ -115,3 +116,6 @@ def describe(record: OperatorFile) -> str:
         lines.append(f"  {key:9s} {value:8.4f}{units[key]}  95 % [{lo:.4f}, {hi:.4f}]")
     lines.append(f"  certify with: {record.certify_with.describe()}")
     return "\n".join(lines)
+
+
+operator_group.add_command(calibrate_cmd)

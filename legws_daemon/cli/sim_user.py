@@ -1,15 +1,55 @@
-"""``legws joystick sim-user``: the simulated user of method.md §2, closing the loop."""
+"""``legws joystick sim-user``: the simulated user of method.md §2, closing the loop; or a
+simulated operator of method.md §10 (``--speed``, ``--rho``, ``--bias``, ``--steering``, or
+``--operator FILE``: the fitted model of an operator file)."""
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import click
 import numpy as np
 
 from legws_daemon.cli.joystick import PublisherOptions, publisher_options
 from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.core.operator import (
+    BIAS_RANGE_DEG,
+    RHO_RANGE,
+    SPEED_RANGE,
+    STEERINGS,
+    OperatorModel,
+)
 from legws_daemon.core.params import Params
+
+
+def simulated_operator(
+    sigma: float,
+    speed: float | None,
+    rho: float | None,
+    bias: float | None,
+    steering: str | None,
+    operator_file: Path | None,
+) -> OperatorModel | None:
+    """The operator model the simulated user steers like: ``--operator FILE``'s fitted
+    model, or the one the options give (the others at section 2's values); ``None`` when no
+    option asks for one (section 2's user, as before)."""
+    given = [n for n, v in (("--speed", speed), ("--rho", rho), ("--bias", bias),
+                            ("--steering", steering)) if v is not None]  # fmt: skip
+    if operator_file is not None:
+        if given:
+            raise click.UsageError(f"give --operator or {', '.join(given)}, not both")
+        from legws_daemon.formats.operator_file import load_operator
+
+        return load_operator(operator_file).fitted
+    if not given:
+        return None
+    return OperatorModel(
+        1.0 if speed is None else speed,
+        sigma,
+        0.0 if rho is None else rho,
+        0.0 if bias is None else bias,
+        "free" if steering is None else steering,  # type: ignore[arg-type]
+    )
 
 
 @click.command("sim-user")
@@ -35,6 +75,34 @@ from legws_daemon.core.params import Params
     help="Press cancel this many seconds into the robot's assistance (once).",
 )
 @click.option(
+    "--speed",
+    type=FiniteFloat(min=SPEED_RANGE[0], max=SPEED_RANGE[1]),
+    help="Simulated operator (method.md §10): mean deflection toward the aim (default 1).",
+)
+@click.option(
+    "--rho",
+    type=FiniteFloat(min=RHO_RANGE[0], max=RHO_RANGE[1]),
+    help="Simulated operator: lag-1 autocorrelation of the noise per control period (default 0).",
+)
+@click.option(
+    "--bias",
+    type=FiniteFloat(min=BIAS_RANGE_DEG[0], max=BIAS_RANGE_DEG[1]),
+    help="Simulated operator: the aim turned about the base z axis, degrees, anticlockwise "
+    "from above (default 0).",
+)
+@click.option(
+    "--steering",
+    type=click.Choice(STEERINGS),
+    help="Simulated operator: free, axes (one of ±x ±y ±z, a keyboard) or axes+diagonals "
+    "(default free).",
+)
+@click.option(
+    "--operator",
+    "operator_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Steer like the fitted model of this operator file (legws operator calibrate/fit).",
+)
+@click.option(
     "--until-done/--forever",
     default=True,
     show_default=True,
@@ -46,6 +114,11 @@ def sim_user_cmd(
     seed: int,
     sigma: float,
     cancel_after: float | None,
+    speed: float | None,
+    rho: float | None,
+    bias: float | None,
+    steering: str | None,
+    operator_file: Path | None,
     until_done: bool,
 ) -> None:
     """Steer like the paper's noisy user, from the daemon's published status.
@@ -53,14 +126,20 @@ def sim_user_cmd(
     At each decision it goes for the first --goal on offer (or a random one), pushing
     toward its position with Gaussian velocity noise; after the daemon commits it lets go
     (zero deflection, dead-man held) and watches the robot act; at the goal without a
-    commit it presses confirm. It ends when the daemon's task is done (--until-done).
+    commit it presses confirm. In a calibration (legws operator calibrate) it steers to
+    each target shown. It ends when the daemon's task is done (--until-done). With --speed,
+    --rho, --bias or --steering (or --operator FILE) it steers like that operator model
+    (method.md §10), its noise correlated over the time that really passes between samples.
     """
     from legws_daemon.joystick.publisher import Sample, stop_on_signals
     from legws_daemon.joystick.sim_user import SimUser, StatusWatch
     from legws_daemon.transport.session import keys
 
     profile = options.load_profile()
-    user = SimUser(goals, sigma, profile.control.v_max, np.random.default_rng(seed), cancel_after)
+    operator = simulated_operator(sigma, speed, rho, bias, steering, operator_file)
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / profile.control.rate_hz
+    user = SimUser(goals, sigma, profile.control.v_max, rng, cancel_after, operator=operator, dt=dt)
     watch = StatusWatch(keys(profile.robot)["status"])
     with stop_on_signals() as stop, options.publisher(profile, "sim-user") as pub:
         sub = pub.session.declare_subscriber(watch.key, lambda s: watch.offer(s.payload.to_bytes()))
@@ -73,7 +152,8 @@ def sim_user_cmd(
             return user.sample(watch.latest(now), now)
 
         wanted = ", ".join(goals) or "a random goal at each decision"
-        click.echo(f"legws: simulated user going for {wanted} on {pub.key}", err=True)
+        who = "" if operator is None else f" steering like {operator.describe()}"
+        click.echo(f"legws: simulated user{who} going for {wanted} on {pub.key}", err=True)
         try:
             pub.run(sample, options.rate_for(profile), options.duration, stop)
         finally:

@@ -25,6 +25,13 @@ Faults that do not end the run:
   on; the worker counts the problem and the loop reports it as a ``warning`` event
   ``{"telemetry": ...}`` (the first at once, then at most every
   :data:`TELEMETRY_WARNING_INTERVAL` seconds while problems continue).
+
+For a person (``--operator``, an operator file): every certificate is theirs (the
+controller's ``operator``), status says whose (``operator_model``), and the live watch
+(:mod:`~legws_daemon.autonomy.operator_watch`) re-fits their model from the picks that
+complete, on a thread of its own that steps aside while a tick runs. A calibration
+(``legws operator calibrate``, :class:`CalibrationSpec`) runs the controller in mode
+``calibrate`` and ends the loop after the last target.
 """
 
 from __future__ import annotations
@@ -49,8 +56,10 @@ import numpy as np
 import zenoh
 
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
+from legws_daemon.autonomy.calibration import CALIBRATION
 from legws_daemon.autonomy.controller import LOADS, Controller, PreparedLoad
 from legws_daemon.autonomy.events import (
+    Commit,
     Deadman,
     Event,
     Fallback,
@@ -68,6 +77,7 @@ from legws_daemon.autonomy.events import (
 )
 from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.modes import Mode
+from legws_daemon.autonomy.operator_watch import OperatorWatch
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.gate import LoopGate
@@ -86,6 +96,7 @@ from legws_daemon.formats.messages import (
     dump,
     parse,
 )
+from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, JointCommand, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
@@ -288,9 +299,17 @@ class GuardedAdapter(Adapter):
         return bool(self._call("place_objects", self.inner.place_objects, layout))
 
 
+@dataclass(frozen=True, slots=True)
+class CalibrationSpec:
+    """A calibration to run (``legws operator calibrate``): ``targets`` reaches, seeded."""
+
+    targets: int
+    seed: int = 0
+
+
 @dataclass
 class DaemonConfig:
-    """Everything ``legws daemon`` was asked to do."""
+    """Everything ``legws daemon`` (or ``legws operator calibrate``) was asked to do."""
 
     profile: ProfileSpec
     scene: Scene
@@ -312,6 +331,12 @@ class DaemonConfig:
     transport_problem: str | None = None
     #: a real arm's daemon started on an unauthenticated transport (``--insecure-transport``)
     insecure_transport: bool = False
+    #: the person every certificate is for (``--operator``); ``None``: section 2's user
+    operator: OperatorFile | None = None
+    #: run a calibration instead of the task (the loop ends after its last target)
+    calibration: CalibrationSpec | None = None
+    #: also called with every event (on the thread that emits it; must not block)
+    on_event: Callable[[Event], None] | None = None
 
 
 @dataclass
@@ -398,6 +423,14 @@ class DaemonService:
         self.stops_invalid = 0
         #: the loop thread's SCHED_FIFO priority (0: normal scheduling)
         self.realtime_priority = 0
+        #: the live watch of the operator (``--operator``, not while calibrating)
+        self.watch: OperatorWatch | None = None
+        self._watch_pool: ThreadPoolExecutor | None = None
+        if config.operator is not None and config.calibration is None:
+            self._watch_pool = ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix="legws-watch", initializer=self.gate.enter_thread
+            )
+            self.watch = OperatorWatch(config.operator, config.params, executor=self._watch_pool)
 
     def _paced(self) -> bool:
         return self.profile.adapter != "sim" or self.profile.sim.realtime
@@ -454,6 +487,24 @@ class DaemonService:
         if tel is not None and self.worker is not None:
             tick = self.controller.ticks if self.controller is not None else 0
             self.worker.submit(tel.log_text, tick, time.monotonic() - self._t0, severity, text)
+        hook = self.config.on_event
+        if hook is not None:
+            try:
+                hook(event)
+            except Exception:  # a listener's bug must not stop control
+                log.exception("event listener failed on %s", event.kind)
+
+    def _from_controller(self, event: Event) -> None:
+        """An event of the controller: the live watch sees it first (a commit with its
+        goal's position), then it is published."""
+        watch, c = self.watch, self.controller
+        if watch is not None:
+            position = None
+            if isinstance(event, Commit) and c is not None:
+                with contextlib.suppress(KeyError):
+                    position = c.stage.target(event.goal).position
+            watch.event(event, position)
+        self._emit(event)
 
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
         c, cfg = self.controller, self.config
@@ -461,16 +512,23 @@ class DaemonService:
         state = rec.state if rec is not None else c.last_state
         self._status_seq += 1
         rejections = self.inbox.counts()
+        calibrating = c.calibration is not None
+        targets = {t.name: t.position.tolist() for t in c.stage.targets}
+        calibration = None
+        if c.calibration is not None:
+            position = state.ee_position if state is not None else None
+            calibration = c.calibration.status(position)
+            targets = {CALIBRATION: calibration["target"]} if calibration is not None else {}
         data: dict[str, Any] = {
             "schema": 1,
             "robot": self.profile.robot,
             "seq": self._status_seq,
             "stamp": time.time(),
             "mode": c.mode.value,
-            "stage": c.stage.name,
+            "stage": CALIBRATION if calibrating else c.stage.name,
             "posterior": c.posterior(),
             "committed": c.committed,
-            "certificate": c.stage.current_certificate,
+            "certificate": None if calibrating else c.stage.current_certificate,
             "adapter": "sim" if self.fallback else self.adapter_kind,
             "fallback": self.fallback,
             "fault": c.fault,
@@ -483,11 +541,13 @@ class DaemonService:
             "operator": self.inbox.operator(),
             "slack": slack,
             "decision": c.decisions,
-            "targets": {t.name: t.position.tolist() for t in c.stage.targets},
+            "targets": targets,
             "transport": "authenticated" if cfg.transport_problem is None else "unauthenticated",
             "insecure_transport": cfg.insecure_transport,
             "realtime_priority": self.realtime_priority,
             "placement": c.placement.status() if c.placement is not None else None,
+            "calibration": calibration,
+            "operator_model": self._operator_status(),
         }
         if state is not None:
             data["ee"] = {
@@ -496,6 +556,26 @@ class DaemonService:
             }
             data["gripper_closed"] = state.gripper_closed
         return StatusMessage.model_validate(data)
+
+    def _operator_status(self) -> dict[str, Any] | None:
+        """Status ``operator_model``: whose certificates these are, and the live watch."""
+        record = self.config.operator
+        if record is None:
+            return None
+        watch = self.watch
+        return {
+            **record.status(),
+            "file": record.source or None,
+            "watch": watch.status() if watch is not None else None,
+        }
+
+    def _operator_lines(self) -> tuple[str, ...] | None:
+        """The status panel's lines about the operator model (Rerun)."""
+        record = self.config.operator
+        if record is None:
+            return None
+        head = f"operator model {record.name}: {record.certify_with.describe()}"
+        return (head, *(self.watch.lines() if self.watch is not None else ()))
 
     # --- commands ---------------------------------------------------------------------
     def _on_query(self, query: zenoh.Query) -> None:
@@ -803,11 +883,23 @@ class DaemonService:
             phase=rec.phase,
             operator=_operator_text(self.inbox.operator()),
             fault=c.fault,
-            stage=c.stage.name,
+            stage=CALIBRATION if c.calibration is not None else c.stage.name,
             placement=tuple(c.placement.lines()) if c.placement is not None else None,
             corrections=self._corrections(c),
+            calibration=self._calibration_marker(c),
+            operator_model=self._operator_lines(),
             droppable=True,
         )
+
+    @staticmethod
+    def _calibration_marker(c: Controller) -> tuple[tuple[float, float, float], str] | None:
+        """The calibration target shown, and its label (``target 3 of 20``)."""
+        run = c.calibration
+        target = run.target if run is not None else None
+        if run is None or target is None:
+            return None
+        xyz = (float(target[0]), float(target[1]), float(target[2]))
+        return xyz, f"target {run.index + 1} of {run.count}"
 
     def _report_telemetry(self) -> None:
         """Turn telemetry problems the worker counted into a ``warning`` event (loop thread):
@@ -858,18 +950,30 @@ class DaemonService:
                 cfg.layout,
                 self.make_adapter,
                 cfg.params,
-                self._emit,
+                self._from_controller,
                 graph=cfg.graph,
                 plan=cfg.plan,
+                operator=cfg.operator.certify_with if cfg.operator is not None else None,
             )
             self.controller = controller
+            if cfg.calibration is not None:
+                try:
+                    controller.start_calibration(cfg.calibration.targets, cfg.calibration.seed)
+                except BaseException:
+                    _quietly("robot shutdown", controller.shutdown)
+                    raise
             self._logged_stage = controller.stage
             self._log_robot()
             self._log_setup()
+            calibrating = controller.calibration is not None
             self._emit(
                 Started(
                     "sim" if self.fallback else self.adapter_kind, cfg.scene.name,
-                    controller.graph.name, controller.stage.name, controller.stage.certificate,
+                    controller.graph.name, CALIBRATION if calibrating else controller.stage.name,
+                    None if calibrating else controller.stage.certificate,
+                    None if cfg.operator is None else {
+                        "name": cfg.operator.name, "model": cfg.operator.certify_with.as_dict(),
+                    },
                 )
             )  # fmt: skip
             subscriber = session.declare_subscriber(
@@ -907,6 +1011,8 @@ class DaemonService:
                 for entity in (subscriber, queryable, objects, stops):
                     _quietly("undeclare", entity.undeclare)
                 self._fail_pending()
+                if self._watch_pool is not None:  # a fit under way is not waited for
+                    self._watch_pool.shutdown(wait=False, cancel_futures=True)
                 self._close_telemetry()
         return 0
 
@@ -965,6 +1071,10 @@ class DaemonService:
             sample, why = self.inbox.poll(now)
             rec = c.tick(sample.operator if sample is not None else None)
             self._report_input(now, why)
+            if self.watch is not None:
+                self.watch.tick(rec)
+                for event in self.watch.poll():  # a finished fit, never waited for
+                    self._emit(event)
             if c.stage is not self._logged_stage:
                 self._logged_stage = c.stage
                 self._log_setup()
@@ -980,6 +1090,9 @@ class DaemonService:
             self._hand_over()
             if ticker.end():
                 self._overrun_warning()
+            if c.calibration is not None and c.calibration.finished:
+                log.info("calibration: all %d targets reached", c.calibration.count)
+                break  # the shutdown's last status says idle: the publishers see the end
 
     def _publish_status(self, pub: Any, rec: TickRecord | None, slack: float | None) -> None:
         data = dump(self._status(rec, slack))

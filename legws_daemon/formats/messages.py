@@ -134,11 +134,70 @@ class PlacementStatus(BaseModel):
     objects: Annotated[dict[Label, ObjectPlacementStatus], Field(max_length=64)]
 
 
+class CalibrationStatus(BaseModel):
+    """The calibration target shown (``legws operator calibrate``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    reach: Annotated[int, Strict(), Field(ge=1)]  # 1-based
+    of: Annotated[int, Strict(), Field(ge=1)]
+    target: Vec3
+    distance: Finite | None = None  # from the EE, m
+
+
+Steering = Literal["free", "axes", "axes+diagonals"]
+
+
+class OperatorModelNumbers(BaseModel):
+    """An operator model (method.md §10): the numbers and the steering."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    speed: Finite
+    sigma: Finite
+    rho: Finite
+    bias_deg: Finite
+    steering: Steering
+
+
+class WatchEstimate(OperatorModelNumbers):
+    """The live watch's fit over its window of completed picks."""
+
+    picks: Seq
+    ticks: Seq
+
+
+class WatchStatus(BaseModel):
+    """The live watch of ``legws daemon --operator``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    window: Seq
+    minimum: Seq
+    picks: Seq  # completed picks seen since start
+    estimate: WatchEstimate | None = None
+    outside: list[Literal["speed", "sigma", "rho", "bias_deg", "steering"]] = []
+    warning: str | None = None
+    error: str | None = None
+
+
+class OperatorModelStatus(BaseModel):
+    """The person every certificate is for (``legws daemon --operator``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Label
+    model: OperatorModelNumbers  # certify_with: what the certificates use
+    intervals: dict[Literal["speed", "sigma", "rho", "bias_deg"], tuple[Finite, Finite]]
+    file: str | None = None
+    watch: WatchStatus | None = None
+
+
 class StatusMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
-    mode: Literal["idle", "teleop", "assist", "stopped", "fault"]
+    mode: Literal["idle", "teleop", "assist", "stopped", "fault", "calibrate"]
     stage: Label | None = None
     posterior: dict[Label, Annotated[float, Field(ge=0.0, le=1.0)]] = {}
     committed: Label | None = None
@@ -167,6 +226,11 @@ class StatusMessage(_Message):
     realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
     #: the placed layout as a tracker reports it (``legws track``); None until one does
     placement: PlacementStatus | None = None
+    #: the calibration target shown (``legws operator calibrate``); None otherwise
+    calibration: CalibrationStatus | None = None
+    #: the person the certificates are for (``legws daemon --operator``); None: section 2's
+    #: user
+    operator_model: OperatorModelStatus | None = None
 
 
 EventKind = Literal[
@@ -187,6 +251,9 @@ EventKind = Literal[
     "deadman",
     "input_rejected",
     "placed",
+    "reach",
+    "reached",
+    "operator_inside",
 ]
 
 

@@ -4,7 +4,9 @@ A profile names the robot (its zenoh keys live under ``legws/<robot>/``), the ad
 reaches it (a registry key: ``sim`` for the MuJoCo stand-in, ``sawyer`` for the real arm
 through its bridge), the control rate and limits, the deadman timeout, the EE workspace
 box every command is clamped to, and the transport settings. Defaults are safe: loopback
-only, multicast scouting off.
+only, multicast scouting off. ``[control] operator`` names the operator file of the person
+who steers this set-up (method.md §10: every certificate the daemon shows is then theirs),
+a path relative to the profile's folder, read and validated with the profile.
 """
 
 from __future__ import annotations
@@ -103,6 +105,9 @@ class ControlSpec(_Model):
     #: the control loop's thread on SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE or
     #: an RLIMIT_RTPRIO this high, else it runs at normal priority and says so); 0: normal
     realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
+    #: the operator file (``legws operator calibrate``/``fit``) of the person the daemon
+    #: certifies for, relative to the profile's folder; made absolute by :func:`load_profile`
+    operator: Annotated[str, Strict(), Field(min_length=1, max_length=4096)] | None = None
 
 
 class WorkspaceBox(_Model):
@@ -223,8 +228,27 @@ class ProfileSpec(_Model):
 
 
 def load_profile(path: Path) -> ProfileSpec:
-    """Read and validate a hardware profile; errors name the file and the field."""
-    return validate(ProfileSpec, read_toml(path, "hardware profile"), str(path))
+    """Read and validate a hardware profile; errors name the file and the field. A
+    ``control.operator`` file is read and validated too (its path made absolute)."""
+    spec = validate(ProfileSpec, read_toml(path, "hardware profile"), str(path))
+    if spec.control.operator is None:
+        return spec
+    return _with_operator(spec, Path(path))
+
+
+def _with_operator(spec: ProfileSpec, path: Path) -> ProfileSpec:
+    """``control.operator`` resolved against the profile's folder and validated."""
+    from legws_daemon.formats.operator_file import load_operator
+
+    assert spec.control.operator is not None
+    given = Path(spec.control.operator)
+    full = (given if given.is_absolute() else path.parent / given).absolute()
+    try:
+        load_operator(full)
+    except InputError as err:
+        raise InputError(str(err), source=str(path), field="control.operator") from None
+    control = spec.control.model_copy(update={"operator": str(full)})
+    return spec.model_copy(update={"control": control})
 
 
 def profiles_dir() -> Path:

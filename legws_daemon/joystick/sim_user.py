@@ -9,6 +9,14 @@ its goal before the daemon commits it presses *confirm*. In a task graph it pick
 each decision: the first of its wanted goals on offer, or one at random (seeded). Without
 a fresh status it publishes nothing — it cannot steer blind, and the daemon's deadman then
 holds the robot.
+
+With an ``operator`` (method.md §10: speed, AR(1) noise, aiming bias, quantised steering)
+it steers like that model instead: :class:`~legws_daemon.core.user_model.OperatorStick` of
+a :class:`~legws_daemon.core.user_model.SimulatedUser` with the robot's clip, fed the time
+that really passed between two deflections, so that its noise shows the model's ``rho`` at
+the daemon's ticks whatever the publishing rate; the noise starts afresh at each new reach.
+In the daemon's ``calibrate`` mode (``legws operator calibrate``) it steers toward the one
+target on offer (``targets: {"calibration": [x, y, z]}``) and never confirms.
 """
 
 from __future__ import annotations
@@ -22,7 +30,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from legws_daemon.core.geometry import FloatArray
-from legws_daemon.core.user_model import clip_unit, deflection, noise
+from legws_daemon.core.operator import OperatorModel
+from legws_daemon.core.params import Params
+from legws_daemon.core.user_model import (
+    OperatorStick,
+    SimulatedUser,
+    clip_unit,
+    deflection,
+    noise,
+)
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import Buttons, StatusMessage, parse
 from legws_daemon.joystick.publisher import Sample
@@ -31,6 +47,9 @@ from legws_daemon.joystick.publisher import Sample
 STATUS_STALE = 0.5
 #: Within this distance of the goal position the user stops pushing and confirms, metres.
 ARRIVED = 0.01
+#: The daemon's mode while it calibrates an operator, and the name of its one target.
+CALIBRATE = "calibrate"
+CALIBRATION_TARGET = "calibration"
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +107,9 @@ class SimUser:
         rng: noise (and random choice) source.
         cancel_after: press the cancel button this many seconds into assistance, once;
             ``None`` never.
+        operator: steer like this operator model (method.md §10) instead of section 2's
+            user (``sigma`` is then the model's); ``None``: section 2's user, as before.
+        dt: the daemon's control period, s (the period of the operator's ``rho``).
     """
 
     wants: Sequence[str]
@@ -100,6 +122,16 @@ class SimUser:
     _decision: tuple[int, str, tuple[str, ...]] | None = None
     _goal: str | None = None
     _assist_since: float | None = None
+    operator: OperatorModel | None = field(default=None, kw_only=True)
+    dt: float = field(default=Params().dt, kw_only=True)
+    _stick: OperatorStick | None = field(default=None, init=False, repr=False)
+    _reach: tuple[str, tuple[float, ...]] | None = field(default=None, init=False, repr=False)
+    _last: float | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.operator is not None:
+            user = SimulatedUser(self.operator, clip=True)
+            self._stick = OperatorStick(user, Params(v_max=self.v_max, dt=self.dt), self.rng)
 
     @property
     def goal(self) -> str | None:
@@ -122,24 +154,53 @@ class SimUser:
                 self.chosen.append((key[1], self._goal))
         return self._goal
 
-    def deflection(self, position: FloatArray, target: FloatArray) -> FloatArray:
-        """The stick toward ``target``: method.md §2, clipped to ``|u| <= 1``."""
+    def deflection(
+        self, position: FloatArray, target: FloatArray, elapsed: float | None = None
+    ) -> FloatArray:
+        """The stick toward ``target``: method.md §2, clipped to ``|u| <= 1``; with an
+        operator, that model's stick ``elapsed`` seconds after the last deflection (default
+        one control period)."""
+        if self._stick is not None:
+            return self._stick.deflection(position, target, elapsed)
         eps = noise(self.rng, (), self.sigma, self.v_max)
         return clip_unit(deflection(position, target, eps))
 
+    def _steer(self, goal: str, target: FloatArray, position: FloatArray, now: float) -> FloatArray:
+        """This tick's deflection toward ``goal`` at ``target``: a new reach (another goal
+        or target, or steering again after a pause) starts the operator's noise afresh."""
+        reach = (goal, tuple(float(v) for v in target))
+        if reach != self._reach:
+            self._reach, self._last = reach, None
+            if self._stick is not None:
+                self._stick.reset()
+        elapsed = None if self._last is None else now - self._last
+        self._last = now
+        return self.deflection(position, target, elapsed)
+
     def act(self, view: UserView, now: float) -> UserAction:
         """What the user does given what it sees at ``now`` (seconds)."""
+        if view.mode == CALIBRATE:
+            # a calibration: the one target on offer, reached (the daemon shows the next one
+            # once the EE is within 2 cm), never confirmed
+            self._assist_since = None
+            target = view.targets.get(CALIBRATION_TARGET)
+            if target is None:
+                self._reach = None
+                return _hands_off()
+            return UserAction(self._steer(CALIBRATION_TARGET, target, view.ee_position, now))
         if view.mode == "teleop":
             self._assist_since = None
             goal = self._choose(view)
             if goal is None:
+                self._reach = None
                 return _hands_off()  # nothing wanted on offer: hold the dead-man, wait
             target = view.targets[goal]
             to_goal = target - view.ee_position
             if math.sqrt(float(to_goal @ to_goal)) < ARRIVED:
                 # at the goal and still no commit: confirm it, as a person would
                 return UserAction(np.zeros(3), confirm=True)
-            return UserAction(self.deflection(view.ee_position, target))
+            return UserAction(self._steer(goal, target, view.ee_position, now))
+        self._reach = None  # the robot acts (or stands): the next steering is a new reach
         if view.mode == "assist" and self.cancel_after is not None and not self.cancelled:
             if self._assist_since is None:
                 self._assist_since = now

@@ -10,12 +10,16 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
   ``world/ee_trail``, ``world/objects/<obj>`` (the object's shape and colour, labelled with
   its name and, while inferring, its probability), ``world/committed`` (an outline around
   the committed object), ``world/joystick``, ``world/command``, ``world/placement`` (with a
-  tracker: arrows from each misplaced object to where it should stand).
+  tracker: arrows from each misplaced object to where it should stand),
+  ``world/calibration/target`` (``legws operator calibrate``: the target shown, a point
+  labelled ``target 3 of 20``; cleared between targets).
 * Plots, each in its own view: ``plots/posterior/<goal>`` with ``plots/threshold`` and
   ``plots/commits`` (a marker at each commit); ``plots/slack``; ``plots/timing/tick_ms``,
   ``plots/timing/budget_ms`` and ``plots/timing/overruns``.
 * ``status`` (a panel: mode, operator, phase, fault, stage; with a tracker, the placement:
-  certified or not, J and K, each object not in place with its correction), ``log``
+  certified or not, J and K, each object not in place with its correction; while
+  calibrating, the target and how far it is; with an operator file, whose model the
+  certificates are for and what the live watch says), ``log``
   (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
 * ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
   document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
@@ -110,6 +114,9 @@ STATUS_DOC = "status"
 PLACEMENT_PATH = "world/placement"
 #: Their colour: orange.
 _MISPLACED = (255, 140, 0)
+#: The calibration target shown (``legws operator calibrate``), and its colour: magenta.
+CALIBRATION_TARGET_PATH = "world/calibration/target"
+_CALIBRATION = (230, 40, 200)
 #: Where the posterior of a goal is plotted: this prefix and the escaped goal name.
 POSTERIOR_PREFIX = "plots/posterior/"
 COMMITS_PLOT = "plots/commits"
@@ -576,6 +583,7 @@ class RerunLog:
         self._committed_outline: bytes | None = None
         self._status: tuple[str | None, ...] | None = None
         self._corrections = b""
+        self._calibration: tuple[tuple[float, float, float], str] | None = None
         self._stage_name: str | None = None
         self._goal_colours: dict[str, int] = {}
         self._open_series: set[str] = set()  # plots with a line in progress
@@ -851,6 +859,8 @@ class RerunLog:
         stage: str | None = None,
         placement: tuple[str, ...] | None = None,
         corrections: Mapping[str, tuple[FloatArray, FloatArray]] | None = None,
+        calibration: tuple[tuple[float, float, float], str] | None = None,
+        operator_model: tuple[str, ...] | None = None,
     ) -> None:
         """Log one control tick (see the module docstring for the entities). Never raises.
 
@@ -862,7 +872,10 @@ class RerunLog:
         status panel. ``placement``: the lines of a tracker's placement report (the
         verdict, then each object not in place), shown in the status panel;
         ``corrections``: the misplaced objects' moves, from where each stands to where it
-        should (``world/placement``)."""
+        should (``world/placement``). ``calibration``: the calibration target shown and its
+        label (``world/calibration/target``, and a status line with its distance from the
+        EE); ``operator_model``: lines about the operator model the certificates are for
+        (the status panel)."""
         if self._closed:
             return
         posterior = posterior or None  # an empty posterior (no goals in the stage) is none
@@ -881,8 +894,11 @@ class RerunLog:
             if mode != self._mode:
                 self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
                 self._mode = mode
-            self._log_status((mode, operator, phase, fault, stage), committed, placement)
+            lines = (*(placement or ()), *self._calibration_lines(calibration, ee),
+                     *(operator_model or ()))  # fmt: skip
+            self._log_status((mode, operator, phase, fault, stage), committed, lines)
             self._log_corrections(corrections or {})
+            self._log_calibration(calibration)
             self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("tick", exc)
@@ -923,6 +939,35 @@ class RerunLog:
             ]
         )
         self._stream.log(STATUS_DOC, rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN))
+
+    @staticmethod
+    def _calibration_lines(
+        calibration: tuple[tuple[float, float, float], str] | None, ee: FloatArray
+    ) -> tuple[str, ...]:
+        """The status line of the calibration target (its distance to the centimetre, so
+        the panel is re-sent about every 0.2 s while the EE moves)."""
+        if calibration is None:
+            return ()
+        target, label = calibration
+        cm = 100 * float(np.linalg.norm(np.asarray(target, dtype=np.float64) - ee))
+        return (f"calibration: {label}, {cm:.0f} cm to go",)
+
+    def _log_calibration(self, calibration: tuple[tuple[float, float, float], str] | None) -> None:
+        """The calibration target shown (re-sent when it changes; cleared when none is)."""
+        if calibration == self._calibration:
+            return
+        self._calibration = calibration
+        if calibration is None:
+            self._stream.log(CALIBRATION_TARGET_PATH, rr.Clear(recursive=False))
+            return
+        target, label = calibration
+        self._stream.log(
+            CALIBRATION_TARGET_PATH,
+            rr.Points3D(
+                [list(target)], labels=[label], colors=[_CALIBRATION], radii=0.015,
+                show_labels=True,
+            ),
+        )  # fmt: skip
 
     def _log_corrections(self, corrections: Mapping[str, tuple[FloatArray, FloatArray]]) -> None:
         """Arrows from where each misplaced object stands to where it should (re-sent when

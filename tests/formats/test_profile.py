@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -115,3 +116,60 @@ def test_bridge_limits_agree_with_the_control_table(
     message = str(info.value)
     assert message.startswith(f"{path}: {field}") and why in message
     assert "\n" not in message
+
+
+OPERATOR_FILE = {
+    "schema": 1, "name": "alice", "speed": 0.92, "sigma": 0.031, "rho": 0.83, "bias_deg": -4.1,
+    "steering": "free", "segments": 20, "ticks": 3120,
+    "intervals": {"speed": [0.9, 0.94], "sigma": [0.029, 0.033], "rho": [0.8, 0.86],
+                  "bias_deg": [-6.0, -2.2]},
+    "certify_with": {"speed": 0.9, "sigma": 0.033, "rho": 0.86, "bias_deg": -6.0,
+                     "steering": "free"},
+}  # fmt: skip
+
+
+def _with_operator(tmp_path: Path, value: str) -> Path:
+    text = (PROFILES / "sim.toml").read_text()
+    path = tmp_path / "bench" / "alice.toml"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(text.replace("[control]\n", f'[control]\noperator = "{value}"\n', 1))
+    return path
+
+
+def test_the_operator_key_is_relative_to_the_profiles_folder_and_read_on_load(
+    tmp_path: Path,
+) -> None:
+    profile = _with_operator(tmp_path, "people/alice.json")
+    (profile.parent / "people").mkdir()
+    (profile.parent / "people" / "alice.json").write_text(json.dumps(OPERATOR_FILE))
+    p = load_profile(profile)
+    assert p.control.operator == str((profile.parent / "people" / "alice.json").absolute())
+    assert load_profile(PROFILES / "sim.toml").control.operator is None
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (None, "control.operator: "),  # no such file
+        ('{"schema": 1}', "control.operator: "),
+        ("rho", "control.operator: "),  # a number out of its range
+    ],
+)
+def test_a_bad_operator_file_is_one_line_naming_the_profile_the_file_and_the_field(
+    tmp_path: Path, content: str | None, says: str
+) -> None:
+    profile = _with_operator(tmp_path, "alice.json")
+    target = profile.parent / "alice.json"
+    if content == "rho":
+        bad = {**OPERATOR_FILE, "rho": 1.5}
+        target.write_text(json.dumps(bad))
+    elif content is not None:
+        target.write_text(content)
+    with pytest.raises(InputError) as info:
+        load_profile(profile)
+    message = str(info.value)
+    assert message.startswith(f"{profile}: {says}")
+    assert str(target) in message
+    assert "\n" not in message
+    if content == "rho":
+        assert "rho" in message.split(str(target))[-1]

@@ -486,3 +486,33 @@ def test_a_curve_ends_when_inference_stops(tmp_path: Path, episode: Episode) -> 
     slack = _rows(path, "plots/slack", "Scalars:scalars")
     # a tick without a slack value does not end its line; the end of inference does
     assert [t for t, v in slack if np.isnan(v[0])] == [2]
+
+
+def test_a_calibration_target_is_drawn_labelled_and_cleared_and_the_panel_says_whose(
+    tmp_path: Path, episode: Episode
+) -> None:
+    """``legws operator calibrate``'s marker and panel line, and the operator model's lines
+    of ``legws daemon --operator`` in the status panel."""
+    path = tmp_path / "calibration.rrd"
+    target = (0.61, -0.12, 0.25)
+    who = ("operator model alice: s 0.90, sigma 0.033 m/s, rho 0.86, bias -6.0°, free",
+           "watch: operator alice: rho 0.93 seen, certified for ≤ 0.86")  # fmt: skip
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode, stage="calibration")
+        base = {**tick_kwargs(episode, 0, None), "mode": "calibrate"}
+        log.log_tick(0, 0.0, **base)  # no target yet
+        log.log_tick(1, 0.05, **base, calibration=(target, "target 3 of 20"))
+        log.log_tick(2, 0.10, **base, calibration=(target, "target 3 of 20"))
+        log.log_tick(3, 0.15, **base)  # reached: none until the next appears
+        log.log_tick(4, 0.20, **base, operator_model=who)
+    points = _rows(path, "world/calibration/target", "Points3D:positions")
+    assert [t for t, _ in points] == [1]  # sent once, when it appears
+    np.testing.assert_allclose(points[0][1][0], target, atol=1e-6)
+    assert _rows(path, "world/calibration/target", "Points3D:labels")[0][1] == ["target 3 of 20"]
+    assert 3 in [t for t, _ in _rows(path, "world/calibration/target", "Clear:is_recursive")]
+    docs = _rows(path, "status", "TextDocument:text")
+    assert [t for t, _ in docs] == [0, 1, 3, 4]
+    distance = 100 * np.linalg.norm(np.array(target) - episode.positions[0])
+    assert f"calibration: target 3 of 20, {distance:.0f} cm to go" in docs[1][1][0]
+    assert "rho 0.93 seen, certified for ≤ 0.86" in docs[3][1][0]
+    assert "**mode** calibrate" in docs[0][1][0]
