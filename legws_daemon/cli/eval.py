@@ -73,6 +73,13 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
     help="With run folders in --layouts: evaluate each run's K best verified elites "
     "(RUN/elites.json; K = 1 also reads best_layout.json). Default 1.",
 )
+@click.option(
+    "--operator",
+    "operator_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The simulated user steers like this person: an operator file's fitted model "
+    "(method.md §10: speed, noise and its correlation, bias, steering), with the robot's clip.",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def eval_cmd(
     scene_name: str,
@@ -83,6 +90,7 @@ def eval_cmd(
     cost: CostForm,
     episodes_per_goal: int | None,
     top_k: int | None,
+    operator_file: Path | None,
     quiet: bool,
 ) -> None:
     """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates,
@@ -94,11 +102,13 @@ def eval_cmd(
     from tqdm import tqdm
 
     from legws_daemon.formats.files import output_folder, write_atomic
+    from legws_daemon.formats.operator_file import load_operator
     from legws_daemon.scene.catalog import load_scene
     from legws_daemon.scene.constraints import require_feasible
     from legws_daemon.scene.layout_file import load_layout
     from legws_daemon.sim.evaluate import Elite, load_elites, markdown, random_layouts, run_eval
 
+    operator = load_operator(operator_file).fitted if operator_file is not None else None
     scene = load_scene(scene_name)
     kind, items = parse_layouts(layout_specs, scene.name)
     if top_k is not None and kind != "runs":
@@ -118,7 +128,7 @@ def eval_cmd(
     with tqdm(total=len(layouts), desc=f"eval {scene.name}", unit="layout", disable=quiet) as bar:
         report = run_eval(
             scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update,
-            episodes_per_goal=episodes_per_goal, elites=elites,
+            episodes_per_goal=episodes_per_goal, elites=elites, operator=operator,
         )  # fmt: skip
     text = markdown(report)
     if out_dir is not None:

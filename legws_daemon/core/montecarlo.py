@@ -251,14 +251,21 @@ def _sub_slices(trials: int, rows: int, goals: int) -> list[slice]:
 
 
 def _roll_to_horizon(
-    goals: GoalSet, params: Params, steps: IntArray, chunk: Streams, user: SimulatedUser
+    goals: GoalSet,
+    params: Params,
+    steps: IntArray,
+    chunk: Streams,
+    user: SimulatedUser,
+    rows: IntArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """Positions ``(M, n, 3)`` and path lengths ``(M, n)`` of a chunk's users at their
-    true goal's horizon."""
+    """Positions ``(m, n, 3)`` and path lengths ``(m, n)`` of a chunk's users at their
+    true goal's horizon, for the true goals ``rows`` (default all)."""
+    rows = np.arange(goals.m) if rows is None else rows
     n = sum(k for _, k in chunk)
-    walk = _Walkers(goals.x0.position, goals.positions[:, None, :], n, user, params)
-    for t in range(int(steps.max())):
-        walk.step(chunk, (t < steps)[:, None])
+    walk = _Walkers(goals.x0.position, goals.positions[rows, None, :], n, user, params)
+    mine = steps[rows]
+    for t in range(int(mine.max())):
+        walk.step(chunk, (t < mine)[:, None])
     return walk.x, walk.length
 
 
@@ -302,20 +309,26 @@ def simulate_user(
 
 
 def horizon_correct(
-    goals: GoalSet, params: Params, states: HorizonStates, cost: CostForm
+    goals: GoalSet,
+    params: Params,
+    states: HorizonStates,
+    cost: CostForm,
+    rows: IntArray | None = None,
 ) -> IntArray:
-    """Number of trials per true goal whose observer argmax at the horizon is the true goal
-    (evaluated in slices of trials that fit the memory budget)."""
+    """Number of trials per true goal (those of ``rows``, default all, one row of the states
+    each) whose observer argmax at the horizon is the true goal (evaluated in slices of
+    trials that fit the memory budget)."""
     trans0, rot = _start_terms(goals, params)
     d0 = trans0 + rot
     m, n = states.lengths.shape
+    truth = np.arange(goals.m) if rows is None else rows
     total = np.zeros(m, dtype=np.int64)
     for sub in _sub_slices(n, m, goals.m):
         diff = states.positions[:, sub, None, :] - goals.positions[None, None, :, :]
         dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
-        costs = path_costs(states.lengths[:, sub], dist_now, d0, cost)  # (M, n, M)
+        costs = path_costs(states.lengths[:, sub], dist_now, d0, cost)  # (m, n, M)
         best = np.argmin(costs, axis=-1)
-        total += (best == np.arange(goals.m)[:, None]).sum(axis=1)
+        total += (best == truth[:, None]).sum(axis=1)
     return total
 
 
@@ -328,10 +341,12 @@ def monte_carlo(
     clip_speed: bool = False,
     costs: Sequence[CostForm] | None = None,
     user: SimulatedUser | None = None,
+    true_goals: Sequence[int] | None = None,
 ) -> dict[CostForm, dict[str, GoalAccuracy]]:
     """Accuracy at the horizon per true goal, for each requested cost form; ``user``: who
     steers (default section 2's user, with the robot's clip when ``clip_speed``), checked at
-    the horizon of its own certificate.
+    the horizon of its own certificate; ``true_goals``: only those true goals are simulated
+    and reported.
 
     The same simulated trajectories serve every cost form (common random numbers), so the
     forms are compared on identical user behaviour. Same seed, same result, whatever the
@@ -348,16 +363,18 @@ def monte_carlo(
     rng = np.random.default_rng(seed)
     steps = _horizon(goals, params, clip_speed, user)
     who = _user(params, clip_speed, user)
-    correct = {form: np.zeros(goals.m, dtype=np.int64) for form in forms}
-    for chunk in _chunks(_streams(rng, trials), goals.m):
-        x, length = _roll_to_horizon(goals, params, steps, chunk, who)
-        states = HorizonStates(x, length, steps)
+    rows = _commit_rows(goals, true_goals)
+    correct = {form: np.zeros(len(rows), dtype=np.int64) for form in forms}
+    for chunk in _chunks(_streams(rng, trials), len(rows)):
+        x, length = _roll_to_horizon(goals, params, steps, chunk, who, rows)
+        states = HorizonStates(x, length, steps[rows])
         for form in forms:
-            correct[form] += horizon_correct(goals, params, states, form)
+            correct[form] += horizon_correct(goals, params, states, form, rows)
     out: dict[CostForm, dict[str, GoalAccuracy]] = {}
+    names = [goals.names[i] for i in rows]
     for form in forms:
         per_goal: dict[str, GoalAccuracy] = {}
-        for name, k in zip(goals.names, correct[form], strict=True):
+        for name, k in zip(names, correct[form], strict=True):
             lo, hi = clopper_pearson(int(k), trials)
             per_goal[name] = GoalAccuracy(int(k) / trials, lo, hi, int(k), trials)
         out[form] = per_goal
@@ -399,14 +416,19 @@ def _commit_chunks(
     user: SimulatedUser,
     forms: Sequence[CostForm],
     rows: IntArray,
+    until_arrival: bool = False,
 ) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
     """Per chunk of trials and cost form, the ``(step, goal, progress)`` of the first
-    commits ``(len(rows), n)`` of the true goals ``rows``."""
+    commits ``(len(rows), n)`` of the true goals ``rows``: up to ``T_a`` steps, or with
+    ``until_arrival`` up to each user's own arrival (closer than ``v_max dt`` to the goal;
+    at most :data:`ARRIVAL_SPAN` times ``T_a``)."""
     p0 = goals.x0.position
     m = len(rows)
     target = goals.positions[rows, None, :]
     trans0, rot = _start_terms(goals, params)
     t_a = _commit_arrivals(goals, params, user)[rows]
+    limit = ARRIVAL_SPAN * t_a if until_arrival else t_a
+    near = params.v_max * params.dt
     d0 = trans0 + rot
     way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
     for chunk in _chunks(_streams(rng, trials), m):
@@ -414,26 +436,37 @@ def _commit_chunks(
         subs = _sub_slices(n, m, goals.m)
         walk = _Walkers(p0, target, n, user, params)
         furthest = np.zeros((m, n))
+        arrived = np.zeros((m, n), dtype=bool)
         first_step = {f: np.zeros((m, n), dtype=np.int64) for f in forms}
         first_goal = {f: np.full((m, n), -1, dtype=np.int64) for f in forms}
         first_progress = {f: np.full((m, n), np.inf) for f in forms}
-        for t in range(1, int(t_a.max(initial=0)) + 1):
-            active = (t <= t_a)[:, None]  # (m, 1)
+        for t in range(1, int(limit.max(initial=0)) + 1):
+            committed = np.logical_and.reduce([first_goal[f] >= 0 for f in forms])
+            active = (t <= limit)[:, None] & ~arrived  # (m, n): still on the way
+            if not (active & ~committed).any():
+                break  # every user has made its first commit or arrived: nothing to learn
             walk.step(chunk, active)
             x, length = walk.x, walk.length
             furthest = np.maximum(furthest, np.einsum("mnk,mnk->mn", x - p0, way))
+            if until_arrival:
+                left = x - target
+                arrived |= np.einsum("mnk,mnk->mn", left, left) < near * near
             for sub in subs:
                 diff = x[:, sub, None, :] - goals.positions[None, None, :, :]
                 dist_now = np.sqrt(np.einsum("mngk,mngk->mng", diff, diff)) + rot
                 for form in forms:
                     post = posterior(path_costs(length[:, sub], dist_now, d0, form), params.beta)
                     goal = first_goal[form][:, sub]
-                    hit = (np.max(post, axis=-1) >= params.p_thresh) & active & (goal < 0)
+                    hit = (np.max(post, axis=-1) >= params.p_thresh) & active[:, sub] & (goal < 0)
                     step, progress = first_step[form][:, sub], first_progress[form][:, sub]
                     first_step[form][:, sub] = np.where(hit, t, step)
                     first_goal[form][:, sub] = np.where(hit, np.argmax(post, axis=-1), goal)
                     first_progress[form][:, sub] = np.where(hit, furthest[:, sub], progress)
         yield {f: (first_step[f], first_goal[f], first_progress[f]) for f in forms}
+
+
+#: With ``until_arrival`` a user is followed for at most this many times ``T_a`` steps.
+ARRIVAL_SPAN = 3
 
 
 def _commit_rows(goals: GoalSet, true_goals: Sequence[int] | None) -> IntArray:
@@ -473,6 +506,7 @@ def simulate_commits(
     costs: Sequence[CostForm] | None = None,
     true_goals: Sequence[int] | None = None,
     user: SimulatedUser | None = None,
+    until_arrival: bool = False,
 ) -> dict[CostForm, CommitRollouts]:
     """Roll out ``trials`` noisy users per true goal for ``T_a`` steps and record each
     observer's first commit, for each cost form on the same trajectories. With
@@ -480,7 +514,8 @@ def simulate_commits(
     that slower motion's (:func:`~legws_daemon.core.commit.clipped_user`); ``user`` is any
     simulated operator (method.md §10), rolled out for its own certificate's ``T_a``.
     ``true_goals`` limits the rollouts to those true goals (the other rows stay without a
-    commit).
+    commit). ``until_arrival``: each user is followed to its own arrival instead of
+    ``T_a`` (a slower user's commits, counted in progress along the way).
 
     Every trial's first commit is returned (``(M, N)`` arrays per form);
     :func:`monte_carlo_commit` keeps only the counts, in bounded memory."""
@@ -493,7 +528,7 @@ def simulate_commits(
     )  # fmt: skip
     who = _user(params, clip_speed, user)
     rows = _commit_rows(goals, true_goals)
-    parts = list(_commit_chunks(goals, params, trials, rng, who, forms, rows))
+    parts = list(_commit_chunks(goals, params, trials, rng, who, forms, rows, until_arrival))
     t_a_all = _commit_arrivals(goals, params, who)
     along = nominal_progress(goals, params, who, int(t_a_all.max()))
     out: dict[CostForm, CommitRollouts] = {}

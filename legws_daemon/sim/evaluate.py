@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
 from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.validation import Finite, read_json, validate
@@ -57,9 +58,9 @@ INTERVAL_KEYS = (
 )
 
 
-def _init_worker(scene_source: str, params: Params) -> None:
+def _init_worker(scene_source: str, params: Params, operator: OperatorModel | None = None) -> None:
     global _worker
-    _worker = Evaluator(load_scene(scene_source), params)
+    _worker = Evaluator(load_scene(scene_source), params, operator=operator)
 
 
 Job = tuple[int, Layout, int, int | None]
@@ -306,6 +307,7 @@ def run_eval(
     episodes_per_goal: int | None = None,
     elites: Sequence[Elite] | None = None,
     resamples: int = RESAMPLES,
+    operator: OperatorModel | None = None,
 ) -> dict[str, Any]:
     """Evaluate ``layouts``; returns the report (JSON-ready).
 
@@ -321,6 +323,8 @@ def run_eval(
             (:func:`load_elites`); adds ``by_elite`` (per position among the runs' verified
             elites) and, with two runs or more, intervals over runs.
         resamples: bootstrap resamples of the intervals.
+        operator: the simulated user steers like this operator (method.md §10, with the
+            robot's clip) instead of section 2's user; recorded as ``operator``.
 
     The report's ``aggregate`` holds :func:`metrics` over the pooled picks and
     ``intervals``: percentile bootstrap intervals (level 95 %) of :data:`INTERVAL_KEYS`
@@ -338,7 +342,7 @@ def run_eval(
     ]
     results: dict[int, tuple[dict[str, Any], list[PickResult]]] = {}
     if workers <= 1:
-        _init_worker(scene.source, params)
+        _init_worker(scene.source, params, operator)
         for job in jobs:
             i, extra, picks = _evaluate(job)
             results[i] = (extra, picks)
@@ -348,7 +352,7 @@ def run_eval(
         with ProcessPoolExecutor(
             max_workers=workers,
             initializer=_init_worker,
-            initargs=(scene.source, params),
+            initargs=(scene.source, params, operator),
             mp_context=worker_context(),
         ) as pool:
             for i, extra, picks in pool.map(_evaluate, jobs):
@@ -405,6 +409,8 @@ def run_eval(
         "seed": seed,
         "episodes_per_goal": episodes_per_goal,
         "params": params.as_dict(),
+        "user": "section 2's simulated user" if operator is None else "operator",
+        "operator": None if operator is None else operator.as_dict(),
         "aggregate": aggregate,
         "timing": {
             "seconds": seconds,
@@ -567,6 +573,18 @@ def user_model(params: dict[str, Any] | None) -> str:
     return USER_MODEL.format(sigma=p.get("sigma", 0.03), v_max=p.get("v_max", 0.05))
 
 
+def _who(report: dict[str, Any]) -> str:
+    """Whom a report's users simulate: section 2's user, or an operator (method.md §10)."""
+    op = report.get("operator")
+    if not op:
+        return user_model(report.get("params"))
+    return (
+        f"a simulated operator (method.md §10: speed {op['speed']:.2f}, sigma "
+        f"{op['sigma']:.3f} m/s, rho {op['rho']:.2f}, bias {op['bias_deg']:+.1f}°, "
+        f"{op['steering']} steering, clipped to the robot's speed), on the stand-in"
+    )
+
+
 def _pct(x: float | None) -> str:
     return "—" if x is None else f"{100 * x:.1f} %"
 
@@ -645,7 +663,7 @@ def markdown(report: dict[str, Any]) -> str:
         f"| {a['infeasible_picks']} | {a['episodes']} "
         f"| {_rate(report['timing']['episodes_per_second'])} |",
         "",
-        f"As the person sees them (method.md §9), for {user_model(report.get('params'))}.",
+        f"As the person sees them (method.md §9), for {_who(report)}.",
         "",
         RATE_NOTATION.replace("95 %", f"{100 * iv['level']:.0f} %")
         + f" Bootstrap: {iv['resamples']} resamples; none with one group.",

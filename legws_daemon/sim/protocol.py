@@ -45,6 +45,7 @@ from legws_daemon.autonomy.events import AssistFailed, Commit, Event, Fault, Sta
 from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.geometry import quat_to_matrix
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
@@ -306,13 +307,21 @@ class Evaluator:
         scene: the scene.
         params: observer, user-model and certificate parameters.
         profile: the stand-in's profile (default: :func:`stand_in_profile`).
+        operator: the simulated user steers like this operator (method.md §10, the
+            robot's clip) instead of section 2's user.
     """
 
     def __init__(
-        self, scene: Scene, params: Params | None = None, profile: ProfileSpec | None = None
+        self,
+        scene: Scene,
+        params: Params | None = None,
+        profile: ProfileSpec | None = None,
+        *,
+        operator: OperatorModel | None = None,
     ) -> None:
         self.scene = scene
         self.params = params or Params()
+        self.operator = operator
         self.profile = profile if profile is not None else stand_in_profile(self.params)
         self.clock = SimClock(self.params.dt)
         self.events: list[Event] = []
@@ -392,7 +401,10 @@ class Evaluator:
         first = len(self.events)  # a single candidate is committed to by the restart
         a.reset_arm()
         c.restart_task()
-        user = SimUser([goal], self.params.sigma, self.params.v_max, rng)
+        user = SimUser(
+            [goal], self.params.sigma, self.params.v_max, rng, operator=self.operator,
+            dt=self.params.dt,
+        )  # fmt: skip
         start = clock.ticks
         committed = confirmed = failure = None
         commit_time = complete_time = decision_time = None

@@ -308,19 +308,31 @@ def test_progress_is_the_path_length_at_the_certified_step_over_the_distance() -
     assert np.all(np.isnan(k.progress[~k.certified]))
 
 
+def orbiting(bias_deg: float = 80.0) -> OperatorModel:
+    """An operator turned beyond the model's range (which stops at 45°, where every nominal
+    arrives): its pursuit settles into an orbit of radius ``l / (2 cos b)`` around the goal,
+    wider than a step, and never arrives. Built past the validation on purpose: the code must
+    stay safe for a goal no nominal reaches."""
+    op = OperatorModel(1.0, 0.01, 0.0, 0.0, "free")
+    object.__setattr__(op, "bias_deg", bias_deg)
+    return op
+
+
 def test_a_goal_the_operator_cannot_reach_is_never_certified() -> None:
-    """With axis steering turned 45° the aim can point away from a goal; the nominal then
-    never arrives (method.md §10: uncertified)."""
+    """method.md §10: a nominal that does not arrive within 10^4 steps is not certified."""
     params = Params()
-    op = OperatorModel(1.0, 0.01, 0.0, 45.0, "axes")
+    op = orbiting()
     goals = np.array([[[0.85, 0.30, 0.30], [0.30, -0.40, 0.05]]])
     t_a, _ = nominal_steps(np.array(P0), goals, op, op.motion(params), params)
+    assert np.all(t_a == 0)
     k = commit_batch(P0, R0, goals, _rotations(np.zeros((1, 2))), np.ones(2), params, None,
                      "sum", op)  # fmt: skip
-    for i in range(2):
-        assert (t_a[0, i] == 0) == (not k.reachable[0, i])
-        if not k.reachable[0, i]:
-            assert not k.certified[0, i] and k.fraction[0, i] == np.inf
+    assert not k.reachable.any() and not k.certified.any()
+    assert np.all(k.fraction == np.inf) and np.all(k.arrival_steps == 0)
+    assert np.isinf(k.objective[0])
+    # within the model's range every nominal arrives (45° is the worst it allows)
+    edge = OperatorModel(1.0, 0.01, 0.0, 45.0, "axes")
+    assert np.all(nominal_steps(np.array(P0), goals, edge, edge.motion(params), params)[0] > 0)
 
 
 # --- the model's pieces -------------------------------------------------------------------
@@ -463,3 +475,21 @@ def test_goals_certified_for_an_operator_keep_their_promise_under_that_operator(
                 checked += 1
                 assert rates[name].upper95 >= 1 - params.alpha, (name, rates[name])
     assert checked >= 3
+
+
+def test_until_arrival_follows_a_slower_user_past_the_nominal_arrival() -> None:
+    """An idle-on-20 %-of-ticks user is at 80 % of the way by the model's T_a; followed to
+    its own arrival it makes the commits it would make, and those up to T_a are the same."""
+    from legws_daemon.core.montecarlo import simulate_commits
+    from legws_daemon.core.user_model import SimulatedUser
+
+    goals = _goal_set(np.array([[0.75, 0.12, 0.05], [0.75, -0.12, 0.05]]))  # told apart late
+    params = Params()
+    user = SimulatedUser(OperatorModel(), idle=0.2)
+    a = simulate_commits(goals, params, 300, np.random.default_rng(2), user=user)["dragan"]
+    b = simulate_commits(goals, params, 300, np.random.default_rng(2), user=user,
+                         until_arrival=True)["dragan"]  # fmt: skip
+    early = a.step > 0
+    np.testing.assert_array_equal(b.step[early], a.step[early])
+    assert (b.step > 0).sum() >= early.sum()
+    assert (b.step > a.arrival_steps[:, None]).any()  # commits after the model's arrival

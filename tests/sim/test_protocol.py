@@ -184,3 +184,43 @@ def test_eval_rejects_bad_layout_specs(capsys: pytest.CaptureFixture[str]) -> No
     assert err.count("\n") == 1
     assert "random:N" in err
     assert run(["eval", "--scene", "nope", "--quiet"]) == 2
+
+
+def test_an_operator_steers_the_stand_in_picks_as_its_model_says(tmp_path: Path) -> None:
+    """``legws eval --operator``: the simulated user of the picks is the file's fitted
+    operator — an axis-steering one moves the EE along one axis at a time."""
+    from legws_daemon.core.operator import OperatorModel
+    from legws_daemon.formats.operator_file import OperatorFile
+
+    keyboard = OperatorModel(1.0, 0.001, 0.0, 0.0, "axes")
+    sc = load_scene("kitchen_prep")
+    ev = Evaluator(sc, operator=keyboard)
+    ev.check(sc.default_layout())
+    ev.controller.load(sc, sc.default_layout(), scene_graph(sc))
+    seen: list[np.ndarray] = []
+    tick = ev.controller.tick
+
+    def spy(inp):  # type: ignore[no-untyped-def]
+        if inp is not None and np.any(inp.axes != 0):
+            seen.append(np.abs(inp.axes))
+        return tick(inp)
+
+    ev.controller.tick = spy  # type: ignore[method-assign]
+    pick = ev.pick("red_apple", np.random.default_rng(0))
+    assert pick.completed and seen
+    on_axis = [s.max() / max(np.linalg.norm(s), 1e-12) > 0.99 for s in seen]
+    assert np.mean(on_axis) > 0.95
+    person = tmp_path / "bob.json"
+    intervals = {
+        k: (getattr(keyboard, k), getattr(keyboard, k))
+        for k in ("speed", "sigma", "rho", "bias_deg")
+    }
+    OperatorFile("bob", keyboard, keyboard, intervals, 3, 100).write(person)
+    out = tmp_path / "run"
+    args = ["--layouts", "random:1", "--episodes-per-goal", "1", "--operator", str(person)]
+    code = run(["eval", "--scene", "kitchen_prep", *args, "--out", str(out), "--quiet",
+                "--workers", "1"])  # fmt: skip
+    assert code == 0
+    report = json.loads((out / "eval.json").read_text())
+    assert report["operator"] == keyboard.as_dict() and report["user"] == "operator"
+    assert "simulated operator" in (out / "eval.md").read_text()
