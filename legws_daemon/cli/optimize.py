@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from legws_daemon.cli.design_options import objective_options
+from legws_daemon.cli.design_options import load_operators, objective_options, operator_options
 from legws_daemon.design import METHODS
+
+if TYPE_CHECKING:
+    from legws_daemon.formats.operator_file import OperatorFile
 
 #: The progress bar's best score per objective: its name and the sign from the searched one.
 SHOWN = {"slack": ("best_J", 1), "commit": ("best_K", -1), "rate": ("best_R", 1),
@@ -31,6 +34,7 @@ RESULT_KEYS = ("objective", "commit_objective", "commit_certified", "commit_rate
               help="With --all: local worker processes (without --dask).")  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
 @objective_options("")
+@operator_options("")
 @click.option("--iterations", type=click.IntRange(1, 1_000_000), default=1000, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--movable", help="Comma-separated objects to place; all others stay fixed.")
@@ -49,6 +53,8 @@ def optimize_cmd(
     method: str,
     objective_kind: str,
     commit_form: str,
+    operator_file: Path | None,
+    operator_files: str | None,
     iterations: int,
     seed: int,
     movable: str | None,
@@ -61,7 +67,9 @@ def optimize_cmd(
     Writes summary.json, best_layout.json, goals.json, elites.json, archive.csv,
     archive.png and best_layout.png to the run folder; `legws certify RUN/goals.json
     --commit` reproduces objective and commit_objective. With --all, runs scenes × seeds on
-    a process pool or a Dask cluster.
+    a process pool or a Dask cluster. --operator FILE designs for one person (an operator
+    file), --operators A,B for the worst of a group; summary.json then reports each
+    person's certificates (operators) next to section 2's user's.
     """
     from tqdm import tqdm
 
@@ -71,9 +79,11 @@ def optimize_cmd(
     from legws_daemon.scene.catalog import scene_names as all_names
 
     names_given = [n.strip() for spec in scene_names for n in spec.split(",") if n.strip()]
+    people = load_operators(operator_file, operator_files)  # a bad file: one line, first
     if run_all_scenes:
         _run_all(names_given or all_names(), seeds, seed, dask_address, workers, method,
-                 objective_kind, commit_form, iterations, movable, out_dir, quiet)  # fmt: skip
+                 objective_kind, commit_form, people, iterations, movable, out_dir,
+                 quiet)  # fmt: skip
         return
     if seeds or dask_address:
         raise click.UsageError("--seeds and --dask go with --all")
@@ -97,8 +107,8 @@ def optimize_cmd(
 
         summary = optimize(
             scene, out, method=method, iterations=iterations, seed=seed, movable=names,
-            objective=objective_kind, commit_form=commit_form, use_cache=not no_cache,
-            progress=progress,
+            objective=objective_kind, commit_form=commit_form, operators=people,
+            use_cache=not no_cache, progress=progress,
         )  # fmt: skip
     keys = (*RESULT_KEYS, "evaluations", "seconds", "cached")
     click.echo(json.dumps({k: summary[k] for k in keys} | {"out": str(out)}))
@@ -113,6 +123,7 @@ def _run_all(
     method: str,
     objective_kind: str,
     commit_form: str,
+    people: tuple[OperatorFile, ...],
     iterations: int,
     movable: str | None,
     out_dir: Path | None,
@@ -145,6 +156,7 @@ def _run_all(
             None,
             objective_kind,
             commit_form,
+            people,
         )
         for sc in scenes
         for s in seed_list

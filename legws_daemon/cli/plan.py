@@ -8,13 +8,18 @@ from typing import Any
 
 import click
 
-from legws_daemon.cli.design_options import objective_options
+from legws_daemon.cli.design_options import load_operators, objective_options, operator_options
 from legws_daemon.design import METHODS
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
 
 def _j(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
+
+
+def _for_whom(settings: dict[str, Any]) -> str:
+    who = settings.get("design_for")
+    return f", designed for {who}" if isinstance(who, str) else ""
 
 
 def plan_rows(plan: Plan) -> list[list[str]]:
@@ -59,7 +64,8 @@ def render_table(plan: Plan) -> str:
     source = "from the cache" if plan.cached else f"{plan.seconds:.1f} s"
     lines = [
         f"plan of '{plan.taskgraph}' (scene {plan.scene}; {s['method']} for "
-        f"{s.get('objective', 'slack')}, {s['iterations']} iterations, seed {s['seed']}; "
+        f"{s.get('objective', 'slack')}{_for_whom(s)}, {s['iterations']} iterations, "
+        f"seed {s['seed']}; "
         f"{source}){where}",
         "",
         line(header),
@@ -82,6 +88,7 @@ def render_table(plan: Plan) -> str:
 )  # fmt: skip
 @click.option("--method", type=click.Choice(METHODS), default="cma-me", show_default=True)
 @objective_options("Per decision: ")
+@operator_options("Per decision: ")
 @click.option(
     "--iterations", type=click.IntRange(1, 1_000_000), default=DEFAULT_ITERATIONS,
     show_default=True, help="Search iterations per optimised decision.",
@@ -96,6 +103,8 @@ def plan_cmd(
     method: str,
     objective_kind: str,
     commit_form: str,
+    operator_file: Path | None,
+    operator_files: str | None,
     iterations: int,
     seed: int,
     no_cache: bool,
@@ -110,7 +119,10 @@ def plan_cmd(
     decision's targets from the EE home (--objective commit: to minimise the commit
     objective K, the latest certified commit as a fraction of the way); every other object
     keeps its pose from the decision before. Single-candidate decisions need no inference.
-    Writes plan.json and a top-view PNG per decision; results are cached by the graph
+    --operator FILE designs every decision for one person (an operator file), --operators
+    A,B for the worst of a group; plan.json's settings record them (the certificates it
+    records stay section 2's user's). Writes plan.json and a top-view PNG per decision;
+    results are cached by the graph
     file, the scene file and the settings. A cached plan is used only while every stage
     layout meets the scene's constraints (as a --layout file must) and its recorded
     certificates are the ones its layouts give; else a warning, and it is planned again.
@@ -120,6 +132,7 @@ def plan_cmd(
     from legws_daemon.task.plan_file import plan_to_data
     from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
+    people = load_operators(operator_file, operator_files)  # a bad file: one line, first
     graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))
     if out_dir is None and no_cache:
         out_dir = Path("out") / "plan" / graph.name
@@ -127,7 +140,7 @@ def plan_cmd(
         output_folder(out_dir)  # a file or device in the way: one line before any planning
     plan = plan_taskgraph(
         graph, scene, method=method, iterations=iterations, seed=seed, objective=objective_kind,
-        commit_form=commit_form,
+        commit_form=commit_form, operators=people,
         progress=not quiet, use_cache=not no_cache, out_dir=out_dir,
     )  # fmt: skip
     if as_json:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.robot.assets import sawyer_dir
 from legws_daemon.workers import worker_context
 
@@ -39,6 +40,7 @@ class Job:
     movable: tuple[str, ...] | None
     objective: str = "slack"
     commit_form: str = "sum"
+    operators: tuple[OperatorFile, ...] = ()  # design for these people (the worst of them)
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -55,6 +57,7 @@ def run_job(job: Job) -> dict[str, Any]:
         movable=job.movable,
         objective=job.objective,
         commit_form=job.commit_form,
+        operators=job.operators,
     )
     return {**summary, "seed": job.seed, "out": job.out_dir}
 

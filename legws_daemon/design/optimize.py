@@ -5,7 +5,8 @@ Outputs in the run folder (interfaces.md): ``summary.json`` (``objective``, ``co
 (certifying it reproduces ``objective`` exactly: ``objective`` *is* that certificate; and
 ``commit_objective``/``commit_certified`` are its commit certificate, method.md §9;
 ``commit_rate_estimate`` its estimated commit rate R, ``commit_time_estimate`` its
-estimated commit time T in seconds),
+estimated commit time T in seconds; ``operators`` the same certificates for each person
+designed for, ``design_for`` who that was),
 ``elites.json`` (the elites checked in full, best first, with ``verified``: what ``legws
 eval --top-k`` evaluates), ``archive.csv``, ``archive.png`` (heatmap of the searched score
 over the grid) and ``best_layout.png``. The search maximises J (``objective="slack"``),
@@ -24,7 +25,7 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,11 +37,12 @@ from legws_daemon.core.commit import (
     commit_time_estimate,
 )
 from legws_daemon.core.params import Params
+from legws_daemon.design.operators import design_for, operator_report, operator_settings
 from legws_daemon.design.problem import LayoutProblem
-from legws_daemon.design.search import GRID, SearchResult, search
 from legws_daemon.errors import InfeasibleError, LegwsError
 from legws_daemon.formats.files import output_folder, read_limited, write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
+from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.validation import read_json
 from legws_daemon.robot.assets import model_digest
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
@@ -50,6 +52,9 @@ from legws_daemon.robot.reachability import load_or_build
 from legws_daemon.robot.world import World
 from legws_daemon.scene.layout_file import dump_json, layout_to_data
 from legws_daemon.scene.scene import Scene
+
+if TYPE_CHECKING:  # the search itself (pyribs, numba) is imported only when it runs
+    from legws_daemon.design.search import SearchResult
 
 #: Elites tried, best first, before giving up on finding one that passes the full check.
 MAX_VERIFIED = 60
@@ -151,6 +156,8 @@ def heatmap_png(result: SearchResult) -> bytes:
     grey: empty or infeasible)."""
     from PIL import Image
 
+    from legws_daemon.design.search import GRID
+
     grid = np.full(GRID[0] * GRID[1], np.nan)
     for row in result.table:
         if row["feasible_screen"]:
@@ -180,12 +187,21 @@ def optimize(
     movable: Sequence[str] | None = None,
     objective: str = "slack",
     commit_form: str = "sum",
+    operators: Sequence[OperatorFile] = (),
     use_cache: bool = True,
     render: bool = True,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> dict[str, Any]:
-    """Optimise a scene's layout and write the run folder; returns the summary."""
-    problem = LayoutProblem(scene, movable, Params(), objective=objective, commit_form=commit_form)
+    """Optimise a scene's layout and write the run folder; returns the summary.
+
+    ``operators``: design for these people (their ``certify_with`` models, the worst of
+    them; method.md §10); empty: for section 2's user."""
+    from legws_daemon.design.search import search
+
+    problem = LayoutProblem(
+        scene, movable, Params(), objective=objective, commit_form=commit_form,
+        operators=[f.certify_with for f in operators],
+    )  # fmt: skip
     check_capacity(problem)
     settings = {
         "scene": scene.name,
@@ -198,6 +214,8 @@ def optimize(
     }
     if objective == "commit":  # what the search minimised: K of this form
         settings["commit_form"] = commit_form
+    if operators:  # for whom (absent: section 2's user, as runs before the option)
+        settings["operators"] = operator_settings(operators)
     key = settings_key(scene, settings)
     cached = cache_dir() / key
     output_folder(out_dir)
@@ -247,6 +265,9 @@ def optimize(
         "key": key,
         "cached": False,
         **settings,
+        # each person's certificates of the written goals (numpy, the robot's clip)
+        "operators": [operator_report(written, params, f) for f in operators],
+        "design_for": design_for([f.name for f in operators]),
     }
     buf = io.StringIO()
     if result.table:

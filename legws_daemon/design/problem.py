@@ -22,8 +22,21 @@ does not see how long the way is). The penalties:
 
 * ``CONSTRAINT_WEIGHT`` per metre of constraint violation (bounds, clearance to every
   other object including fixed ones, distance from the EE home in the table plane);
-* ``UNREACHABLE_PENALTY`` per goal the reachability map screens out;
-* ``INFEASIBLE_OFFSET`` once when either is non-zero.
+* ``UNREACHABLE_PENALTY`` per goal the reachability map screens out, and per goal that a
+  designed-for operator's nominal never reaches (method.md §10: its K and T are infinite,
+  so the score counts as :data:`NOT_REACHED_SCORE`);
+* ``INFEASIBLE_OFFSET`` once when any is non-zero.
+
+**Designed for people** (``operators``, method.md §10): every score is computed for each
+operator with the robot's clip (``op.motion(params, clip=True)``) and the worst is searched:
+J the smallest, K the largest, R the smallest, T the largest over the operators. Without
+operators the scores are section 2's user's as above.
+
+The search's K, R and T (and J under operators) come from the compiled kernels of
+:mod:`.fast_objectives` (the same definitions as the numpy reference of
+:mod:`legws_daemon.core`, to ~1e-12); J for section 2's user stays the numpy
+:func:`~legws_daemon.core.certificate.certify_batch` (bit for bit as before).
+What a run reports (``summary.json``, ``plan.json``) is computed with the numpy reference.
 
 Measures: mean pairwise distance between the movable objects, and the distance of their
 centroid from the workspace centre (goals that stay put count as points too).
@@ -39,14 +52,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from legws_daemon.core.certificate import certify_batch
-from legws_daemon.core.commit import (
-    COMMIT_FORMS,
-    clipped_user,
-    commit_batch,
-    commit_chance_batch,
-    commit_time_batch,
-)
+from legws_daemon.core.commit import COMMIT_FORMS, clipped_user
 from legws_daemon.core.geometry import FloatArray, IntArray
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.design import OBJECTIVES
 from legws_daemon.errors import InputError
@@ -60,6 +68,9 @@ CONSTRAINT_WEIGHT = 100.0
 UNREACHABLE_PENALTY = 2.0
 #: Paid once by every infeasible layout, so that it ranks below every feasible one.
 INFEASIBLE_OFFSET = 10.0
+#: The searched score of a layout in which a designed-for operator's nominal never reaches
+#: some goal (its K and T are infinite; the archive takes finite numbers only).
+NOT_REACHED_SCORE = -100.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,6 +85,8 @@ class Evaluation:
     commit: FloatArray | None = None  # (B,) K, with objective="commit"
     rate: FloatArray | None = None  # (B,) R, with objective="rate"
     time: FloatArray | None = None  # (B,) T in seconds, with objective="time"
+    #: (B,) goals some designed-for operator's nominal never reaches (commit, rate, time)
+    unreached: FloatArray | None = None
 
     @property
     def score(self) -> FloatArray:
@@ -86,7 +99,10 @@ class Evaluation:
 
     @property
     def feasible(self) -> np.ndarray:
-        return np.asarray((self.violation == 0.0) & (self.unreachable == 0))
+        ok = (self.violation == 0.0) & (self.unreachable == 0)
+        if self.unreached is not None:
+            ok &= self.unreached == 0
+        return np.asarray(ok)
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,6 +170,8 @@ class LayoutProblem:
             commit time T).
         commit_form: the commit slack's form for ``"commit"`` (``core.commit``): the exact
             ``"sum"`` (default: the tightest honest one) or section 9's ``"min"``.
+        operators: design for these people (method.md §10, with the robot's clip): the
+            worst of them is searched. Empty: section 2's user.
     """
 
     def __init__(
@@ -167,6 +185,7 @@ class LayoutProblem:
         base: Mapping[str, ObjectPose] | None = None,
         objective: str = "slack",
         commit_form: str = "sum",
+        operators: Sequence[OperatorModel] = (),
     ) -> None:
         if commit_form not in COMMIT_FORMS:
             raise InputError(
@@ -201,6 +220,7 @@ class LayoutProblem:
         self.names = names
         self.goals = goals if goals is not None else GraspGoals(scene, names)
         self.params = params or Params()
+        self.operators = tuple(operators)
         self.screen = screen
         ws = scene.workspace
         self._lo = np.array([ws.x_range[0], ws.y_range[0], -np.pi])
@@ -244,34 +264,70 @@ class LayoutProblem:
     def evaluate(self, x: ArrayLike) -> Evaluation:
         """Objective, certificate, penalties and measures of normalised solutions ``(B, 3K)``."""
         poses = self.decode(x)
-        sc = self.scene
         g = self.goals.poses(poses)
-        home = sc.home
-        args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
-        J = certify_batch(*args).objective
-        K = R = T = None
-        if self.objective == "commit":
-            K = commit_batch(*args, form=self.commit_form).objective
-        elif self.objective == "rate":
-            R = commit_chance_batch(*args, clipped_user(self.params)).mean(axis=1)
-        elif self.objective == "time":
-            T = commit_time_batch(*args, clipped_user(self.params)).mean(axis=1)
+        J, K, R, T, unreached = self.scores(g)
         violation = self.constraints.violation(poses)
         if self.screen is not None:
             unreachable = self.goals.unreachable(self.screen, poses)
         else:
             unreachable = np.zeros(len(poses))
-        infeasible = (violation > 0) | (unreachable > 0)
+        lost = np.zeros(len(poses)) if unreached is None else unreached
+        infeasible = (violation > 0) | (unreachable > 0) | (lost > 0)
         ev = Evaluation(np.zeros(len(poses)), J, violation, unreachable, self.measures(poses),
-                        K, R, T)  # fmt: skip
+                        K, R, T, unreached)  # fmt: skip
         # the searched score (Evaluation.score: J, -K, R or -T) minus the penalties
+        score = np.where(np.isfinite(ev.score), ev.score, NOT_REACHED_SCORE)
         objective = (
-            ev.score
+            score
             - CONSTRAINT_WEIGHT * violation
-            - UNREACHABLE_PENALTY * unreachable
+            - UNREACHABLE_PENALTY * (unreachable + lost)
             - INFEASIBLE_OFFSET * infeasible
         )
         return replace(ev, objective=objective)
+
+    def scores(
+        self, g: GoalPoses
+    ) -> tuple[
+        FloatArray, FloatArray | None, FloatArray | None, FloatArray | None, FloatArray | None
+    ]:
+        """``(J, K, R, T, unreached)`` of goal poses ``(B, M)``: J always, the objective's
+        score (the others ``None``), and the goals an operator does not reach (``None``
+        without operators or for the slack). With operators, the worst over them."""
+        from legws_daemon.design.fast_objectives import Objectives  # numba: the search only
+
+        home = self.scene.home
+        args = (home.position, home.rotation, g.positions, g.rotations, g.symmetry, self.params)
+        fast = Objectives(*args)
+        kind, form = self.objective, self.commit_form
+        if not self.operators:
+            J = certify_batch(*args).objective  # numpy: J as before, whatever is searched
+            if kind == "commit":
+                return J, fast.commit(form=form).objective, None, None, None
+            if kind == "rate":
+                return J, None, fast.chance(clipped_user(self.params)).mean(axis=1), None, None
+            if kind == "time":
+                return J, None, None, fast.time(clipped_user(self.params)).mean(axis=1), None
+            return J, None, None, None, None
+        per_op: list[FloatArray] = []
+        slacks: list[FloatArray] = []
+        lost = np.zeros(len(g.positions))
+        for op in self.operators:
+            user = op.motion(self.params, clip=True)
+            if kind == "slack":
+                slacks.append(fast.slack(op, user).min(axis=1))
+                continue
+            slack, value, arrived = fast.scores(kind, op, user, form)
+            slacks.append(slack.min(axis=1))
+            per_op.append(value.max(axis=1) if kind == "commit" else value.mean(axis=1))
+            lost = np.maximum(lost, (arrived == 0).sum(axis=1))
+        J = np.min(slacks, axis=0)
+        if kind == "slack":
+            return J, None, None, None, None
+        if kind == "commit":
+            return J, np.max(per_op, axis=0), None, None, lost
+        if kind == "rate":
+            return J, None, np.min(per_op, axis=0), None, lost
+        return J, None, None, np.max(per_op, axis=0), lost
 
     def layout(self, solution: ArrayLike) -> Layout:
         """One normalised solution as a :data:`Layout` of the movable objects."""

@@ -34,9 +34,10 @@ import logging
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -52,6 +53,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.design import METHODS, OBJECTIVES
+from legws_daemon.design.operators import design_for, operator_settings, worst_score
 from legws_daemon.design.optimize import check_capacity
 from legws_daemon.design.plan_cache import (
     PLAN_FILE,
@@ -63,10 +65,10 @@ from legws_daemon.design.plan_cache import (
     read_cached,
 )
 from legws_daemon.design.problem import LayoutProblem
-from legws_daemon.design.search import SearchResult, search
 from legws_daemon.design.stage_goals import TargetGoals
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.files import write_atomic
+from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.planner import MotionPlanner, stand_in_planner
 from legws_daemon.robot.reachability import ReachabilityMap, load_or_build
@@ -78,6 +80,9 @@ from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision, image_name
 from legws_daemon.task.plan_file import dump_plan
 from legws_daemon.task.targets import Target, goal_set
+
+if TYPE_CHECKING:  # the search (pyribs, numba) is imported only when a decision is searched
+    from legws_daemon.design.search import SearchResult
 
 #: Elites tried, best first, before the plan gives up on a decision's full check.
 MAX_VERIFIED = 30
@@ -100,8 +105,13 @@ class _Planner:
     commit_form: str
     world: World
     q_home: FloatArray
+    operators: tuple[OperatorFile, ...] = ()
     _screen: ReachabilityMap | None = None
     _motion: MotionPlanner | None = None
+    _models: tuple[Any, ...] = field(default=(), repr=False)
+
+    def __post_init__(self) -> None:
+        self._models = tuple(f.certify_with for f in self.operators)
 
     @property
     def screen(self) -> ReachabilityMap:
@@ -129,7 +139,13 @@ class _Planner:
         return commit_rate_estimate(self.goals(point, layout), self.params)
 
     def score(self, point: DecisionPoint, layout: Layout) -> float:
-        """What the search maximises: J, -K (of the design's commit form), R or -T."""
+        """What the search maximises: J, -K (of the design's commit form), R or -T (for the
+        operators designed for, the worst of theirs)."""
+        if self._models:
+            return worst_score(
+                self.objective, self.goals(point, layout), self.params, self._models,
+                self.commit_form,
+            )  # fmt: skip
         if self.objective == "commit":
             return -self.commit(point, layout, self.commit_form).objective
         if self.objective == "rate":
@@ -212,6 +228,8 @@ def _plan_decision(p: _Planner, index: int, point: DecisionPoint, base: Layout) 
             f"optimised {', '.join(names)}: J {j_start:.3f} -> {j:.3f}, "
             f"K {k_start.objective:.3f} -> {k.objective:.3f}, R {r_start:.2f} -> {r:.2f}"
         )
+        if p.operators:  # the numbers are section 2's user's; the search was the people's
+            note += f" (designed for {design_for([f.name for f in p.operators])})"
     else:
         note = f"no layout passed the full check: {problem}"
     return replace(
@@ -241,7 +259,7 @@ def _search(
     goals = TargetGoals(p.scene, point, names, base)
     problem = LayoutProblem(
         p.scene, names, p.params, p.screen, goals=goals, base=base, objective=p.objective,
-        commit_form=p.commit_form,
+        commit_form=p.commit_form, operators=p._models,
     )  # fmt: skip
     check_capacity(problem)
     result = _run_search(p, problem, point.label, p.seed + index)
@@ -264,6 +282,20 @@ def _search(
     if start_ok:
         return dict(base), None
     return (fallback or dict(base)), (first_problem or "no elite met the layout constraints")
+
+
+def search(
+    problem: LayoutProblem,
+    method: str = "cma-me",
+    iterations: int = 1000,
+    seed: int = 0,
+    progress: Callable[[int, float, float], None] | None = None,
+) -> SearchResult:
+    """:func:`legws_daemon.design.search.search`, imported when a decision is searched: a
+    cached plan (the daemon's ``cached_plan``) loads neither pyribs nor numba."""
+    from legws_daemon.design.search import search as run
+
+    return run(problem, method, iterations, seed, progress)
 
 
 def _run_search(p: _Planner, problem: LayoutProblem, label: str, seed: int) -> SearchResult:
@@ -314,8 +346,10 @@ def plan_settings(
     objective: str = "slack",
     commit_form: str = "sum",
     params: Params | None = None,
+    operators: Sequence[OperatorFile] = (),
 ) -> dict[str, Any]:
-    """The settings a plan's cache key is made of (``plan.json``'s ``settings``)."""
+    """The settings a plan's cache key is made of (``plan.json``'s ``settings``): with
+    ``operators`` also each person's ``name`` and ``model`` and ``design_for``."""
     settings: dict[str, Any] = {
         "method": method,
         "iterations": iterations,
@@ -326,6 +360,9 @@ def plan_settings(
     if objective != "slack":  # absent means slack: plans made before the option keep their key
         settings["objective"] = objective
         settings["commit_form"] = commit_form
+    if operators:  # absent means section 2's user (the key of plans made before the option)
+        settings["operators"] = operator_settings(operators)
+        settings["design_for"] = design_for([f.name for f in operators])
     return settings
 
 
@@ -361,6 +398,7 @@ def plan_taskgraph(
     objective: str = "slack",
     commit_form: str = "sum",
     params: Params | None = None,
+    operators: Sequence[OperatorFile] = (),
     progress: bool = False,
     use_cache: bool = True,
     out_dir: Path | None = None,
@@ -376,6 +414,9 @@ def plan_taskgraph(
         commit_form: with ``commit``, the commit slack's form (``core.commit``); plan.json
             records section 9's K (``min``) either way.
         params: model parameters of the certificate (default: the method's).
+        operators: design every decision for these people (the worst of them, method.md
+            §10, the robot's clip); plan.json's ``settings`` records them. The recorded
+            certificates stay section 2's user's.
         progress: a progress bar per search on stderr.
         use_cache: load the plan from the cache when there, and store it there.
         out_dir: also copy ``plan.json`` and the pictures into this folder.
@@ -398,7 +439,7 @@ def plan_taskgraph(
             field="--objective",
         )
     params = params or Params()
-    settings = plan_settings(method, iterations, seed, objective, commit_form, params)
+    settings = plan_settings(method, iterations, seed, objective, commit_form, params, operators)
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
     cached = load_cached(folder, graph, scene) if use_cache else None
@@ -419,6 +460,7 @@ def plan_taskgraph(
         commit_form,
         world,
         np.asarray(q_home, dtype=np.float64),
+        tuple(operators),
     )
     planned = _plan(planner)
     decisions = [d for _, d in planned]

@@ -21,7 +21,11 @@ Written by ``legws plan`` (:func:`legws_daemon.design.stage_plan.plan_taskgraph`
 ``commit_objective`` (K, method.md §9), ``commit_certified`` and ``commit_rate_estimate``
 (R, in [0, 1]) are optional (plans written before them have none) and ``null`` without
 inference; ``settings.objective`` says what the search maximised (``slack``: J,
-``commit``: -K, ``rate``: R; absent means ``slack``).
+``commit``: -K, ``rate``: R, ``time``: -T; absent means ``slack``). ``settings.operators``
+(``legws plan --operator|--operators``) lists the people the layouts were designed for,
+each ``{"name", "model"}`` (the ``certify_with`` model of their operator file), and
+``settings.design_for`` says so in words (``"alice"``, ``"worst of alice, bob"``); absent
+means section 2's user. The certificates a plan records are section 2's user's either way.
 Errors name the file and the field, e.g. ``plan.json: decisions[1].layout.grape.x: ...``.
 
 :func:`load_plan` checks the file; :func:`check_plan` checks a plan against its task graph
@@ -41,9 +45,11 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, model_validator
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.commit import CommitCertificate, certify_commit, commit_rate_estimate
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import ParamsSchema
+from legws_daemon.formats.operator_file import ModelSchema, OperatorName
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
@@ -235,14 +241,51 @@ def load_plan(path: Path, scene: Scene | None = None) -> Plan:
 TOLERANCE = 1e-6
 
 
+class _DesignedFor(_Model):
+    name: OperatorName
+    model: ModelSchema
+
+
 class _Settings(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     params: ParamsSchema = ParamsSchema()
+    operators: Annotated[list[_DesignedFor], Field(min_length=1, max_length=64)] | None = None
+    design_for: Annotated[str, Field(max_length=4000)] | None = None
+
+    @model_validator(mode="after")
+    def _named(self) -> _Settings:
+        if (self.operators is None) != (self.design_for is None):
+            raise field_error(("design_for",), "expected with settings.operators, and only then")
+        if self.operators is not None:
+            names = [o.name for o in self.operators]
+            if len(set(names)) != len(names):
+                raise field_error(("operators",), "an operator is listed twice")
+            said = names[0] if len(names) == 1 else "worst of " + ", ".join(names)
+            if self.design_for != said:
+                raise field_error(("design_for",), f"expected {said!r} (the operators)")
+        return self
 
 
 class _SettingsOf(BaseModel):
     settings: _Settings
+
+
+def plan_operators(plan: Plan, source: str) -> list[tuple[str, OperatorModel]]:
+    """The people the plan was designed for (``settings.operators``: name and model; empty:
+    section 2's user), each model checked as an operator file's."""
+    doc = validate(_SettingsOf, {"settings": plan.settings}, source)
+    out = []
+    for i, o in enumerate(doc.settings.operators or []):
+        m = o.model
+        try:
+            out.append((o.name, OperatorModel(m.speed, m.sigma, m.rho, m.bias_deg, m.steering)))
+        except InputError as err:
+            message = str(err).removeprefix(f"{err.field}: ")
+            raise InputError(
+                message, source=source, field=f"settings.operators[{i}].model.{err.field}"
+            ) from None
+    return out
 
 
 def plan_params(plan: Plan, source: str) -> Params:
@@ -298,6 +341,7 @@ def check_plan(plan: Plan, graph: TaskGraph, scene: Scene, source: str) -> Plan:
             f"expected scene '{scene.name}', got '{plan.scene}'", source=source, field="scene"
         )
     params = plan_params(plan, source)
+    plan_operators(plan, source)  # for whom it was designed: valid models (or none)
     points = decision_points(graph)
     index = _match(plan, points, graph, source)
     constraints = LayoutConstraints.of(scene)
