@@ -149,7 +149,7 @@ def sim_user_cmd(
                 stop.set()
                 return None
             now = time.monotonic()
-            return user.sample(watch.latest(now), now)
+            return user.sample(watch.latest(now), now, watch.received)
 
         wanted = ", ".join(goals) or "a random goal at each decision"
         who = "" if operator is None else f" steering like {operator.describe()}"

@@ -24,8 +24,9 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -127,6 +128,10 @@ class SimUser:
     _stick: OperatorStick | None = field(default=None, init=False, repr=False)
     _reach: tuple[str, tuple[float, ...]] | None = field(default=None, init=False, repr=False)
     _last: float | None = field(default=None, init=False, repr=False)
+    # the deflections sent lately (bounded: a status older than these is stale anyway)
+    _sent: deque[tuple[float, FloatArray]] = field(
+        default_factory=lambda: deque(maxlen=256), init=False, repr=False
+    )
 
     def __post_init__(self) -> None:
         if self.operator is not None:
@@ -209,15 +214,39 @@ class SimUser:
                 return UserAction(np.zeros(3), cancel=True)
         return _hands_off()
 
-    def sample(self, status: StatusMessage | None, now: float) -> Sample | None:
-        """What the user publishes given the newest status (``None``: nothing to go on)."""
+    def sample(
+        self, status: StatusMessage | None, now: float, received: float | None = None
+    ) -> Sample | None:
+        """What the user publishes given the newest status (``None``: nothing to go on).
+
+        ``received``: when that status arrived (the same clock as ``now``). Status comes at
+        10 Hz, the stick moves the arm at every tick: while the person steers, the EE is
+        taken to be where the status said plus what the deflections sent since then moved
+        it (``v_max u`` over each one's time), as a person watching the arm sees it — an
+        aim from a position up to 100 ms old would turn with it from tick to tick."""
         view = UserView.from_status(status) if status is not None else None
         if view is None:
             return None
+        if received is not None and view.mode in ("teleop", CALIBRATE):
+            view = replace(view, ee_position=view.ee_position + self._moved_since(received, now))
         a = self.act(view, now)
+        self._sent.append((now, np.asarray(a.axes, dtype=np.float64)))
         x, y, z = (float(v) for v in a.axes)
         # a simulated person holding the enable button throughout (it claims a free lease)
         return (x, y, z), Buttons(cancel=a.cancel, confirm=a.confirm, enable=True)
+
+    def _moved_since(self, received: float, now: float) -> FloatArray:
+        """How far the deflections sent since ``received`` moved the EE by ``now``."""
+        while len(self._sent) > 1 and self._sent[1][0] <= received:
+            self._sent.popleft()  # older than the status: in its EE already
+        moved = np.zeros(3)
+        if not self._sent:
+            return moved
+        for (t, u), nxt in zip(self._sent, [*list(self._sent)[1:], (now, None)], strict=True):
+            start, end = max(t, received), nxt[0]
+            if end > start:  # the robot clips |u| to 1
+                moved += self.v_max * (end - start) * u / max(1.0, float(np.linalg.norm(u)))
+        return moved
 
 
 class StatusWatch:
@@ -248,3 +277,9 @@ class StatusWatch:
             if now - self._received > STATUS_STALE:
                 return None
             return self._status
+
+    @property
+    def received(self) -> float:
+        """When the newest status arrived (``time.monotonic``)."""
+        with self._lock:
+            return self._received

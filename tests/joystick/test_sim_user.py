@@ -170,3 +170,28 @@ def test_the_cli_options_make_the_operator_and_refuse_mixing_with_a_file(
     path.write_text("{}")
     assert run(["joystick", "sim-user", "--operator", str(path), "--duration", "0.1"]) == 2
     assert run(["joystick", "sim-user", "--operator", str(path), "--rho", "0.5"]) == 2
+
+
+def test_between_status_messages_it_aims_from_where_its_own_deflections_moved_the_arm() -> None:
+    # the target 0.1 m along x and 0.1 m along y from the EE the status shows
+    u = SimUser(["a"], 0.0, 0.2, np.random.default_rng(0))
+    shown = status(a=[0.1, 0.1, 0.0])
+    first = u.sample(shown, 0.0, received=0.0)
+    assert first is not None
+    np.testing.assert_allclose(first[0], [2**-0.5, 2**-0.5, 0.0], atol=1e-9)
+    # 0.25 s later with no new status: the arm went 0.05 m along the diagonal
+    later = u.sample(shown, 0.25, received=0.0)
+    assert later is not None
+    np.testing.assert_allclose(later[0], [2**-0.5, 2**-0.5, 0.0], atol=1e-9)
+    # an aim off the diagonal shows the dead reckoning: the target straight along +y of the
+    # status's EE, but the stick has pushed +x meanwhile
+    u = SimUser(["a"], 0.0, 0.2, np.random.default_rng(0))
+    assert u.sample(status(a=[0.2, 0.0, 0.0]), 0.0, received=0.0) is not None  # sends +x
+    s = u.sample(status(a=[0.1, 0.1, 0.0]), 0.5, received=0.0)  # moved 0.1 m along +x
+    assert s is not None
+    np.testing.assert_allclose(s[0], [0.0, 1.0, 0.0], atol=1e-9)
+    # without the time of the status, the aim is from the EE shown, as before
+    u = SimUser(["a"], 0.0, 0.2, np.random.default_rng(0))
+    s = u.sample(status(a=[0.1, 0.1, 0.0]), 0.5)
+    assert s is not None
+    np.testing.assert_allclose(s[0], [2**-0.5, 2**-0.5, 0.0], atol=1e-9)
