@@ -159,14 +159,16 @@ def check_layout(
     }  # fmt: skip
     if slack_ok.any():
         wanted = np.flatnonzero(slack_ok).tolist()
-        acc = monte_carlo(goals, params, trials, seed, user=user, true_goals=wanted)["dragan"]
+        acc = monte_carlo(goals, params, trials, seed, user=user, true_goals=wanted, compiled=True)[
+            "dragan"
+        ]
         for i in wanted:
             rows[i]["argmax"] = acc[goals.names[i]].correct
     if commit_ok.any():
         wanted = np.flatnonzero(commit_ok).tolist()
         rolls = simulate_commits(
             goals, params, trials, np.random.default_rng([seed, 1]), user=user, true_goals=wanted,
-            until_arrival=True,
+            until_arrival=True, compiled=True,
         )["dragan"]  # fmt: skip
         by = [int(s) if ok else None for s, ok in zip(cert["step"], commit_ok, strict=True)]
         rates = commit_rates(rolls, by, goals.names)

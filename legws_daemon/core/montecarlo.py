@@ -21,6 +21,7 @@ goal-steps (about a minute).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -32,7 +33,14 @@ from legws_daemon.core.certificate import start_terms
 from legws_daemon.core.costs import path_costs, posterior
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
-from legws_daemon.core.operator import horizon_steps, mean_deflection, nominal_path, nominal_steps
+from legws_daemon.core.operator import (
+    GRID_DIRECTIONS,
+    STEERINGS,
+    horizon_steps,
+    mean_deflection,
+    nominal_path,
+    nominal_steps,
+)
 from legws_daemon.core.params import CostForm, Params
 from legws_daemon.core.user_model import OperatorNoise, SimulatedUser, clip_unit
 from legws_daemon.errors import InputError
@@ -103,20 +111,41 @@ class _Walkers:
         self.noise = OperatorNoise(user.operator.rho)
         self.past: deque[FloatArray] = deque([self.x.copy()] * user.delay, maxlen=user.delay + 1)
 
-    def step(self, chunk: Streams, active: np.ndarray) -> None:
-        """One control period toward the targets, in place; rows where ``active``
-        ``(M, 1)`` is false stay put. Each stream draws its innovations (then, for idle
-        ticks, which ticks are idle) in turn: section 2's user draws exactly as before the
-        operator model."""
+    def draw(self, chunk: Streams) -> tuple[FloatArray, np.ndarray | None]:
+        """One control period's noise ``(M, N, 3)`` (deflection units) and idle ticks
+        ``(M, N)`` (``None``: never idle). Each stream draws its innovations (then, for
+        idle ticks, which ticks are idle) in turn: section 2's user draws exactly as before
+        the operator model."""
         user, params = self.user, self.params
         m = self.x.shape[0]
         parts = [(user.draw(g, (m, k), params.v_max), g) for g, k in chunk]
         w = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts], axis=1)
         e = self.noise.step(w)
+        if not user.idle:
+            return e, None
+        idle = np.concatenate([g.random((m, w_.shape[1])) < user.idle for w_, g in parts], 1)
+        return e, idle
+
+    def draw_block(self, chunk: Streams, steps: int) -> tuple[FloatArray, np.ndarray]:
+        """:meth:`draw` of ``steps`` control periods in turn: ``(B, M, N, 3)`` and
+        ``(B, M, N)`` (the compiled rollouts' input)."""
+        m, n = self.length.shape
+        e = np.empty((steps, m, n, 3))
+        idle = np.zeros((steps, m, n), dtype=np.bool_)
+        for b in range(steps):
+            e[b], tick_idle = self.draw(chunk)
+            if tick_idle is not None:
+                idle[b] = tick_idle
+        return e, idle
+
+    def step(self, chunk: Streams, active: np.ndarray) -> None:
+        """One control period toward the targets, in place; rows where ``active``
+        ``(M, 1)`` is false stay put."""
+        user, params = self.user, self.params
+        e, idle = self.draw(chunk)
         seen = self.past[0] if user.delay else self.x
         u = mean_deflection(seen, self.target, user.operator) + e
-        if user.idle:
-            idle = np.concatenate([g.random((m, w_.shape[1])) < user.idle for w_, g in parts], 1)
+        if idle is not None:
             u = np.where(idle[..., None], 0.0, u)
         if user.clip:
             u = clip_unit(u)
@@ -257,16 +286,53 @@ def _roll_to_horizon(
     chunk: Streams,
     user: SimulatedUser,
     rows: IntArray | None = None,
+    compiled: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """Positions ``(m, n, 3)`` and path lengths ``(m, n)`` of a chunk's users at their
-    true goal's horizon, for the true goals ``rows`` (default all)."""
+    true goal's horizon, for the true goals ``rows`` (default all); ``compiled``: by
+    :mod:`~legws_daemon.core.rollout_kernels` (the same noise, the same end states)."""
     rows = np.arange(goals.m) if rows is None else rows
     n = sum(k for _, k in chunk)
     walk = _Walkers(goals.x0.position, goals.positions[rows, None, :], n, user, params)
     mine = steps[rows]
+    if compiled:
+        from legws_daemon.core.rollout_kernels import walk_block
+
+        hist = _history(walk, user)
+        targets = np.ascontiguousarray(goals.positions[rows])
+        total = int(mine.max())
+        for t0 in range(0, total, _BLOCK_STEPS):
+            e, idle = walk.draw_block(chunk, min(_BLOCK_STEPS, total - t0))
+            walk_block(walk.x, walk.length, hist, t0, mine, targets, e, idle,
+                       *_kernel_user(user, params))  # fmt: skip
+        return walk.x, walk.length
     for t in range(int(mine.max())):
         walk.step(chunk, (t < mine)[:, None])
     return walk.x, walk.length
+
+
+#: Control periods of noise drawn at a time for the compiled rollouts.
+_BLOCK_STEPS = 16
+
+
+def _history(walk: _Walkers, user: SimulatedUser) -> FloatArray:
+    """The positions a delayed user aims from, ``(M, N, delay + 1, 3)``, all at the start."""
+    m, n = walk.length.shape
+    hist = np.zeros((m, n, user.delay + 1, 3))
+    hist[:, :, 0] = walk.x
+    return hist
+
+
+def _kernel_user(
+    user: SimulatedUser, params: Params
+) -> tuple[float, float, float, bool, int, FloatArray, bool, float, int]:
+    """How ``user`` steers, as the compiled rollouts take it: speed, ``cos b``, ``sin b``,
+    whether it turns, the steering's index, the grid of directions, the clip, ``v_max dt``
+    and the delay."""
+    op = user.operator
+    return (op.speed, math.cos(op.bias), math.sin(op.bias), op.bias != 0.0,
+            STEERINGS.index(op.steering), np.ascontiguousarray(GRID_DIRECTIONS), user.clip,
+            params.v_max * params.dt, user.delay)  # fmt: skip
 
 
 def _horizon(
@@ -342,11 +408,14 @@ def monte_carlo(
     costs: Sequence[CostForm] | None = None,
     user: SimulatedUser | None = None,
     true_goals: Sequence[int] | None = None,
+    compiled: bool = False,
 ) -> dict[CostForm, dict[str, GoalAccuracy]]:
     """Accuracy at the horizon per true goal, for each requested cost form; ``user``: who
     steers (default section 2's user, with the robot's clip when ``clip_speed``), checked at
     the horizon of its own certificate; ``true_goals``: only those true goals are simulated
-    and reported.
+    and reported; ``compiled``: the users rolled out by
+    :mod:`~legws_daemon.core.rollout_kernels` (the same noise and end states, several times
+    faster).
 
     The same simulated trajectories serve every cost form (common random numbers), so the
     forms are compared on identical user behaviour. Same seed, same result, whatever the
@@ -366,7 +435,7 @@ def monte_carlo(
     rows = _commit_rows(goals, true_goals)
     correct = {form: np.zeros(len(rows), dtype=np.int64) for form in forms}
     for chunk in _chunks(_streams(rng, trials), len(rows)):
-        x, length = _roll_to_horizon(goals, params, steps, chunk, who, rows)
+        x, length = _roll_to_horizon(goals, params, steps, chunk, who, rows, compiled)
         states = HorizonStates(x, length, steps[rows])
         for form in forms:
             correct[form] += horizon_correct(goals, params, states, form, rows)
@@ -417,6 +486,7 @@ def _commit_chunks(
     forms: Sequence[CostForm],
     rows: IntArray,
     until_arrival: bool = False,
+    compiled: bool = False,
 ) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
     """Per chunk of trials and cost form, the ``(step, goal, progress)`` of the first
     commits ``(len(rows), n)`` of the true goals ``rows``: up to ``T_a`` steps, or with
@@ -431,6 +501,10 @@ def _commit_chunks(
     near = params.v_max * params.dt
     d0 = trans0 + rot
     way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
+    if compiled:
+        yield from _commit_chunks_compiled(goals, params, trials, rng, user, forms, rows,
+                                           until_arrival, limit)  # fmt: skip
+        return
     for chunk in _chunks(_streams(rng, trials), m):
         n = sum(k for _, k in chunk)
         subs = _sub_slices(n, m, goals.m)
@@ -465,6 +539,54 @@ def _commit_chunks(
         yield {f: (first_step[f], first_goal[f], first_progress[f]) for f in forms}
 
 
+def _commit_chunks_compiled(
+    goals: GoalSet,
+    params: Params,
+    trials: int,
+    rng: np.random.Generator,
+    user: SimulatedUser,
+    forms: Sequence[CostForm],
+    rows: IntArray,
+    until_arrival: bool,
+    limit: IntArray,
+) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
+    """:func:`_commit_chunks` by :func:`~legws_daemon.core.rollout_kernels.commit_block`:
+    the same noise, in blocks of :data:`_BLOCK_STEPS` control periods, each user followed
+    only until nothing more is to be learnt from it."""
+    from legws_daemon.core.rollout_kernels import DRAGAN, RATIO, commit_block
+
+    p0 = np.ascontiguousarray(goals.x0.position, dtype=np.float64)
+    m = len(rows)
+    targets = np.ascontiguousarray(goals.positions[rows])
+    trans0, rot = _start_terms(goals, params)
+    d0 = trans0 + rot
+    way = np.ascontiguousarray(safe_unit(goals.positions[rows] - p0))
+    codes = np.array([{"dragan": DRAGAN, "ratio": RATIO}[f] for f in forms], dtype=np.int64)
+    near2 = (params.v_max * params.dt) ** 2
+    total = int(limit.max(initial=0))
+    steering = _kernel_user(user, params)
+    for chunk in _chunks(_streams(rng, trials), m):
+        n = sum(k for _, k in chunk)
+        walk = _Walkers(p0, targets[:, None, :], n, user, params)
+        hist = _history(walk, user)
+        furthest = np.zeros((m, n))
+        state = np.zeros((m, n), dtype=np.int8)
+        first_step = np.zeros((len(forms), m, n), dtype=np.int64)
+        first_goal = np.full((len(forms), m, n), -1, dtype=np.int64)
+        first_progress = np.full((len(forms), m, n), np.inf)
+        for t0 in range(0, total, _BLOCK_STEPS):
+            e, idle = walk.draw_block(chunk, min(_BLOCK_STEPS, total - t0))
+            going = commit_block(
+                walk.x, walk.length, hist, furthest, state, first_step, first_goal,
+                first_progress, t0, limit, targets, way, p0, goals.positions, rot, d0,
+                float(np.mean(d0)), codes, params.beta, params.p_thresh, until_arrival, near2,
+                e, idle, *steering,
+            )  # fmt: skip
+            if not going:
+                break
+        yield {f: (first_step[k], first_goal[k], first_progress[k]) for k, f in enumerate(forms)}
+
+
 #: With ``until_arrival`` a user is followed for at most this many times ``T_a`` steps.
 ARRIVAL_SPAN = 3
 
@@ -477,10 +599,22 @@ def _commit_rows(goals: GoalSet, true_goals: Sequence[int] | None) -> IntArray:
 
 def _commit_arrivals(goals: GoalSet, params: Params, user: SimulatedUser) -> IntArray:
     """``T_a`` of each goal for the certificate of ``user``'s model (its speed, with the
-    robot's clip when it clips; at least one step for a goal it never reaches)."""
-    motion = user.operator.motion(params, user.clip)
-    t_a, _ = nominal_steps(goals.x0.position, goals.positions, user.operator, motion, params)
-    return np.asarray(np.maximum(t_a, 1), dtype=np.int64)
+    robot's clip when it clips; at least one step for a goal it never reaches). A run asks
+    several times (its cost, its rollouts, its rates): the last few answers are kept."""
+    p0 = np.asarray(goals.x0.position, dtype=np.float64)
+    key = (p0.tobytes(), goals.positions.tobytes(), user.operator, user.clip, params)
+    if key not in _ARRIVALS:
+        motion = user.operator.motion(params, user.clip)
+        t_a, _ = nominal_steps(p0, goals.positions, user.operator, motion, params)
+        _ARRIVALS[key] = np.asarray(np.maximum(t_a, 1), dtype=np.int64)
+        while len(_ARRIVALS) > 16:
+            _ARRIVALS.pop(next(iter(_ARRIVALS)))
+    out: IntArray = _ARRIVALS[key].copy()
+    return out
+
+
+#: The arrival steps of the last few runs (:func:`_commit_arrivals`), oldest first.
+_ARRIVALS: dict[tuple[object, ...], IntArray] = {}
 
 
 def nominal_progress(goals: GoalSet, params: Params, user: SimulatedUser, steps: int) -> FloatArray:
@@ -507,6 +641,7 @@ def simulate_commits(
     true_goals: Sequence[int] | None = None,
     user: SimulatedUser | None = None,
     until_arrival: bool = False,
+    compiled: bool = False,
 ) -> dict[CostForm, CommitRollouts]:
     """Roll out ``trials`` noisy users per true goal for ``T_a`` steps and record each
     observer's first commit, for each cost form on the same trajectories. With
@@ -515,7 +650,10 @@ def simulate_commits(
     simulated operator (method.md §10), rolled out for its own certificate's ``T_a``.
     ``true_goals`` limits the rollouts to those true goals (the other rows stay without a
     commit). ``until_arrival``: each user is followed to its own arrival instead of
-    ``T_a`` (a slower user's commits, counted in progress along the way).
+    ``T_a`` (a slower user's commits, counted in progress along the way). ``compiled``:
+    rolled out by :mod:`~legws_daemon.core.rollout_kernels` (the same noise and first
+    commits, each user followed only until its first commit or arrival: many times
+    faster).
 
     Every trial's first commit is returned (``(M, N)`` arrays per form);
     :func:`monte_carlo_commit` keeps only the counts, in bounded memory."""
@@ -528,7 +666,9 @@ def simulate_commits(
     )  # fmt: skip
     who = _user(params, clip_speed, user)
     rows = _commit_rows(goals, true_goals)
-    parts = list(_commit_chunks(goals, params, trials, rng, who, forms, rows, until_arrival))
+    parts = list(
+        _commit_chunks(goals, params, trials, rng, who, forms, rows, until_arrival, compiled)
+    )
     t_a_all = _commit_arrivals(goals, params, who)
     along = nominal_progress(goals, params, who, int(t_a_all.max()))
     out: dict[CostForm, CommitRollouts] = {}
@@ -593,6 +733,7 @@ def monte_carlo_commit(
     *,
     clip_speed: bool = False,
     user: SimulatedUser | None = None,
+    compiled: bool = False,
 ) -> dict[str, GoalCommitRate]:
     """:func:`commit_rates` of :func:`simulate_commits` (same rollouts, same numbers) for
     the parameters' cost form, keeping only the counts: memory stays within
@@ -612,7 +753,9 @@ def monte_carlo_commit(
     along = nominal_progress(goals, params, who, int(max(t_a.max(), max(limits))))
     total = np.zeros((4, goals.m), dtype=np.int64)
     rows = np.arange(goals.m)
-    for part in _commit_chunks(goals, params, trials, rng, who, (params.cost,), rows):
+    for part in _commit_chunks(
+        goals, params, trials, rng, who, (params.cost,), rows, compiled=compiled
+    ):
         total += _commit_counts(part[params.cost], limits, along)
     return _rates(total, limits, trials, goals.names)
 

@@ -40,15 +40,15 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from legws_daemon.core.certificate import goal_arrays, start_terms, upper_quantile, who_steers
 from legws_daemon.core.commit import COMMIT_FORMS, thresholds
 from legws_daemon.core.geometry import FloatArray, IntArray
+from legws_daemon.core.kernels import aim as _aim
+from legws_daemon.core.kernels import jit as _jit
 from legws_daemon.core.operator import (
     MAX_OPERATOR_STEPS,
     STEERINGS,
@@ -71,14 +71,6 @@ _ARRIVAL_GUARD = 1e-9
 _AS_WRITTEN, _ISOTROPIC, _ALONG_ACROSS, _WIDEST = 0, 1, 2, 3
 #: What the commit kernel computes.
 _K, _R, _T = 0, 1, 2
-
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _jit(f: _F) -> _F:
-    """numba's ``njit`` (cached on disk, releasing the GIL), typed as the function itself."""
-    return cast(_F, numba.njit(cache=True, nogil=True)(f))
-
 
 #: Threads the kernels run in (they release the GIL): the layouts of a batch are split
 #: between them. ``LEGWS_SEARCH_THREADS`` overrides (1: no threads, e.g. when several
@@ -107,68 +99,6 @@ def _in_threads(run: Callable[[slice], None], b: int) -> None:
 
 
 # --- the nominal ------------------------------------------------------------------------
-
-
-@_jit
-def _sign(x: float) -> float:
-    return (1.0 if x > 0.0 else 0.0) - (1.0 if x < 0.0 else 0.0)
-
-
-@_jit
-def _aim(
-    hx: float, hy: float, hz: float, gx: float, gy: float, gz: float, bc: float, bs: float,
-    turn: bool, steering: int, grid: FloatArray,
-) -> tuple[float, float, float]:  # fmt: skip
-    """``Q(R_z(b) pi_h(here, g))`` (core.operator.aim). ``axes`` and ``axes+diagonals``
-    choose from the turned difference itself (scaling by ``1 / |g - here|`` changes no
-    choice), without branches: only ``free`` steering divides."""
-    x, y, z = gx - hx, gy - hy, gz - hz
-    n2 = x * x + y * y + z * z
-    if steering == 0:
-        norm = math.sqrt(n2)
-        if not norm > _EPS:
-            return 0.0, 0.0, 0.0
-        d = max(norm, _EPS)
-        x, y, z = x / d, y / d, z / d
-        if turn:
-            x, y = bc * x - bs * y, bs * x + bc * y
-        return x, y, z
-    live = n2 > _EPS * _EPS  # on the goal: no aim
-    if turn:
-        x, y = bc * x - bs * y, bs * x + bc * y
-    ax, ay, az = abs(x), abs(y), abs(z)
-    sx, sy, sz = _sign(x), _sign(y), _sign(z)
-    if steering == 1:  # the axis of the largest component (ties: x, then y, then z)
-        kx = (ax >= ay) & (ax >= az) & live
-        ky = (~kx) & (ay >= az) & live
-        kz = (~kx) & (~ky) & live
-        return (sx if kx else 0.0), (sy if ky else 0.0), (sz if kz else 0.0)
-    # the closest of the 26 grid directions: with k non-zero components the best is the k
-    # largest |components| with their signs, worth their sum over sqrt(k)
-    top = max(ax, max(ay, az))
-    low = min(ax, min(ay, az))
-    mid = ax + ay + az - top - low
-    one = top
-    two = (top + mid) * (1.0 / math.sqrt(2.0))
-    three = (ax + ay + az) * (1.0 / math.sqrt(3.0))
-    k = 3 if three > max(one, two) else (2 if two > one else 1)
-    # k = 1: the largest (first of x, y, z); k = 2: all but the smallest (last of z, y, x)
-    first_x = (ax >= ay) & (ax >= az)
-    first_y = (~first_x) & (ay >= az)
-    last_z = (az <= ax) & (az <= ay)
-    last_y = (~last_z) & (ay <= ax)
-    last_x = (~last_z) & (~last_y)
-    in_x = (k == 3) | ((k == 2) & (~last_x)) | ((k == 1) & first_x)
-    in_y = (k == 3) | ((k == 2) & (~last_y)) | ((k == 1) & first_y)
-    in_z = (k == 3) | ((k == 2) & (~last_z)) | ((k == 1) & (~first_x) & (~first_y))
-    if not live:
-        return 0.0, 0.0, 0.0
-    ix = int(sx) if in_x else 0
-    iy = int(sy) if in_y else 0
-    iz = int(sz) if in_z else 0
-    index = 9 * (ix + 1) + 3 * (iy + 1) + (iz + 1)
-    index -= index > 13  # the grid leaves out (0, 0, 0)
-    return grid[index, 0], grid[index, 1], grid[index, 2]
 
 
 @_jit
