@@ -95,7 +95,8 @@ def eval_cmd(
 ) -> None:
     """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates,
     and the person's metrics (method.md §9) with 95 % bootstrap intervals over layouts
-    (and over runs when several run folders are given).
+    (and over runs when several run folders are given); a rate where every pick succeeded
+    (or none did) gets its one-sided Clopper-Pearson bound instead.
 
     Writes DIR/eval.json and DIR/eval.md with --out; prints the Markdown tables.
     """

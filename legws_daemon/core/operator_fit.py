@@ -59,6 +59,7 @@ from legws_daemon.core.operator import (
     clipped_moments_batch,
     mean_deflection,
     quantise,
+    rotate_z,
 )
 from legws_daemon.core.params import RANGES, Params
 from legws_daemon.errors import InputError
@@ -200,8 +201,40 @@ class _Sums:
 _QUASI_ITERATIONS = 6
 
 
-def _sums(reaches: Sequence[Reach], steering: str, bias: FloatArray) -> _Sums:
-    """The per-segment sums for each turn of ``bias`` ``(G,)`` (radians): ``(K, G)`` each."""
+def boundary_distance(turned: FloatArray, steering: str, radius: FloatArray) -> FloatArray:
+    """How far (m) the point ``radius`` along each unit aim ``(..., 3)`` is from the nearest
+    boundary of the quantiser: where the two best directions ``d1``, ``d2`` score alike,
+    ``radius (a . d1 - a . d2) / |d1 - d2|`` (``axes``: the two largest ``|components|``).
+    ``inf`` for free steering."""
+    if steering == "free":
+        return np.full(turned.shape[:-1], np.inf)
+    directions = AXIS_DIRECTIONS if steering == "axes" else GRID_DIRECTIONS
+    dots = turned @ directions.T
+    top = np.argsort(-dots, axis=-1)[..., :2]
+    s1 = np.take_along_axis(dots, top[..., :1], axis=-1)[..., 0]
+    s2 = np.take_along_axis(dots, top[..., 1:], axis=-1)[..., 0]
+    d1, d2 = directions[top[..., 0]], directions[top[..., 1]]
+    apart = np.sqrt(np.maximum(np.einsum("...k,...k->...", d1 - d2, d1 - d2), 1e-300))
+    return np.asarray(radius * (s1 - s2) / apart, dtype=np.float64)
+
+
+#: A quantised operator's ticks whose EE is closer than this to a boundary of the quantiser
+#: (m; :func:`boundary_distance`) are left out of the estimates of ``s``, ``sigma`` and
+#: ``rho``: there, which direction the person chose depends on where they saw the arm a
+#: moment ago, which a few millimetres decide (a keyboard user alternates keys along a
+#: diagonal), and the aim at the recorded EE is the other one about half the time
+#: (measured over zenoh on the stand-in: ``u . aim`` 0.40 within 2 mm of a boundary, 0.67
+#: beyond 2 cm, for an axis operator of speed 1).
+BOUNDARY_M = 0.01
+
+
+def _sums(
+    reaches: Sequence[Reach], steering: str, bias: FloatArray, clear_at: float | None = None
+) -> _Sums:
+    """The per-segment sums for each turn of ``bias`` ``(G,)`` (radians): ``(K, G)`` each.
+    ``clear_at`` (radians): only the ticks at least :data:`BOUNDARY_M` from a boundary of
+    the quantiser turned by it (and the pairs of two such ticks) count, the same ticks for
+    every turn (free steering: every tick)."""
     rows: list[list[FloatArray]] = [[] for _ in _SUMS]
     g = len(bias)
     c, s_ = np.cos(bias)[:, None], np.sin(bias)[:, None]
@@ -213,6 +246,13 @@ def _sums(reaches: Sequence[Reach], steering: str, bias: FloatArray) -> _Sums:
         )  # fmt: skip
         q = quantise(turned, steering)  # (G, n, 3)
         u, p = r.u, r.pairs
+        if clear_at is not None and steering != "free":
+            radius = np.linalg.norm(r.goal - r.ee, axis=1)
+            at = rotate_z(pull, clear_at)
+            keep = boundary_distance(at, steering, radius) >= BOUNDARY_M  # (n,)
+            for i, v in enumerate(_masked_sums(u, q, p, np.broadcast_to(keep, (g, len(u))))):
+                rows[i].append(v)
+            continue
         uq = np.einsum("tk,gtk->gt", u, q)
         qq = np.einsum("gtk,gtk->gt", q, q)
         cross = np.einsum("tk,gtk->gt", u[:-1], q[:, 1:]) + np.einsum(
@@ -236,6 +276,31 @@ def _sums(reaches: Sequence[Reach], steering: str, bias: FloatArray) -> _Sums:
     return _Sums(*(np.array(r) for r in rows))
 
 
+def _masked_sums(
+    u: FloatArray, q: FloatArray, p: np.ndarray, keep: np.ndarray
+) -> tuple[FloatArray, ...]:
+    """:func:`_sums`'s values of one segment over the ticks ``keep`` ``(G, n)`` of each
+    turn (and the lag-1 pairs ``p`` of two kept ticks)."""
+    w = keep.astype(np.float64)
+    pk = (p[None, :] & keep[:, :-1] & keep[:, 1:]).astype(np.float64)  # (G, n - 1)
+    uq = np.einsum("tk,gtk->gt", u, q)
+    qq = np.einsum("gtk,gtk->gt", q, q)
+    cross = np.einsum("tk,gtk->gt", u[:-1], q[:, 1:]) + np.einsum("gtk,tk->gt", q[:, :-1], u[1:])
+    return (
+        (w * uq).sum(axis=1),
+        (w * qq).sum(axis=1),
+        w @ np.einsum("tk,tk->t", u, u),
+        w.sum(axis=1),
+        pk @ np.einsum("tk,tk->t", u[:-1], u[1:]),
+        (pk * cross).sum(axis=1),
+        (pk * np.einsum("gtk,gtk->gt", q[:, :-1], q[:, 1:])).sum(axis=1),
+        (pk * uq[:, :-1]).sum(axis=1),
+        (pk * uq[:, 1:]).sum(axis=1),
+        (pk * qq[:, :-1]).sum(axis=1),
+        (pk * qq[:, 1:]).sum(axis=1),
+    )
+
+
 def _bias_terms(reaches: Sequence[Reach]) -> tuple[FloatArray, FloatArray]:
     """Per segment ``(sum u_h . pi_h, sum pi_h x u_h)`` (horizontal parts, unnormalised
     pull): the angle of the mean horizontal deflection in the frames of ``pi_h``."""
@@ -250,13 +315,20 @@ def _bias_terms(reaches: Sequence[Reach]) -> tuple[FloatArray, FloatArray]:
 def _best_bias(sums: _Sums, w: FloatArray) -> np.ndarray:
     """Index into the bias grid of the best fit per weight row (the middle of the best
     plateau: a quantised fit changes only where a tick's aim crosses a boundary)."""
+    first, last = _plateau(sums, w)
+    return np.asarray((first + last) // 2, dtype=np.int64)
+
+
+def _plateau(sums: _Sums, w: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+    """The first and last index into the bias grid of the best fit per weight row: every
+    turn between fits the data equally well."""
     a, n = w @ sums.a, w @ sums.n  # (R, G)
     score = a * a / np.maximum(n, 1e-300)
     best = score.max(axis=1, keepdims=True)
     top = score >= best - 1e-9 * np.maximum(np.abs(best), 1.0)
     first = np.argmax(top, axis=1)
     last = score.shape[1] - 1 - np.argmax(top[:, ::-1], axis=1)
-    return np.asarray((first + last) // 2, dtype=np.int64)
+    return np.asarray(first, dtype=np.int64), np.asarray(last, dtype=np.int64)
 
 
 def _shares(reaches: Sequence[Reach]) -> tuple[float, float]:
@@ -389,15 +461,17 @@ def fit_operator(
         rng = np.random.default_rng(seed)
         w = rng.multinomial(k, np.full(k, 1.0 / k), size=resamples).astype(np.float64)
         s_r, lam_r, rho_r = undo(*chosen.estimates(w))
+        low_b, high_b = chosen.bias_span(w)
         replicas = {
-            "speed": np.clip(s_r, *SPEED_RANGE),
-            "sigma": np.clip(lam_r * v_max, *RANGES["sigma"]),
-            "rho": np.clip(rho_r, *RHO_RANGE),
-            "bias_deg": np.clip(np.degrees(chosen.biases(w)), *BIAS_RANGE_DEG),
+            "speed": (np.clip(s_r, *SPEED_RANGE),) * 2,
+            "sigma": (np.clip(lam_r * v_max, *RANGES["sigma"]),) * 2,
+            "rho": (np.clip(rho_r, *RHO_RANGE),) * 2,
+            # quantised steering: every turn of a replica's best plateau fits it as well
+            "bias_deg": (np.clip(low_b, *BIAS_RANGE_DEG), np.clip(high_b, *BIAS_RANGE_DEG)),
         }
         tail = 100 * (1 - LEVEL) / 2
-        for name, values in replicas.items():
-            lo, hi = np.percentile(values, [tail, 100 - tail])
+        for name, (lows, highs) in replicas.items():
+            lo, hi = np.percentile(lows, tail), np.percentile(highs, 100 - tail)
             at = float(getattr(model, name))  # an interval holds its own point estimate
             intervals[name] = (min(float(lo), at), max(float(hi), at))
         b_lo, b_hi = intervals["bias_deg"]
@@ -431,19 +505,21 @@ class _SteeringFit:
     rss: float
     along: FloatArray
     left: FloatArray
+    clear: _Sums  # the sums over the ticks clear of the quantiser's boundaries
 
     def _columns(self, w: FloatArray) -> np.ndarray:
         if not self.grid:
             return np.zeros(len(w), dtype=np.int64)
-        return _best_bias(self.sums, w)
+        return _best_bias(self.clear, w)
 
     def estimates(self, w: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`_Sums.estimates` for weights ``w`` ``(R, K)``, each row at its own best
-        turn (quantised steering) or at the point estimate's (free: the estimates do not
-        move with the turn to first order)."""
+        turn (quantised steering: over the ticks clear of the quantiser's boundaries) or at
+        the point estimate's (free: the estimates do not move with the turn to first
+        order)."""
         cols = self._columns(w)
         rows = np.arange(len(w))
-        picked = _Sums(*((w @ getattr(self.sums, f))[rows, cols] for f in _SUMS))
+        picked = _Sums(*((w @ getattr(self.clear, f))[rows, cols] for f in _SUMS))
         return picked.ratios()
 
     def biases(self, w: FloatArray) -> FloatArray:
@@ -451,6 +527,15 @@ class _SteeringFit:
         if self.grid:
             return np.asarray(np.radians(BIAS_GRID[self._columns(w)]), dtype=np.float64)
         return np.asarray(np.arctan2(w @ self.left, w @ self.along), dtype=np.float64)
+
+    def bias_span(self, w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The ends of each weight row's best plateau of turns (quantised steering), degrees
+        (free steering: :meth:`biases` twice)."""
+        if not self.grid:
+            b = np.degrees(self.biases(w))
+            return b, b
+        first, last = _plateau(self.clear, w)
+        return BIAS_GRID[first], BIAS_GRID[last]
 
 
 _SUMS = ("a", "n", "uu", "ticks", "pu", "pq", "pa", "a0", "a1", "n0", "n1")
@@ -463,14 +548,19 @@ def _steering_fit(
     if steering == "free":
         bias = float(np.clip(math.atan2(left.sum(), along.sum()), *np.radians(BIAS_RANGE_DEG)))
         sums, grid = _sums(reaches, steering, np.array([bias])), False
+        clear = sums
         col = 0
     else:
         sums, grid = _sums(reaches, steering, np.radians(BIAS_GRID)), True
         col = int(_best_bias(sums, ones)[0])
-        bias = float(np.radians(BIAS_GRID[col]))
+        # the turn, s, sigma and rho from the ticks clear of that fit's boundaries
+        at = float(np.radians(BIAS_GRID[col]))
+        clear = _sums(reaches, steering, np.radians(BIAS_GRID), at)
+        bias = float(np.radians(BIAS_GRID[int(_best_bias(clear, ones)[0])]))
+    # the steering is chosen on every tick (the same data for each steering)
     a, n, uu = (float((ones @ getattr(sums, f))[0, col]) for f in ("a", "n", "uu"))
     rss = uu - a * a / max(n, 1e-300)
-    return _SteeringFit(steering, bias, sums, grid, rss, along, left)
+    return _SteeringFit(steering, bias, sums, grid, rss, along, left, clear)
 
 
 class _Unclip:
@@ -544,7 +634,7 @@ class _Unclip:
             n = int(live_a[:, k].sum())
             if n >= 2:
                 sims.append(Reach(xs_a[:n, k], us_a[:n, k], self._goals[k], np.ones(n - 1, bool)))
-        sums = _sums(sims, self._steering, np.array([self._bias]))
+        sums = _sums(sims, self._steering, np.array([self._bias]), self._bias)
         ones = np.ones((1, len(sims)))
         total = _Sums(*((ones @ getattr(sums, f))[0] for f in _SUMS))
         return np.array([float(v[0]) for v in total.ratios()])
