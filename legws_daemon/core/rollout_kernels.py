@@ -45,6 +45,36 @@ def _deflect(
 
 
 @jit
+def _advance(
+    x: FloatArray, length: FloatArray, hist: FloatArray, r: int, i: int, done: int,
+    tx: float, ty: float, tz: float, e: FloatArray, idle: bool, speed: float, bc: float,
+    bs: float, turn: bool, steering: int, grid: FloatArray, clip: bool, step_len: float,
+    delay: int,
+) -> tuple[float, float, float]:  # fmt: skip
+    """User ``(r, i)``'s step after ``done`` steps: aimed from where it is (or, delayed,
+    was ``delay`` steps ago), its noise ``e (3,)``; ``x``, ``length`` and ``hist`` in place.
+    Returns the new position."""
+    ring = delay + 1
+    if delay:
+        seen = hist[r, i, max(done - delay, 0) % ring]
+        hx, hy, hz = seen[0], seen[1], seen[2]
+    else:
+        hx, hy, hz = x[r, i, 0], x[r, i, 1], x[r, i, 2]
+    ux, uy, uz = _deflect(
+        hx, hy, hz, tx, ty, tz, e[0], e[1], e[2], idle, speed, bc, bs, turn, steering, grid, clip
+    )
+    dx, dy, dz = step_len * ux, step_len * uy, step_len * uz
+    px, py, pz = x[r, i, 0] + dx, x[r, i, 1] + dy, x[r, i, 2] + dz
+    x[r, i, 0], x[r, i, 1], x[r, i, 2] = px, py, pz
+    length[r, i] += math.sqrt(dx * dx + dy * dy + dz * dz)
+    if delay:
+        hist[r, i, (done + 1) % ring, 0] = px
+        hist[r, i, (done + 1) % ring, 1] = py
+        hist[r, i, (done + 1) % ring, 2] = pz
+    return px, py, pz
+
+
+@jit
 def walk_block(
     x: FloatArray, length: FloatArray, hist: FloatArray, t0: int, steps: IntArray,
     targets: FloatArray, e: FloatArray, idle: np.ndarray, speed: float, bc: float, bs: float,
@@ -55,33 +85,15 @@ def walk_block(
     not reached its row's ``steps``; ``e (B, R, N, 3)`` the noise in deflection units,
     ``idle (B, R, N)``. Returns whether any user needs steps beyond the block."""
     b_steps, rows, n = e.shape[0], e.shape[1], e.shape[2]
-    ring = delay + 1
     left = False
     for r in range(rows):
         tx, ty, tz = targets[r, 0], targets[r, 1], targets[r, 2]
         for i in range(n):
             for b in range(b_steps):
-                t = t0 + b
-                if t >= steps[r]:
+                if t0 + b >= steps[r]:
                     break
-                if delay:
-                    seen = hist[r, i, max(t - delay, 0) % ring]
-                    hx, hy, hz = seen[0], seen[1], seen[2]
-                else:
-                    hx, hy, hz = x[r, i, 0], x[r, i, 1], x[r, i, 2]
-                ux, uy, uz = _deflect(
-                    hx, hy, hz, tx, ty, tz, e[b, r, i, 0], e[b, r, i, 1], e[b, r, i, 2],
-                    idle[b, r, i], speed, bc, bs, turn, steering, grid, clip,
-                )  # fmt: skip
-                dx, dy, dz = step_len * ux, step_len * uy, step_len * uz
-                x[r, i, 0] += dx
-                x[r, i, 1] += dy
-                x[r, i, 2] += dz
-                length[r, i] += math.sqrt(dx * dx + dy * dy + dz * dz)
-                if delay:
-                    hist[r, i, (t + 1) % ring, 0] = x[r, i, 0]
-                    hist[r, i, (t + 1) % ring, 1] = x[r, i, 1]
-                    hist[r, i, (t + 1) % ring, 2] = x[r, i, 2]
+                _advance(x, length, hist, r, i, t0 + b, tx, ty, tz, e[b, r, i], idle[b, r, i],
+                         speed, bc, bs, turn, steering, grid, clip, step_len, delay)  # fmt: skip
             if t0 + b_steps < steps[r]:
                 left = True
     return left
@@ -106,7 +118,6 @@ def commit_block(
     it has arrived or it is past its row's ``limit``. Returns whether any is going."""
     b_steps, rows, n = e.shape[0], e.shape[1], e.shape[2]
     m, n_forms = goals.shape[0], forms.shape[0]
-    ring = delay + 1
     logits = np.empty(m)
     left = False
     for r in range(rows):
@@ -120,23 +131,10 @@ def commit_block(
                 if t > limit[r]:
                     state[r, i] = 1
                     break
-                if delay:
-                    seen = hist[r, i, max(t - 1 - delay, 0) % ring]
-                    hx, hy, hz = seen[0], seen[1], seen[2]
-                else:
-                    hx, hy, hz = x[r, i, 0], x[r, i, 1], x[r, i, 2]
-                ux, uy, uz = _deflect(
-                    hx, hy, hz, tx, ty, tz, e[b, r, i, 0], e[b, r, i, 1], e[b, r, i, 2],
-                    idle[b, r, i], speed, bc, bs, turn, steering, grid, clip,
+                px, py, pz = _advance(
+                    x, length, hist, r, i, t - 1, tx, ty, tz, e[b, r, i], idle[b, r, i], speed,
+                    bc, bs, turn, steering, grid, clip, step_len, delay,
                 )  # fmt: skip
-                dx, dy, dz = step_len * ux, step_len * uy, step_len * uz
-                px, py, pz = x[r, i, 0] + dx, x[r, i, 1] + dy, x[r, i, 2] + dz
-                x[r, i, 0], x[r, i, 1], x[r, i, 2] = px, py, pz
-                length[r, i] += math.sqrt(dx * dx + dy * dy + dz * dz)
-                if delay:
-                    hist[r, i, t % ring, 0] = px
-                    hist[r, i, t % ring, 1] = py
-                    hist[r, i, t % ring, 2] = pz
                 along = (px - p0[0]) * wx + (py - p0[1]) * wy + (pz - p0[2]) * wz
                 furthest[r, i] = max(furthest[r, i], along)
                 arrived = False
