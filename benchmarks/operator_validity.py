@@ -378,9 +378,11 @@ def report(args: argparse.Namespace) -> None:
         lines += [
             "## The grid: certificates for the operator (robot's clip), checked against it", "",
             f"{grid_pieces[0]['layouts']} random feasible layouts per M, the same for every "
-            f"operator; {grid_pieces[0]['trials']} simulated users of the operator per "
-            "certified goal. Cells: certified goals / violating 1−α / significantly "
-            "(Clopper–Pearson upper bound below) / worst rate.", "",
+            "operator; "
+            f"{' or '.join(str(t) for t in sorted({p['trials'] for p in grid_pieces}))} "
+            "simulated users of the operator per certified goal (per rho below). Cells: "
+            "certified goals / violating 1−α / significantly (Clopper–Pearson upper bound "
+            "below) / worst rate.", "",
             "| M | operators | layouts | argmax at the horizon (§4) | first commit by the "
             "certified step, ticks (§9, exact sum) | … counted in progress | worst wrong |",
             "|---|---|---|---|---|---|---|",
@@ -390,6 +392,22 @@ def report(args: argparse.Namespace) -> None:
             out["grid"][str(m)] = merged | {"operators": len(by_m[m])}
             lines.append(
                 f"| {m} | {len(by_m[m])} | {by_m[m][0]['layouts']} | {_cell(merged['argmax'])} "
+                f"| {_cell(merged['by_step'])} | {_cell(merged['by_progress'])} "
+                f"| {merged['worst_wrong']:.3f} |"
+            )
+        lines += ["", "Per rho (every bias, speed and steering; all M pooled):", "",
+                  "| rho | operators | users per goal | argmax | by step | by progress "
+                  "| worst wrong |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+        out["per_rho"] = {}
+        for rho in sorted({p["certified_for"]["rho"] for p in grid_pieces}):
+            ps = [p for p in grid_pieces if p["certified_for"]["rho"] == rho]
+            merged = _merge([p["summary"] for p in ps])
+            n_ops = len({key(OperatorModel(**p["certified_for"])) for p in ps})
+            trials = sorted({p["trials"] for p in ps})
+            out["per_rho"][str(rho)] = merged | {"operators": n_ops, "pieces": len(ps)}
+            lines.append(
+                f"| {rho:g} | {n_ops} ({len(ps)} of {4 * n_ops} operator × M) "
+                f"| {', '.join(map(str, trials))} | {_cell(merged['argmax'])} "
                 f"| {_cell(merged['by_step'])} | {_cell(merged['by_progress'])} "
                 f"| {merged['worst_wrong']:.3f} |"
             )
