@@ -81,16 +81,25 @@ def test_web_and_screenshot_exclude_each_other(recording: Path, tmp_path: Path) 
     assert_bad_input(result, "--web", "--screenshot")
 
 
+def _terminal_ctrl_c() -> None:
+    """In the child: SIGINT as a terminal delivers it (default action, not blocked), whatever
+    the test runner's process inherited or set."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 @pytest.mark.slow
 def test_web_serves_the_file_on_loopback_until_ctrl_c(recording: Path, tmp_path: Path) -> None:
     port = free_port_pair()
+    errors = (tmp_path / "view.err").open("w")  # a file: a full pipe would block the child
     proc = subprocess.Popen(
         [str(LEGWS), "view", str(recording), "--web", f"127.0.0.1:{port}"],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=errors,
         text=True,
         env=os.environ.copy(),
+        preexec_fn=_terminal_ctrl_c,
     )
     try:
         assert proc.stdout is not None
@@ -102,11 +111,18 @@ def test_web_serves_the_file_on_loopback_until_ctrl_c(recording: Path, tmp_path:
             assert answer.status == 200
         assert not accepting("127.0.0.2", port)
         proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=20)
+        try:
+            code = proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            status = Path(f"/proc/{proc.pid}/status").read_text().splitlines()
+            masks = [line for line in status if line.startswith(("SigBlk", "SigIgn", "State"))]
+            pytest.fail(f"no exit 20 s after SIGINT ({masks}); stderr: "
+                        f"{(tmp_path / 'view.err').read_text()[-2000:]}")  # fmt: skip
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+        errors.close()
     assert code == 130
     for p in (port, port + 1):
         assert not accepting("127.0.0.1", p)
