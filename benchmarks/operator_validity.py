@@ -391,7 +391,8 @@ def report(args: argparse.Namespace) -> None:
             merged = _merge([p["summary"] for p in by_m[m]])
             out["grid"][str(m)] = merged | {"operators": len(by_m[m])}
             lines.append(
-                f"| {m} | {len(by_m[m])} | {by_m[m][0]['layouts']} | {_cell(merged['argmax'])} "
+                f"| {m} | {len(by_m[m])} of {len(grid())} | {by_m[m][0]['layouts']} "
+                f"| {_cell(merged['argmax'])} "
                 f"| {_cell(merged['by_step'])} | {_cell(merged['by_progress'])} "
                 f"| {merged['worst_wrong']:.3f} |"
             )
@@ -399,6 +400,7 @@ def report(args: argparse.Namespace) -> None:
                   "| rho | operators | users per goal | argmax | by step | by progress "
                   "| worst wrong |", "|---|---|---|---|---|---|---|"]  # fmt: skip
         out["per_rho"] = {}
+        per_rho = len(BIASES) * len(SPEEDS) * len(STEERINGS)
         for rho in sorted({p["certified_for"]["rho"] for p in grid_pieces}):
             ps = [p for p in grid_pieces if p["certified_for"]["rho"] == rho]
             merged = _merge([p["summary"] for p in ps])
@@ -406,7 +408,7 @@ def report(args: argparse.Namespace) -> None:
             trials = sorted({p["trials"] for p in ps})
             out["per_rho"][str(rho)] = merged | {"operators": n_ops, "pieces": len(ps)}
             lines.append(
-                f"| {rho:g} | {n_ops} ({len(ps)} of {4 * n_ops} operator × M) "
+                f"| {rho:g} | {n_ops} of {per_rho} ({len(ps)} of {4 * per_rho} operator × M) "
                 f"| {', '.join(map(str, trials))} | {_cell(merged['argmax'])} "
                 f"| {_cell(merged['by_step'])} | {_cell(merged['by_progress'])} "
                 f"| {merged['worst_wrong']:.3f} |"

@@ -101,12 +101,19 @@ def read_cached(
         if plan is not None:
             return plan, None
         try:
-            replaced = folder.stat().st_ino != before.st_ino
+            replaced = _identity(folder.stat()) != _identity(before)
         except OSError:
             replaced = True
         if not replaced:
             break
     return None, problem
+
+
+def _identity(st: os.stat_result) -> tuple[int, int, int]:
+    """What tells a folder from the one that replaced it: the inode alone does not (a
+    folder removed frees its inode, and the next one made may get it), its change time
+    with it does (a rename or a new folder sets it)."""
+    return st.st_dev, st.st_ino, st.st_ctime_ns
 
 
 def _read(
