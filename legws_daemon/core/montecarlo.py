@@ -503,7 +503,7 @@ def _commit_chunks(
     way = safe_unit(goals.positions[rows] - p0)[:, None, :]  # (m, 1, 3)
     if compiled:
         yield from _commit_chunks_compiled(goals, params, trials, rng, user, forms, rows,
-                                           until_arrival, limit)  # fmt: skip
+                                           until_arrival, limit, rot, d0, way[:, 0, :])  # fmt: skip
         return
     for chunk in _chunks(_streams(rng, trials), m):
         n = sum(k for _, k in chunk)
@@ -549,18 +549,20 @@ def _commit_chunks_compiled(
     rows: IntArray,
     until_arrival: bool,
     limit: IntArray,
+    rot: FloatArray,
+    d0: FloatArray,
+    way: FloatArray,
 ) -> Iterator[dict[CostForm, tuple[IntArray, IntArray, FloatArray]]]:
-    """:func:`_commit_chunks` by :func:`~legws_daemon.core.rollout_kernels.commit_block`:
-    the same noise, in blocks of :data:`_BLOCK_STEPS` control periods, each user followed
-    only until nothing more is to be learnt from it."""
+    """:func:`_commit_chunks` by :func:`~legws_daemon.core.rollout_kernels.commit_block`
+    (its step limits, rotation terms, start distances and ways ``(m, 3)`` given): the same
+    noise, in blocks of :data:`_BLOCK_STEPS` control periods, each user followed only until
+    nothing more is to be learnt from it."""
     from legws_daemon.core.rollout_kernels import DRAGAN, RATIO, commit_block
 
     p0 = np.ascontiguousarray(goals.x0.position, dtype=np.float64)
     m = len(rows)
     targets = np.ascontiguousarray(goals.positions[rows])
-    trans0, rot = _start_terms(goals, params)
-    d0 = trans0 + rot
-    way = np.ascontiguousarray(safe_unit(goals.positions[rows] - p0))
+    way = np.ascontiguousarray(way)
     codes = np.array([{"dragan": DRAGAN, "ratio": RATIO}[f] for f in forms], dtype=np.int64)
     near2 = (params.v_max * params.dt) ** 2
     total = int(limit.max(initial=0))
