@@ -26,6 +26,7 @@ from scipy.special import ndtri
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit, symmetric_angle
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.guard import guarded, spread_trace
 from legws_daemon.core.operator import (
     MAX_HORIZON_STEPS,
     OperatorModel,
@@ -213,7 +214,9 @@ def certify_batch(
     ``beta^2 a^T C a S_rho(T) v_max^2 dt^2``: ``C`` the per-step covariance of its
     deflection (:func:`step_spread`), ``S_rho(T)`` the variance of a sum of ``T`` AR(1)
     terms (:func:`~legws_daemon.core.operator.ar1_sum_variance`). For section 2's user this
-    is section 4's ``beta^2 |a|^2 T sigma^2 dt^2`` exactly."""
+    is section 4's ``beta^2 |a|^2 T sigma^2 dt^2`` exactly. With moments other than the
+    operator's as written (the robot's clip: a person's certificate) margins and variances
+    are guarded against the linearisation (:mod:`~legws_daemon.core.guard`)."""
     operator, user = who_steers(params, operator, user)
     t = nominal_terms(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
     m = t.costs.shape[1]
@@ -232,6 +235,10 @@ def certify_batch(
         spread = step_spread(t.sensitivity, way, user)
         per_step = (params.v_max * params.dt) ** 2
         variance = params.beta**2 * per_step * sums[:, :, None] * spread
+        margin, variance = _guarded_pairs(
+            t, np.asarray(goal_positions, dtype=np.float64), margin, variance, per_step * sums,
+            operator, user, params,
+        )  # fmt: skip
     quantile = float(upper_quantile(params.alpha / (m - 1)))
     slack = margin - quantile * np.sqrt(variance)
     eye = np.eye(m, dtype=bool)
@@ -240,6 +247,34 @@ def certify_batch(
     slack[:, eye] = np.inf
     objective = slack.min(axis=(1, 2))
     return CertificateBatch(margin, variance, slack, t.steps, objective, quantile)
+
+
+def _guarded_pairs(
+    t: NominalTerms,
+    goal_positions: FloatArray,
+    margin: FloatArray,
+    variance: FloatArray,
+    pos_var: FloatArray,
+    operator: OperatorModel,
+    user: UserMotion,
+    params: Params,
+) -> tuple[FloatArray, FloatArray]:
+    """Margins and variances ``(B, i, j)`` at the horizon under :func:`~.guard.guarded`
+    (``pos_var``: ``(v_max dt)^2 S_rho(T_i)``, ``(B, i)``)."""
+    b, m = goal_positions.shape[:2]
+    diff = t.endpoint[:, :, None, :] - goal_positions[:, None, :, :]
+    r = np.sqrt(np.einsum("bijk,bijk->bij", diff, diff))  # (B, i, j)
+    r_true = np.einsum("bii->bi", r)[:, :, None]
+    if params.cost == "dragan":
+        inv_s = np.broadcast_to(1.0 / np.mean(t.dist_start, axis=1)[:, None], (b, m))
+    else:
+        inv_s = 1.0 / t.dist_start
+    start = (t.dist_start - t.rot_term)[:, :, None]  # |p_i - p0|
+    g_margin, g_sd = guarded(
+        margin, np.sqrt(variance), r_true, r, start, inv_s[:, :, None], inv_s[:, None, :],
+        pos_var[:, :, None], user.widest, spread_trace(user, operator.straight), params.beta,
+    )  # fmt: skip
+    return g_margin, g_sd**2
 
 
 @dataclass(frozen=True, slots=True)

@@ -46,6 +46,11 @@ and with free steering (the closed form above), else its noise-free closed loop 
 and quantised steering (:func:`_path_terms`) — with ``T_a`` the first step closer than
 ``v_max dt`` to the goal, and every variance's ``t`` replaced by ``S_rho(t)``, the variance
 of a sum of ``t`` AR(1) terms. Section 2's user gives section 9 exactly (bit for bit).
+With the robot's clip (a person's certificate, what the daemon shows) every margin and
+standard deviation is guarded against the linearisation (:mod:`~legws_daemon.core.guard`:
+the mean lowered by Jensen's bound, the spread raised by Poincaré's) before the slacks;
+the search surrogates (:func:`commit_chance_batch`, :func:`commit_time_batch`) keep the
+linearised terms.
 """
 
 from __future__ import annotations
@@ -68,6 +73,7 @@ from legws_daemon.core.certificate import (
 from legws_daemon.core.costs import path_costs
 from legws_daemon.core.geometry import FloatArray, IntArray, safe_unit
 from legws_daemon.core.goals import GoalSet
+from legws_daemon.core.guard import guarded, spread_trace
 from legws_daemon.core.operator import (
     OperatorModel,
     UserMotion,
@@ -216,6 +222,7 @@ class _Batch:
     operator: OperatorModel
     user: UserMotion
     step_length: float  # the nominal's advance per step, m
+    guarded: bool  # the margins under core.guard (an operator with the robot's clip)
 
     @classmethod
     def of(
@@ -240,7 +247,10 @@ class _Batch:
             t_a = nominal_steps(p0_, pg, op, motion, params)[0]
         reachable = np.asarray(t_a > 0)
         step = motion.speed * params.v_max * params.dt
-        return cls(p0_, pg, rot_term, trans0, np.maximum(t_a, 1), reachable, op, motion, step)
+        guard = motion != op.motion(params)
+        return cls(
+            p0_, pg, rot_term, trans0, np.maximum(t_a, 1), reachable, op, motion, step, guard
+        )  # fmt: skip
 
     def part(self, sl: slice) -> _Batch:
         return replace(
@@ -298,6 +308,7 @@ def commit_chance_batch(
     and in ``benchmarks/commit_ceiling.py``. A goal the operator does not reach gets 0.
     """
     bt = _Batch.of(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
+    bt = replace(bt, guarded=False)  # a surrogate: the linearised terms (as the kernels)
     b, m = bt.pg.shape[:2]
     _, tau_w = thresholds(m, params.p_thresh)
     out = np.zeros((b, m))
@@ -332,6 +343,7 @@ def commit_time_batch(
     one; a goal the operator does not reach gets ``inf``. Not a certificate: the search
     surrogate of ``--objective time``."""
     bt = _Batch.of(p0, R0, goal_positions, goal_rotations, symmetry, params, operator, user)
+    bt = replace(bt, guarded=False)  # a surrogate: the linearised terms (as the kernels)
     b, m = bt.pg.shape[:2]
     tau_c, tau_w = thresholds(m, params.p_thresh)
     out = np.zeros((b, m))
@@ -463,8 +475,32 @@ def _terms(bt: _Batch, params: Params, rows: slice) -> tuple[FloatArray, FloatAr
     sums = ar1_sum_variance(t, user.rho)
     var = params.beta**2 * per_step * sums[None, None, :, None] * np.maximum(spread, 0.0)
     sd = np.sqrt(np.maximum(var, 0.0))
-
+    if bt.guarded:
+        r_true = np.maximum(trans0[:, rows, None, None] - s, 0.0)
+        margin, sd = _guard(bt, params, margin, sd, r_true, trans_now, scale, rows, sums)
     return t, margin, sd
+
+
+def _guard(
+    bt: _Batch,
+    params: Params,
+    margin: FloatArray,
+    sd: FloatArray,
+    r_true: FloatArray,
+    r_alt: FloatArray,
+    scale: FloatArray,
+    rows: slice,
+    sums: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Margins and standard deviations ``(b, i, T, j)`` under :func:`~.guard.guarded`, from
+    the nominal's distances to the true goals ``(b, i, T, 1)`` and to every goal, the cost
+    normalisers ``(b, M)`` and ``S_rho(t)`` ``(T,)``."""
+    pos_var = (params.v_max * params.dt) ** 2 * sums[None, None, :, None]
+    return guarded(
+        margin, sd, r_true, r_alt, bt.trans0[:, rows, None, None],
+        1.0 / scale[:, rows, None, None], 1.0 / scale[:, None, None, :],
+        pos_var, bt.user.widest, spread_trace(bt.user, bt.operator.straight), params.beta,
+    )  # fmt: skip
 
 
 def _margins(
@@ -519,7 +555,12 @@ def _path_terms(
     spread = step_spread(sensitivity, None, user)
     sums = ar1_sum_variance(t, user.rho)
     var = params.beta**2 * (params.v_max * params.dt) ** 2 * sums[None, None, :, None] * spread
-    return t, margin, np.sqrt(np.maximum(var, 0.0))
+    sd = np.sqrt(np.maximum(var, 0.0))
+    if bt.guarded:
+        r_true = np.take_along_axis(trans_now, at_true[..., 0], axis=-1)  # (b, i, T, 1)
+        scale = _scales(dist_start, params)
+        margin, sd = _guard(bt, params, margin, sd, r_true, trans_now, scale, rows, sums)
+    return t, margin, sd
 
 
 def _chunk(

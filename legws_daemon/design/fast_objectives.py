@@ -16,6 +16,11 @@ definition needs:
   that can be negative; T the first noise-free crossing; R the step of the largest
   ``c0 / sd`` (stopping once its chance is 1 to 1.3e-12).
 
+J and K of an operator with the robot's clip are guarded as in the reference
+(core.guard): the exact terms are guarded, the jumps bound the guarded terms (the guard
+only lowers ``m - z sd``, so the commit crossing's skips start from the linearised terms;
+the wrong-commit skips bound the guard over their window, :func:`_guard_window`).
+
 Same definitions and, term for term, the same arithmetic as the reference: they agree
 with it to ~1e-12 on J, K, R and T per goal, with the same certified flags and ``t_c``
 (tests/design/test_fast_objectives.py checks ``<= 1e-9`` for every objective, cost form,
@@ -47,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 from legws_daemon.core.certificate import goal_arrays, start_terms, upper_quantile, who_steers
 from legws_daemon.core.commit import COMMIT_FORMS, thresholds
 from legws_daemon.core.geometry import FloatArray, IntArray
+from legws_daemon.core.guard import spread_trace
 from legws_daemon.core.kernels import aim as _aim
 from legws_daemon.core.kernels import jit as _jit
 from legws_daemon.core.operator import (
@@ -155,10 +161,13 @@ def _slack_at_point(
     """``min_{j != i} s_ij`` with the nominal of ``i`` at its horizon ``(hx, hy, hz)``,
     path length ``L`` and ``S_rho(T) = s_t`` (core.certificate.certify_batch, operation for
     operation). ``jpar``: ``z, (sigma dt)^2, beta^2 (v_max dt)^2, along^2, across^2,
-    widest^2`` and the variance's form."""
+    widest^2``, the variance's form and ``tr C`` (core.guard: every form but the model as
+    written is guarded). ``cost``: ``(2, M)`` scratch (costs, distances)."""
     m = trans0.shape[1]
     z, written_var, var_scale = jpar[0], jpar[1], jpar[2]
     along2, across2, widest2, mode = jpar[3], jpar[4], jpar[5], int(jpar[6])
+    pos_var = var_scale * s_t / (beta * beta)
+    gw = math.sqrt(widest2)
     wx = wy = wz = 0.0
     if mode == _ALONG_ACROSS:
         wx, wy, wz = hx - p0[0], hy - p0[1], hz - p0[2]
@@ -173,10 +182,11 @@ def _slack_at_point(
         tn = math.sqrt(ex * ex + ey * ey + ez * ez)
         d0 = trans0[b, j] + rot_term[b, j]
         scale = d0 if ratio else mean
+        cost[1, j] = tn
         if ratio:
-            cost[j] = (L + (tn + rot_term[b, j])) / d0
+            cost[0, j] = (L + (tn + rot_term[b, j])) / d0
         else:
-            cost[j] = (L + (tn + rot_term[b, j]) - d0) / mean
+            cost[0, j] = (L + (tn + rot_term[b, j]) - d0) / mean
         if tn > _EPS:
             d = max(tn, _EPS)
             grad[j, 0], grad[j, 1], grad[j, 2] = ex / d / scale, ey / d / scale, ez / d / scale
@@ -201,8 +211,38 @@ def _slack_at_point(
                 au = ax * wx + ay * wy + az * wz
                 spread = across2 * a2 + (along2 - across2) * au * au
             var = var_scale * s_t * spread
-        best = min(best, beta * (cost[j] - cost[i]) - z * math.sqrt(var))
+        margin = beta * (cost[0, j] - cost[0, i])
+        sd = math.sqrt(var)
+        if mode != _AS_WRITTEN:
+            inv_si = 1.0 / (trans0[b, i] + rot_term[b, i] if ratio else mean)
+            inv_sj = 1.0 / (trans0[b, j] + rot_term[b, j] if ratio else mean)
+            margin, sd = _guard(margin, sd, cost[1, j], cost[1, i], trans0[b, i], inv_sj,
+                                inv_si, pos_var, gw, jpar[7], beta)  # fmt: skip
+        best = min(best, margin - z * sd)
     return best
+
+
+@_jit
+def _guard(
+    margin: float, sd: float, tn: float, tn_i: float, d_i: float, inv_sj: float,
+    inv_si: float, pos_var: float, wid: float, trace: float, beta: float,
+) -> tuple[float, float]:  # fmt: skip
+    """core.guard.guarded of one margin: ``(mean bound, sd bound)`` from the distances to
+    the alternative (``tn``) and the true goal (``tn_i``; ``d_i`` from the start), the cost
+    normalisers' inverses, ``(v_max dt)^2 S_rho(t)`` and the per-step covariance's widest
+    and trace."""
+    bridged = pos_var * min(max(tn_i / d_i, 0.0), 1.0)
+    spread2 = bridged * trace
+    drop = beta * inv_si * (math.sqrt(tn_i * tn_i + spread2) - tn_i)
+    extra = 0.0
+    if spread2 > 0.0:
+        inv_ri = 1.0 / tn_i if tn_i > _EPS else np.inf
+        inv_rj = 1.0 / tn if tn > _EPS else np.inf
+        c = 2.0 * (inv_si * inv_ri + inv_sj * inv_rj)
+        extra = beta * (math.sqrt(bridged) * wid) * c * math.sqrt(spread2)
+    cap = beta * (math.sqrt(pos_var) * wid) * (inv_si + inv_sj)
+    bound = math.sqrt(sd * sd + extra * extra)
+    return margin - drop, (cap if not bound < cap else bound)
 
 
 @_jit
@@ -244,7 +284,7 @@ def _slack_kernel(
     paths = np.empty((m, 3, 1 if straight or not n_b else max(1, horizon.max())))
     arrival = np.zeros(m, dtype=np.int64)
     grad = np.empty((m, 3))
-    cost = np.empty(m)
+    cost = np.empty((2, m))
     for b in range(n_b):
         mean = _layout_mean(trans0, rot_term, b)
         if not straight:
@@ -301,6 +341,8 @@ def _ndtr(x: float) -> float:
 
 #: Relative slack on the Lipschitz constants, absolute margin on the decisions of a jump.
 _SAFE = 1e-9
+#: The guard's parameters when off (R and T, the search's surrogates, are not guarded).
+_NO_GUARD = np.zeros(4)
 
 
 @_jit
@@ -442,15 +484,23 @@ def _c_safe(
 def _w_safe(
     t: int, kmax: int, straight: bool, m: float, sig: float, tn: float, tn_i: float, a: int,
     bnd: FloatArray, inv_si: float, step: float, wid: float, beta: float, omega: float,
-    klim: float, zw: float, tau_w: float, sq_table: FloatArray,
+    klim: float, zw: float, tau_w: float, sq_table: FloatArray, s_table: FloatArray,
+    gpar: FloatArray, inv_sj: float, d_i: float,
 ) -> int:  # fmt: skip
     """Steps after step ``t`` (at most ``kmax``) whose wrong-commit term ``m + tau_w - z_w
-    sd`` provably stays at or above 0: its lower bound falls with ``k``."""
+    sd`` provably stays at or above 0: its lower bound falls with ``k``. ``m``, ``sig``: the
+    linearised terms; guarded (``gpar[0]``), the guard of their bounds at the distances
+    shrunk by ``k step`` and the spread at ``t + k`` (it falls with both)."""
 
     def lb(k: int) -> float:
         lo_hi = _window(k, straight, m, sig, tn, tn_i, a, bnd, inv_si, step, wid, beta, omega,
                         klim)  # fmt: skip
-        return float(lo_hi[0] + tau_w - zw * sq_table[t + k - 1] * lo_hi[3])
+        m_k, sd_k = lo_hi[0], sq_table[t + k - 1] * lo_hi[3]
+        if gpar[0] != 0.0:
+            m_k, sd_k = _guard_window(m_k, sd_k, tn, tn_i, k * step, straight, d_i, inv_sj,
+                                      inv_si, gpar[1] * s_table[t + k - 1], gpar[3], gpar[2],
+                                      beta)  # fmt: skip
+        return float(m_k + tau_w - zw * sd_k)
 
     if kmax < 1:
         return 0
@@ -468,16 +518,60 @@ def _exact_step(
     t: int, straight: bool, path: FloatArray, step: float, ratio: bool, inv_mean: float,
     beta: float, var_c: float, across2: float, dal: float, curved2: float,
     s_table: FloatArray, alt: FloatArray, goal: FloatArray, g_i: FloatArray, na: int,
-    need_sd: bool, cur: FloatArray,
+    need_sd: bool, cur: FloatArray, gpar: FloatArray,
 ) -> float:  # fmt: skip
     """Every alternative's exact terms at step ``t`` into ``cur[0..2, a]`` (margin, sd,
-    distance); returns the true goal's distance."""
+    distance; guarded with ``gpar[0]``) and the linearised margin and sd into
+    ``cur[3..4, a]`` (the jumps' bounds start from them); returns the true goal's
+    distance."""
     ti = _true_at(t, straight, path, step, ratio, inv_mean, var_c, s_table, goal, g_i)
     for a in range(na):
-        cur[0, a], cur[1, a], cur[2, a] = _element(t, a, straight, path, step, ratio,
-                                                   inv_mean, beta, across2, dal, curved2,
-                                                   alt, goal, ti, need_sd)  # fmt: skip
+        mm, sd, tn = _element(t, a, straight, path, step, ratio, inv_mean, beta, across2, dal,
+                              curved2, alt, goal, ti, need_sd)  # fmt: skip
+        cur[3, a], cur[4, a] = mm, sd
+        if need_sd and gpar[0] != 0.0:
+            mm, sd = _guarded_element(t, a, mm, sd, tn, ti[6], alt, goal, s_table, gpar, beta)
+        cur[0, a], cur[1, a], cur[2, a] = mm, sd, tn
     return ti[6]
+
+
+@_jit
+def _guard_window(
+    m_lo: float, sd_hi: float, tn: float, tn_i: float, reach: float, straight: bool,
+    d_i: float, inv_sj: float, inv_si: float, pos_var: float, wid: float, trace: float,
+    beta: float,
+) -> tuple[float, float]:  # fmt: skip
+    """A lower bound of the guarded margin and an upper bound of its sd over the steps
+    within ``reach`` of an exact one (distances ``tn``, ``tn_i``; ``m_lo``, ``sd_hi`` the
+    linearised terms' bounds there, ``pos_var`` the largest): the true goal's distance
+    lies in ``[tn_i - reach, tn_i + reach]`` (a straight nominal only closes in), the
+    alternative's is at least ``tn - reach``. The drop ``sqrt(r^2 + v tr min(r/d, 1)) - r``
+    rises with ``r`` up to ``d`` and falls after it; the extra spread is
+    ``2 v wid sqrt(tr) min(r_i/d, 1) (1/(r_i S_i) + 1/(r_j S_j))``, whose first term never
+    rises with ``r_i`` and whose second rises with ``r_i`` and falls with ``r_j``."""
+    ri_lo = max(tn_i - reach, 0.0)
+    ri_hi = tn_i if straight else tn_i + reach
+    rj_lo = max(tn - reach, 0.0)
+    r = min(max(d_i, ri_lo), ri_hi)  # the drop's largest over the window
+    spread2 = pos_var * min(r / d_i, 1.0) * trace
+    drop = beta * inv_si * (math.sqrt(r * r + spread2) - r)
+    first = 1.0 / d_i if ri_lo <= d_i else 1.0 / ri_lo
+    second = min(ri_hi / d_i, 1.0) / rj_lo if rj_lo > _EPS else np.inf
+    extra = beta * wid * math.sqrt(trace) * pos_var * 2.0 * (inv_si * first + inv_sj * second)
+    cap = beta * (math.sqrt(pos_var) * wid) * (inv_si + inv_sj)
+    bound = math.sqrt(sd_hi * sd_hi + extra * extra) * (1.0 + _SAFE)
+    return m_lo - drop * (1.0 + _SAFE), (cap * (1.0 + _SAFE) if not bound < cap else bound)
+
+
+@_jit
+def _guarded_element(
+    t: int, a: int, mm: float, sd: float, tn: float, tn_i: float, alt: FloatArray,
+    goal: FloatArray, s_table: FloatArray, gpar: FloatArray, beta: float,
+) -> tuple[float, float]:  # fmt: skip
+    """:func:`_guard` of alternative ``a``'s exact terms at step ``t``. ``gpar``: on,
+    ``(v_max dt)^2``, ``tr C``, widest."""
+    return _guard(mm, sd, tn, max(tn_i, 0.0), goal[0], alt[3, a], goal[3],
+                  gpar[1] * s_table[t - 1], gpar[3], gpar[2], beta)  # fmt: skip
 
 
 @_jit
@@ -516,6 +610,7 @@ def _commit_goal(
     tau_c: float, tau_w: float, goal: FloatArray, g_i: FloatArray, alt: FloatArray,
     bnd: FloatArray, na: int, cur: FloatArray, prev: FloatArray, w_next: IntArray,
     w_state: FloatArray, st_t: IntArray, st_m: FloatArray, st_sd: FloatArray,
+    gpar: FloatArray,
 ) -> tuple[float, float, float, float]:  # fmt: skip
     """``(kappa, t_c or -1, c(T_a), w)`` of one true goal (core.commit.commit_batch),
     computing only the steps and terms the jumps leave (see above)."""
@@ -529,7 +624,8 @@ def _commit_goal(
     c_t = -np.inf
     while True:
         tn_i = _exact_step(t, straight, path, step, ratio, inv_mean, beta, var_c, across2,
-                           dal, curved2, s_table, alt, goal, g_i, na, True, cur)  # fmt: skip
+                           dal, curved2, s_table, alt, goal, g_i, na, True, cur,
+                           gpar)  # fmt: skip
         inv_sq = 1.0 / sq_table[t - 1]
         klim = _omega(bnd, 0, step, tn_i)[1]
         c_t = _softmin_slack(cur, na, z_c, tau, exact_sum, t == n)
@@ -537,9 +633,9 @@ def _commit_goal(
         if c_t < 0.0 and t < n:  # the next step whose commit slack might reach 0
             A = z_c * sq_table[t - 1]
             k_c = 0
-            for a in range(na):
-                sig = cur[1, a] * inv_sq * (1.0 - _SAFE)
-                k = _c_safe(n - t, straight, cur[0, a], sig, cur[2, a], tn_i, a, bnd,
+            for a in range(na):  # (the guard only lowers the linearised terms' bound)
+                sig = cur[4, a] * inv_sq * (1.0 - _SAFE)
+                k = _c_safe(n - t, straight, cur[3, a], sig, cur[2, a], tn_i, a, bnd,
                             goal[3], step, wid, beta, bnd[3, a], klim, A, thr)  # fmt: skip
                 k_c = max(k_c, k)
             t_next = min(t + k_c + 1, n)
@@ -548,10 +644,10 @@ def _commit_goal(
                 st_t[count], st_m[count], st_sd[count] = t, cur[0, a], cur[1, a]
                 count += 1
             if w_next[a] < t_next and t < n:
-                sig = cur[1, a] * inv_sq * (1.0 + _SAFE)
-                k = _w_safe(t, n - t, straight, cur[0, a], sig, cur[2, a], tn_i, a, bnd,
+                sig = cur[4, a] * inv_sq * (1.0 + _SAFE)
+                k = _w_safe(t, n - t, straight, cur[3, a], sig, cur[2, a], tn_i, a, bnd,
                             goal[3], step, wid, beta, bnd[3, a], klim, zw_n, tau_w,
-                            sq_table)  # fmt: skip
+                            sq_table, s_table, gpar, alt[3, a], goal[0])  # fmt: skip
                 w_next[a] = t + k + 1
         if c_t >= 0.0:
             t_c = t
@@ -570,13 +666,17 @@ def _commit_goal(
                           g_i)  # fmt: skip
             mm, sd, tn = _element(s_min, a_min, straight, path, step, ratio, inv_mean, beta,
                                   across2, dal, curved2, alt, goal, ti, True)  # fmt: skip
-            st_t[count], st_m[count], st_sd[count] = s_min, mm, sd
+            g_m, g_sd = mm, sd
+            if gpar[0] != 0.0:
+                g_m, g_sd = _guarded_element(s_min, a_min, mm, sd, tn, ti[6], alt, goal,
+                                             s_table, gpar, beta)  # fmt: skip
+            st_t[count], st_m[count], st_sd[count] = s_min, g_m, g_sd
             count += 1
             sig = sd / sq_table[s_min - 1] * (1.0 + _SAFE)
             klim = _omega(bnd, a_min, step, ti[6])[1]
             k = _w_safe(s_min, n - s_min, straight, mm, sig, tn, ti[6], a_min, bnd, goal[3],
                         step, wid, beta, bnd[3, a_min], klim, zw_n, tau_w,
-                        sq_table)  # fmt: skip
+                        sq_table, s_table, gpar, alt[3, a_min], goal[0])  # fmt: skip
             w_next[a_min] = s_min + k + 1
         t = t_next
     if t_c > 0:
@@ -584,14 +684,15 @@ def _commit_goal(
         c_prev = -tau_c
         if t_c > 1:
             _exact_step(t_c - 1, straight, path, step, ratio, inv_mean, beta, var_c, across2,
-                        dal, curved2, s_table, alt, goal, g_i, na, True, prev)  # fmt: skip
+                        dal, curved2, s_table, alt, goal, g_i, na, True, prev,
+                        gpar)  # fmt: skip
             c_prev = _softmin_slack(prev, na, z_c, tau, exact_sum)
         crossing = (t_c - 1) + (-c_prev) / max(c_t - c_prev, 1e-300)
         t_end = t_c
         c_end = c_t
         if t_c < n:
             _exact_step(n, straight, path, step, ratio, inv_mean, beta, var_c, across2, dal,
-                        curved2, s_table, alt, goal, g_i, na, True, prev)  # fmt: skip
+                        curved2, s_table, alt, goal, g_i, na, True, prev, gpar)  # fmt: skip
             c_end = _softmin_slack(prev, na, z_c, tau, exact_sum)
     else:
         crossing = 0.0
@@ -624,13 +725,14 @@ def _time_goal(
     t = 1
     while True:
         _exact_step(t, straight, path, step, ratio, inv_mean, beta, var_c, 0.0, 0.0, 0.0,
-                    s_table, alt, goal, g_i, na, False, cur)  # fmt: skip
+                    s_table, alt, goal, g_i, na, False, cur, _NO_GUARD)  # fmt: skip
         c0 = _softmin_slack(cur, na, 0.0, tau_w, True)
         if c0 >= 0.0:
             c_before = -tau_c
             if t > 1:
                 _exact_step(t - 1, straight, path, step, ratio, inv_mean, beta, var_c, 0.0,
-                            0.0, 0.0, s_table, alt, goal, g_i, na, False, cur)  # fmt: skip
+                            0.0, 0.0, s_table, alt, goal, g_i, na, False, cur,
+                            _NO_GUARD)  # fmt: skip
                 c_before = _softmin_slack(cur, na, 0.0, tau_w, True)
             return ((t - 1) + (-c_before) / max(c0 - c_before, 1e-300)) * dt, t
         if t == n:
@@ -699,7 +801,8 @@ def _chance_goal(
     t = n
     while t >= lo:
         tn_i = _exact_step(t, straight, path, step, ratio, inv_mean, beta, var_c, across2,
-                           dal, curved2, s_table, alt, goal, g_i, na, True, cur)  # fmt: skip
+                           dal, curved2, s_table, alt, goal, g_i, na, True, cur,
+                           _NO_GUARD)  # fmt: skip
         low = np.inf
         for a in range(na):
             low = min(low, cur[0, a])
@@ -747,13 +850,14 @@ def _commit_kernel(
     beta: float, var_c: float, along2: float, across2: float, curved2: float,
     s_table: FloatArray, zw_table: FloatArray, z_c: float, tau_c: float, tau_w: float,
     dt: float, want_slack: bool, horizon: IntArray, j_sums: FloatArray, jpar: FloatArray,
-    out0: FloatArray, out1: FloatArray, out2: FloatArray, out3: FloatArray,
-    arrived: IntArray, slack: FloatArray,
+    gpar: FloatArray, out0: FloatArray, out1: FloatArray, out2: FloatArray,
+    out3: FloatArray, arrived: IntArray, slack: FloatArray,
 ) -> None:  # fmt: skip
     """Per (layout, true goal): ``what = K``: ``out0..3 = (kappa, t_c or -1, c(T_a), w)``;
     ``R``: ``out0`` the chance; ``T``: ``out0`` the commit time (s). ``arrived``: ``T_a``
     (0: the nominal never arrives). With ``want_slack``, also section 4's slack along the
-    same nominal into ``slack`` (horizon steps ``horizon``, ``S_rho(T) = j_sums``)."""
+    same nominal into ``slack`` (horizon steps ``horizon``, ``S_rho(T) = j_sums``).
+    ``gpar``: K's guard (core.guard; on, ``(v_max dt)^2``, ``tr C``, widest)."""
     n_b, m = trans0.shape
     na = m - 1
     cap = max(2, t_arrival.max()) if n_b else 2
@@ -765,13 +869,13 @@ def _commit_kernel(
     goal = np.empty(5)
     g_i = np.empty(3)
     grad = np.empty((m, 3))
-    cost = np.empty(m)
+    cost = np.empty((2, m))
     dal = along2 - across2
     wid = math.sqrt(max(along2, across2)) if straight else math.sqrt(curved2)
     sq_table = np.sqrt(var_c * s_table)
     bnd = np.zeros((6, na))
-    cur = np.empty((3, na))
-    prev = np.empty((3, na))
+    cur = np.empty((5, na))
+    prev = np.empty((5, na))
     w_next = np.zeros(na, dtype=np.int64)
     w_state = np.zeros((4, na))
     st_t = np.empty(cap * na, dtype=np.int64)
@@ -849,7 +953,7 @@ def _commit_kernel(
                     n, exact_sum, straight, path, step, ratio, inv_mean, beta, var_c,
                     across2, dal, curved2, wid, s_table, sq_table, zw_table, z_c, tau_c,
                     tau_w, goal, g_i, alt, bnd, na, cur, prev, w_next, w_state, st_t, st_m,
-                    st_sd,
+                    st_sd, gpar,
                 )  # fmt: skip
             elif what == _R:
                 out0[b, i] = _chance_goal(n, straight, path, step, ratio, inv_mean, beta,
@@ -965,6 +1069,7 @@ class Objectives:
         jpar = np.array([
             z, (op.sigma * params.dt) ** 2, params.beta**2 * (params.v_max * params.dt) ** 2,
             motion.along**2, motion.across**2, motion.widest**2, float(mode),
+            spread_trace(motion, op.straight),
         ])  # fmt: skip
         return steps, length, sums, jpar
 
@@ -1011,10 +1116,15 @@ class Objectives:
             horizon, _, j_sums, jpar = self._slack_terms(op, motion)
         else:
             horizon, j_sums = np.ones((b, m), dtype=np.int64), np.zeros((b, m))
-            jpar = np.zeros(7)
+            jpar = np.zeros(8)
         bc, bs, turn, steering = self._steering(op)
         threshold = (params.v_max * params.dt) * (1.0 - _ARRIVAL_GUARD)
         curved2 = motion.along**2 if motion.isotropic else motion.widest**2
+        guard = what == _K and motion != op.motion(params)  # as core.commit
+        gpar = np.array([
+            float(guard), (params.v_max * params.dt) ** 2, spread_trace(motion, op.straight),
+            motion.widest,
+        ])  # fmt: skip
         o0, o1, o2, o3, j_out = (np.empty((b, m)) for _ in range(5))
         arrived = np.zeros((b, m), dtype=np.int64)
         sums, wrong = (
@@ -1029,8 +1139,8 @@ class Objectives:
                 steering, _grid(), threshold**2, params.cost == "ratio", params.beta,
                 params.beta**2 * (params.v_max * params.dt) ** 2, motion.along**2,
                 motion.across**2, curved2, sums, wrong, z_c, tau_c, tau_w, params.dt,
-                want_slack, horizon[sl], j_sums[sl], jpar, o0[sl], o1[sl], o2[sl], o3[sl],
-                arrived[sl], j_out[sl],
+                want_slack, horizon[sl], j_sums[sl], jpar, gpar, o0[sl], o1[sl], o2[sl],
+                o3[sl], arrived[sl], j_out[sl],
             )  # fmt: skip
 
         _in_threads(run, b)
