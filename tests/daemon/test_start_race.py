@@ -19,7 +19,8 @@ import pytest
 from tests.daemon.procs import LEGWS, env, start, stop, write_profile
 from tests.net import free_port
 
-STARTS = 20
+#: Before the fix 2 starts in 7 failed: 12 clean starts had a chance of 1.8 % then.
+STARTS = 12
 
 
 def _daemon(profile: Path, log: Path) -> subprocess.CompletedProcess[str]:

@@ -13,14 +13,16 @@ a rejected payload leaves what the next tick commands unchanged; and after every
 what was sent is finite and at most ``v_max``, the EE is inside the workspace box, the
 joints are within their limits, and no input means exactly zero velocity.
 
-10,000 examples per message kind; the terminal summary lists the payloads, rejections
-and times (docs/reliability.md).
+4,000 examples per message kind in the suite (``LEGWS_FUZZ_EXAMPLES`` sets another
+number: docs/reliability.md's table is a run of 10,000); the terminal summary lists the
+payloads, rejections and times.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -39,7 +41,7 @@ from legws_daemon.task.graph import TaskGraph
 from tests.reliability.helpers import TALLIES, Rig, Tally, expect
 from tests.reliability.strategies import EDGE_TEXT, junk, leaves, mutated, nested
 
-EXAMPLES = 10_000
+EXAMPLES = int(os.environ.get("LEGWS_FUZZ_EXAMPLES", "4000"))
 FUZZ = settings(
     max_examples=EXAMPLES,
     deadline=None,
