@@ -74,6 +74,8 @@ class NominalTerms:
     rot_term: FloatArray  # (B, M) lambda_R * angle(R0, R_j)
     costs: FloatArray  # (B, M, M) C_j at the nominal end of true goal i
     sensitivity: FloatArray  # (B, M, M, 3) a_ij
+    distances: FloatArray  # (B, M, M) |pbar_i - p_j|
+    trans0: FloatArray  # (B, M) |p_i - p0|
 
 
 def upper_quantile(tail: ArrayLike) -> FloatArray | float:
@@ -165,14 +167,21 @@ def nominal_terms(
     costs = path_costs(length, dist_now, dist_start[:, None, :], params.cost)  # (B, i, j)
 
     unit = safe_unit(diff)  # d|pbar_i - p_j| / d pbar_i
-    if params.cost == "dragan":
-        scale = np.mean(dist_start, axis=1)  # (B,)
-        grad_c = unit / scale[:, None, None, None]
-    else:
-        grad_c = unit / dist_start[:, None, :, None]
+    grad_c = unit / cost_scales(dist_start, params)[:, None, :, None]
     diag = np.einsum("biik->bik", grad_c)  # gradient of C_i at pbar_i
     sensitivity = grad_c - diag[:, :, None, :]
-    return NominalTerms(steps, length, endpoint, dist_start, rot_term, costs, sensitivity)
+    return NominalTerms(
+        steps, length, endpoint, dist_start, rot_term, costs, sensitivity, trans_now, trans0
+    )
+
+
+def cost_scales(dist_start: FloatArray, params: Params) -> FloatArray:
+    """The cost's normaliser per goal ``(B, M)`` from the start distances ``d(x0, g)``:
+    ``D = mean_g d(x0, g)`` (dragan) or ``d(x0, g)`` itself (ratio)."""
+    b, m = dist_start.shape
+    if params.cost == "dragan":
+        return np.broadcast_to(np.mean(dist_start, axis=1)[:, None], (b, m))
+    return dist_start
 
 
 def who_steers(
@@ -236,9 +245,8 @@ def certify_batch(
         per_step = (params.v_max * params.dt) ** 2
         variance = params.beta**2 * per_step * sums[:, :, None] * spread
         margin, variance = _guarded_pairs(
-            t, np.asarray(goal_positions, dtype=np.float64), margin, variance, per_step * sums,
-            operator, user, params,
-        )  # fmt: skip
+            t, margin, variance, per_step * sums, operator, user, params
+        )
     quantile = float(upper_quantile(params.alpha / (m - 1)))
     slack = margin - quantile * np.sqrt(variance)
     eye = np.eye(m, dtype=bool)
@@ -251,7 +259,6 @@ def certify_batch(
 
 def _guarded_pairs(
     t: NominalTerms,
-    goal_positions: FloatArray,
     margin: FloatArray,
     variance: FloatArray,
     pos_var: FloatArray,
@@ -261,18 +268,11 @@ def _guarded_pairs(
 ) -> tuple[FloatArray, FloatArray]:
     """Margins and variances ``(B, i, j)`` at the horizon under :func:`~.guard.guarded`
     (``pos_var``: ``(v_max dt)^2 S_rho(T_i)``, ``(B, i)``)."""
-    b, m = goal_positions.shape[:2]
-    diff = t.endpoint[:, :, None, :] - goal_positions[:, None, :, :]
-    r = np.sqrt(np.einsum("bijk,bijk->bij", diff, diff))  # (B, i, j)
-    r_true = np.einsum("bii->bi", r)[:, :, None]
-    if params.cost == "dragan":
-        inv_s = np.broadcast_to(1.0 / np.mean(t.dist_start, axis=1)[:, None], (b, m))
-    else:
-        inv_s = 1.0 / t.dist_start
-    start = (t.dist_start - t.rot_term)[:, :, None]  # |p_i - p0|
+    inv_s = 1.0 / cost_scales(t.dist_start, params)
     g_margin, g_sd = guarded(
-        margin, np.sqrt(variance), r_true, r, start, inv_s[:, :, None], inv_s[:, None, :],
-        pos_var[:, :, None], user.widest, spread_trace(user, operator.straight), params.beta,
+        margin, np.sqrt(variance), np.einsum("bii->bi", t.distances)[:, :, None], t.distances,
+        t.trans0[:, :, None], inv_s[:, :, None], inv_s[:, None, :], pos_var[:, :, None],
+        user.widest, spread_trace(user, operator.straight), params.beta,
     )  # fmt: skip
     return g_margin, g_sd**2
 

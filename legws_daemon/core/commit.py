@@ -64,6 +64,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
 from legws_daemon.core.certificate import (
+    cost_scales,
     goal_arrays,
     start_terms,
     step_spread,
@@ -459,7 +460,7 @@ def _terms(bt: _Batch, params: Params, rows: slice) -> tuple[FloatArray, FloatAr
 
     # |a_ij|^2 = |unit_j / S_j - unit_i / S_i|^2 with unit_g = (pbar - p_g) / |pbar - p_g|
     # (zero where the point coincides) and unit_i = -u_i before arrival.
-    scale = _scales(dist_start, params)
+    scale = cost_scales(dist_start, params)
     on_j = trans_now > _COINCIDENT
     at_true = np.broadcast_to(true[None, :, None, None], (b, k, n_t, 1))
     on_i = np.take_along_axis(on_j, at_true, axis=-1)  # (b, i, T, 1)
@@ -523,14 +524,6 @@ def _margins(
     return np.asarray(params.beta * (costs - c_true[..., None]), dtype=np.float64)
 
 
-def _scales(dist_start: FloatArray, params: Params) -> FloatArray:
-    """The cost's normaliser per goal ``(b, M)``: ``D`` (dragan) or ``d(x0, g)`` (ratio)."""
-    b, m = dist_start.shape
-    if params.cost == "dragan":
-        return np.broadcast_to(np.mean(dist_start, axis=1)[:, None], (b, m))
-    return dist_start
-
-
 def _path_terms(
     bt: _Batch, params: Params, rows: slice
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -549,7 +542,8 @@ def _path_terms(
     margin = _margins(trans_now, bt.rot_term, dist_start, t * bt.step_length, true, params)
     on = trans_now > _COINCIDENT
     unit = np.where(on[..., None], diff / np.where(on, trans_now, 1.0)[..., None], 0.0)
-    grad = unit / _scales(dist_start, params)[:, None, None, :, None]
+    scale = cost_scales(dist_start, params)
+    grad = unit / scale[:, None, None, :, None]
     at_true = np.broadcast_to(true[None, :, None, None, None], (*grad.shape[:3], 1, 3))
     sensitivity = grad - np.take_along_axis(grad, at_true, axis=-2)
     spread = step_spread(sensitivity, None, user)
@@ -558,7 +552,6 @@ def _path_terms(
     sd = np.sqrt(np.maximum(var, 0.0))
     if bt.guarded:
         r_true = np.take_along_axis(trans_now, at_true[..., 0], axis=-1)  # (b, i, T, 1)
-        scale = _scales(dist_start, params)
         margin, sd = _guard(bt, params, margin, sd, r_true, trans_now, scale, rows, sums)
     return t, margin, sd
 

@@ -168,6 +168,7 @@ def _slack_at_point(
     along2, across2, widest2, mode = jpar[3], jpar[4], jpar[5], int(jpar[6])
     pos_var = var_scale * s_t / (beta * beta)
     gw = math.sqrt(widest2)
+    inv_si = 1.0 / (trans0[b, i] + rot_term[b, i] if ratio else mean)
     wx = wy = wz = 0.0
     if mode == _ALONG_ACROSS:
         wx, wy, wz = hx - p0[0], hy - p0[1], hz - p0[2]
@@ -214,7 +215,6 @@ def _slack_at_point(
         margin = beta * (cost[0, j] - cost[0, i])
         sd = math.sqrt(var)
         if mode != _AS_WRITTEN:
-            inv_si = 1.0 / (trans0[b, i] + rot_term[b, i] if ratio else mean)
             inv_sj = 1.0 / (trans0[b, j] + rot_term[b, j] if ratio else mean)
             margin, sd = _guard(margin, sd, cost[1, j], cost[1, i], trans0[b, i], inv_sj,
                                 inv_si, pos_var, gw, jpar[7], beta)  # fmt: skip
@@ -529,7 +529,7 @@ def _exact_step(
         mm, sd, tn = _element(t, a, straight, path, step, ratio, inv_mean, beta, across2, dal,
                               curved2, alt, goal, ti, need_sd)  # fmt: skip
         cur[3, a], cur[4, a] = mm, sd
-        if need_sd and gpar[0] != 0.0:
+        if need_sd:
             mm, sd = _guarded_element(t, a, mm, sd, tn, ti[6], alt, goal, s_table, gpar, beta)
         cur[0, a], cur[1, a], cur[2, a] = mm, sd, tn
     return ti[6]
@@ -568,8 +568,10 @@ def _guarded_element(
     t: int, a: int, mm: float, sd: float, tn: float, tn_i: float, alt: FloatArray,
     goal: FloatArray, s_table: FloatArray, gpar: FloatArray, beta: float,
 ) -> tuple[float, float]:  # fmt: skip
-    """:func:`_guard` of alternative ``a``'s exact terms at step ``t``. ``gpar``: on,
-    ``(v_max dt)^2``, ``tr C``, widest."""
+    """:func:`_guard` of alternative ``a``'s exact terms at step ``t`` (unchanged with the
+    guard off). ``gpar``: on, ``(v_max dt)^2``, ``tr C``, widest."""
+    if gpar[0] == 0.0:
+        return mm, sd
     return _guard(mm, sd, tn, max(tn_i, 0.0), goal[0], alt[3, a], goal[3],
                   gpar[1] * s_table[t - 1], gpar[3], gpar[2], beta)  # fmt: skip
 
@@ -666,10 +668,8 @@ def _commit_goal(
                           g_i)  # fmt: skip
             mm, sd, tn = _element(s_min, a_min, straight, path, step, ratio, inv_mean, beta,
                                   across2, dal, curved2, alt, goal, ti, True)  # fmt: skip
-            g_m, g_sd = mm, sd
-            if gpar[0] != 0.0:
-                g_m, g_sd = _guarded_element(s_min, a_min, mm, sd, tn, ti[6], alt, goal,
-                                             s_table, gpar, beta)  # fmt: skip
+            g_m, g_sd = _guarded_element(s_min, a_min, mm, sd, tn, ti[6], alt, goal, s_table,
+                                         gpar, beta)  # fmt: skip
             st_t[count], st_m[count], st_sd[count] = s_min, g_m, g_sd
             count += 1
             sig = sd / sq_table[s_min - 1] * (1.0 + _SAFE)
