@@ -45,22 +45,30 @@ def fetch_cmd(force: bool) -> None:
     show_default=True,
     help="Any scene on the shared table (the map depends on table and home only).",
 )
-def reachability_cmd(scene_name: str) -> None:
-    """Build (once) and cache the reachability map the optimiser screens grasps with."""
+@click.option(
+    "--build",
+    "build_anew",
+    is_flag=True,
+    help="Build it even when cached or shipped with legws (to refresh the shipped map).",
+)
+def reachability_cmd(scene_name: str, build_anew: bool) -> None:
+    """Cache the reachability map the optimiser screens grasps with: the one legws ships
+    for this robot model, or built once (~1.5 min) when none matches."""
     from legws_daemon.robot.kinematics import home_configuration
-    from legws_daemon.robot.reachability import cache_key, load_or_build
+    from legws_daemon.robot.reachability import SHIPPED, cache_key, load_or_build
     from legws_daemon.robot.world import World
     from legws_daemon.scene.catalog import load_scene
 
     scene = load_scene(scene_name)
     world = World(scene)
     q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
-    path = assets.assets_dir() / "reachability" / f"{cache_key(world, q_home)}.npz"
-    if not path.is_file():
+    key = cache_key(world, q_home)
+    path = assets.assets_dir() / "reachability" / f"{key}.npz"
+    if build_anew or not (path.is_file() or (SHIPPED / f"{key}.npz").is_file()):
         click.echo(
             "legws: building the reachability map (once per robot model, ~1.5 min)", err=True
         )
-    load_or_build(world, q_home)
+    load_or_build(world, q_home, build_anew=build_anew)
     click.echo(path)
 
 

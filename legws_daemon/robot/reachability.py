@@ -43,6 +43,13 @@ robot description, the gripper, the table, the IK seeds, the tolerances and the 
 file is written atomically (a temporary file, then a rename) and used only when it
 validates (:meth:`ReachabilityMap.load`: format, key, grid, array names, shapes and
 types); a truncated, garbage or stale file is logged as a warning and rebuilt.
+
+legws ships the map of the default grid for the Sawyer model it fetches (:data:`SHIPPED`,
+~10 kB; the robosuite release ``legws assets fetch`` pins): when its key is the cache's, it is
+validated like a cached file and copied into the cache instead of building (~1.5 min). A
+changed model, table, seed, tolerance or grid changes the key, and the map is built as
+before. ``legws assets reachability --build`` builds it regardless (to refresh the shipped
+one: tests/robot/test_reachability.py fails while it is stale).
 """
 
 from __future__ import annotations
@@ -78,6 +85,8 @@ log = logging.getLogger("legws.reachability")
 
 #: Bumped whenever the meaning of a cached map changes (algorithm, layout of the arrays).
 FORMAT_VERSION = 1
+#: Maps shipped with legws, named ``KEY.npz`` like the cache's.
+SHIPPED = Path(__file__).parent / "maps"
 #: Patience (iterations without 1 % progress) of warm starts and restarts.
 _PATIENCE = 5
 #: Where objects are moved while building (x, metres): out of the arm's reach.
@@ -637,22 +646,38 @@ def load_or_build(
     *,
     directory: Path | None = None,
     progress: Callable[[int, int], None] | None = None,
+    build_anew: bool = False,
 ) -> ReachabilityMap:
-    """The map from the cache, built (and cached) when missing, corrupt or stale.
+    """The map from the cache, else the one shipped with legws for this key, else built
+    (and cached) — also when the cached file is corrupt or stale.
 
     Args:
         directory: cache folder; default ``assets_dir() / "reachability"``.
+        build_anew: build it even when the cache or legws holds it (and replace the cache).
     """
     key = cache_key(world, q_home, grid)
     path = (directory or assets_dir() / "reachability") / f"{key}.npz"
-    if path.exists():
+    for source in () if build_anew else (path, SHIPPED / f"{key}.npz"):
+        if not source.exists():
+            continue
         try:
-            return ReachabilityMap.load(path, grid, key)
-        except LegwsError as err:  # rebuilt below and replaced
-            log.warning("legws: warning: rebuilding the reachability map: %s", err)
+            found = ReachabilityMap.load(source, grid, key)
+        except LegwsError as err:  # the next source, else built below; the cache replaced
+            what = (
+                "replacing the reachability map" if source == path else "not using " + str(source)
+            )
+            log.warning("legws: warning: %s: %s", what, err)
+            continue
+        if source != path:
+            _cache(found, path)
+        return found
     result = replace(build(world, q_home, grid, progress), key=key)
+    _cache(result, path)
+    return result
+
+
+def _cache(found: ReachabilityMap, path: Path) -> None:
     try:
-        result.save(path)
+        found.save(path)
     except (LegwsError, OSError) as err:  # the map is good; only the cache is lost
         log.warning("legws: warning: the reachability map is not cached: %s", err)
-    return result

@@ -89,19 +89,19 @@ def test_batched_ik_is_solve_ik_for_many_targets(desk: tuple[World, np.ndarray])
     w.set_q(q_home)
 
 
-def test_the_map_agrees_with_the_full_check_at_grid_points(
-    desk: tuple[World, np.ndarray], small: ReachabilityMap
+def _agreement_with_the_full_check(
+    w: World, q_home: np.ndarray, m: ReachabilityMap, per_family: int, seed: int
 ) -> None:
-    w, q_home = desk
-    rng = np.random.default_rng(0)
-    g = SMALL
+    """Random cells of ``m``: the full check agrees on most, and the lookup finds them."""
+    rng = np.random.default_rng(seed)
+    g = m.grid
     positions, rotations, expected = [], [], []
     for kind, roll, table in (
-        ("top", 0.0, small.top),
-        ("side", 0.0, small.side),
-        ("side", np.pi, small.side_flipped),
+        ("top", 0.0, m.top),
+        ("side", 0.0, m.side),
+        ("side", np.pi, m.side_flipped),
     ):
-        for _ in range(25):
+        for _ in range(per_family):
             ih, iw, ix, iy = (int(rng.integers(n)) for n in table.shape)
             positions.append([g.xs[ix], g.ys[iy], g.heights(kind)[ih]])
             rotations.append(rot_z(g.yaws[iw]) @ base_rotation(kind) @ rot_z(roll))
@@ -121,10 +121,31 @@ def test_the_map_agrees_with_the_full_check_at_grid_points(
     assert agreement >= 0.9, f"map and full check agree on {agreement:.0%}"
     assert full.any() and not full.all()  # the sample holds both answers
     # the lookup finds the same cells (rolled side frames included)
-    kinds = ["top"] * 25 + ["side"] * 50
-    looked = [small.lookup(k, p, r, 1) for k, p, r in zip(kinds, pos, rot, strict=True)]
+    kinds = ["top"] * per_family + ["side"] * (2 * per_family)
+    looked = [m.lookup(k, p, r, 1) for k, p, r in zip(kinds, pos, rot, strict=True)]
     assert np.array_equal(np.array(looked), np.array(expected))
     w.set_layout(w.scene.poses())
+
+
+def test_the_map_agrees_with_the_full_check_at_grid_points(
+    desk: tuple[World, np.ndarray], small: ReachabilityMap
+) -> None:
+    _agreement_with_the_full_check(*desk, small, 25, 0)
+
+
+def test_the_shipped_map_is_the_fetched_models_and_agrees_with_the_full_check(
+    desk: tuple[World, np.ndarray],
+) -> None:
+    """legws ships the default grid's map for the model it fetches: its key is the one the
+    model, table, seeds, tolerances and grid give now (else it is stale: refresh it with
+    ``legws assets reachability --build`` and copy the cache's file into
+    legws_daemon/robot/maps/), and random cells of it agree with the full check."""
+    w, q_home = desk
+    key = reachability.cache_key(w, q_home)
+    shipped = sorted(p.name for p in reachability.SHIPPED.glob("*.npz"))
+    assert shipped == [f"{key}.npz"], f"the shipped reachability map is stale: {shipped}"
+    m = ReachabilityMap.load(reachability.SHIPPED / f"{key}.npz", reachability.DEFAULT_GRID, key)
+    _agreement_with_the_full_check(w, q_home, m, 25, 1)
 
 
 def test_a_side_grasp_facing_away_at_the_far_corner_is_unreachable(
@@ -249,3 +270,34 @@ def test_the_cache_is_written_reused_and_rebuilt_when_corrupt(
     assert len(built) == 3
     assert ReachabilityMap.load(files[0], SMALL, rebuilt.key).key == rebuilt.key
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp files left
+
+
+def test_a_shipped_map_is_copied_into_the_cache_instead_of_building(
+    desk: tuple[World, np.ndarray],
+    small: ReachabilityMap,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    w, q_home = desk
+    key = reachability.cache_key(w, q_home, SMALL)
+    shipped, cache = tmp_path / "shipped", tmp_path / "cache"
+    replace(small, key=key).save(shipped / f"{key}.npz")
+    monkeypatch.setattr(reachability, "SHIPPED", shipped)
+
+    def fail(*args: object, **kwargs: object) -> ReachabilityMap:
+        raise AssertionError("built although shipped")
+
+    monkeypatch.setattr(reachability, "build", fail)
+    got = load_or_build(w, q_home, SMALL, directory=cache)
+    assert got.key == key and np.array_equal(got.top, small.top)
+    assert ReachabilityMap.load(cache / f"{key}.npz", SMALL, key).key == key  # cached
+    # --build: built although shipped and cached, and the cache replaced
+    flipped = replace(small, top=~small.top)
+    monkeypatch.setattr(reachability, "build", lambda *a, **k: flipped)
+    anew = load_or_build(w, q_home, SMALL, directory=cache, build_anew=True)
+    assert np.array_equal(anew.top, ~small.top)
+    assert np.array_equal(ReachabilityMap.load(cache / f"{key}.npz", SMALL, key).top, ~small.top)
+    # a damaged shipped map is not used: built instead
+    (cache / f"{key}.npz").unlink()
+    (shipped / f"{key}.npz").write_bytes(b"\x00garbage")
+    assert np.array_equal(load_or_build(w, q_home, SMALL, directory=cache).top, ~small.top)
