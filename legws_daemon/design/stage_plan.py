@@ -34,7 +34,7 @@ import logging
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -154,15 +154,19 @@ class _Planner:
             return -commit_time_estimate(self.goals(point, layout), self.params)
         return self.certificate(point, layout)
 
-    def check(self, point: DecisionPoint, layout: Layout) -> tuple[Target, str] | None:
+    def check(
+        self, point: DecisionPoint, layout: Layout, moving: Collection[str] = ()
+    ) -> tuple[Target, str] | None:
         """``None`` when every target passes the motion planner's check (IK, collisions, a
         straight approach, a clear way from home), else the first target that does not
-        and why."""
+        and why. The targets that do not move (not in ``moving``) are checked first: one of
+        them out of reach is out of reach in every layout, and the search stops there."""
         if self._motion is None:
             self._motion = stand_in_planner(self.world)
         motion = self._motion
         motion.set_layout(self.scene.poses(layout))
-        for t in self.targets(point, layout):
+        targets = sorted(self.targets(point, layout), key=lambda t: t.name in moving)
+        for t in targets:
             found = motion.check(t.name, t.position, t.rotation, t.symmetry)
             if not found.feasible:
                 return t, found.reason
@@ -273,11 +277,11 @@ def _search(
         if problem.constraints.problems(p.scene.poses(layout)):
             continue
         fallback = fallback or layout
-        failure = p.check(point, layout)
+        failure = p.check(point, layout, names)
         if failure is None:
             return layout, None
         first_problem = first_problem or _why(failure)
-        if failure[0].name not in names and failure[1] == "out of reach":
+        if failure[0].name not in names and failure[1].startswith("out of reach"):
             break  # a target that does not move is out of reach in every layout
     if start_ok:
         return dict(base), None

@@ -298,7 +298,9 @@ def test_no_gl_means_no_pictures_and_a_warning(
 
 
 @pytest.mark.slow  # plans a scene whose target no layout reaches: ~4 s
-def test_unreachable_target_is_reported_not_hidden(tmp_path: Path) -> None:
+def test_unreachable_target_is_reported_not_hidden(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # the feeding scene with the mouth 1.6 m away, and the bowls free to move
     text = (Path(load_scene("feeding").source)).read_text()
     scene_file = tmp_path / "feeding.toml"
@@ -311,7 +313,17 @@ def test_unreachable_target_is_reported_not_hidden(tmp_path: Path) -> None:
     graph_file.parent.mkdir()
     graph_file.write_text(graph_text.replace('fixed = ["chocolate_bowl", "sprinkles_bowl"]', ""))
     graph, _ = load_taskgraph(graph_file, sc)
+    checks: list[str] = []
+    check = stage_plan._Planner.check
+
+    def counted(self: Any, point: Any, layout: Any, moving: Any = ()) -> Any:
+        checks.append(point.label)
+        return check(self, point, layout, moving)
+
+    monkeypatch.setattr(stage_plan._Planner, "check", counted)
     plan = plan_taskgraph(graph, sc, iterations=3, use_cache=False, render=False)
+    # the mouth does not move: once it is out of reach no other elite is tried
+    assert checks.count("dip|feed") <= 2, checks
     choice = plan.decision("dip|feed")
     assert choice.optimised == ("chocolate_bowl", "sprinkles_bowl")
     assert not choice.feasible
