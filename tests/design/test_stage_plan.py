@@ -196,6 +196,7 @@ def test_commit_objective_per_decision(plans: dict[str, Plan]) -> None:
             assert "K " in d.note
             # every tea choice gets certified commits (the exact-sum K the design minimises)
             exact = certify_commit(goal_set(ts, sc.home), Params(), form="sum")
+            assert d.commit_objective is not None
             assert exact.objective <= 1.0 and exact.objective <= d.commit_objective
 
 
