@@ -89,3 +89,12 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.write_line(tally.line(name))
     for test, seconds in sorted(_DURATIONS.items(), key=lambda kv: -kv[1]):
         terminalreporter.write_line(f"{seconds:7.1f} s  {test}")
+
+
+# --- scheduling: the long tests first ------------------------------------------------------
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests marked ``slow`` (real processes, long searches) first, each group in its
+    collected order: the parallel workers start on the long ones, and the short ones fill
+    in at the end, so no worker is left running a long test alone. The order is the same
+    in every worker (pytest-xdist requires it)."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
