@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ipaddress
-import logging
 import signal
 import threading
 from contextlib import ExitStack
@@ -220,8 +219,9 @@ def daemon_cmd(
     that drives real hardware (not the sim stand-in) starts only with --allow-motion.
     """
     from legws_daemon.daemon.service import DaemonConfig, DaemonService, Telemetry
+    from legws_daemon.telemetry.terminal_log import log_to_terminal
 
-    logging.basicConfig(level=logging.INFO, format="legws daemon: %(message)s", force=True)
+    log_to_terminal("legws daemon")
 
     if scene is not None and taskgraph is not None:
         raise click.UsageError("give --scene or --taskgraph, not both")

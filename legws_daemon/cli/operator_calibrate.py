@@ -18,7 +18,6 @@ describe fewer reaches than asked for). Exit 130.
 
 from __future__ import annotations
 
-import logging
 import re
 import threading
 from contextlib import ExitStack
@@ -216,7 +215,9 @@ def calibrate_cmd(
     insecure = require_secure_transport(spec, problem, insecure_transport, where)
     # the log goes to the terminal from here on: every input is checked (an in-process run
     # that stops at bad input leaves the caller's logging as it was)
-    logging.basicConfig(level=logging.INFO, format="legws calibrate: %(message)s", force=True)
+    from legws_daemon.telemetry.terminal_log import log_to_terminal
+
+    log_to_terminal("legws calibrate")
     stop = threading.Event()
     install_stop_handlers(stop)
     with ExitStack() as stack:
