@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 
@@ -150,7 +151,11 @@ def _started(pub: Publisher, what: str) -> None:
     click.echo(f"legws: {what} on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
 
 
-@click.group("joystick")
+@click.group(
+    "joystick",
+    cls=LazyGroup,
+    lazy={"sim-user": "legws_daemon.cli.sim_user:sim_user_cmd"},
+)
 def joystick_group() -> None:
     """Publish joystick messages to the daemon: keyboard, CAN device or a recording."""
 

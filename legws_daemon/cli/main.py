@@ -13,58 +13,47 @@ from collections.abc import Sequence
 import click
 
 from legws_daemon import __version__
-from legws_daemon.cli.assets import assets_cmd
-from legws_daemon.cli.bridge import bridge_group
-from legws_daemon.cli.certify import certify_cmd
-from legws_daemon.cli.daemon import daemon_cmd
-from legws_daemon.cli.demo import demo_cmd
-from legws_daemon.cli.eval import eval_cmd
-from legws_daemon.cli.joystick import joystick_group
-from legws_daemon.cli.operator import operator_group
-from legws_daemon.cli.optimize import optimize_cmd
-from legws_daemon.cli.placement import placement_cmd
-from legws_daemon.cli.plan import plan_cmd
-from legws_daemon.cli.recording import recording_group
-from legws_daemon.cli.render import render_cmd
-from legws_daemon.cli.replay import replay_cmd
-from legws_daemon.cli.scenes import scenes_cmd
-from legws_daemon.cli.secure import secure_group
-from legws_daemon.cli.sim_user import sim_user_cmd
-from legws_daemon.cli.taskgraph import taskgraph_group
-from legws_daemon.cli.track import track_group
-from legws_daemon.cli.view import view_cmd
+from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.validation import printable
 
 EXIT_BAD_INPUT = 2
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+#: every command: its name and where it is defined (``module:attribute``). A command's module
+#: is imported when the command runs (or ``--help`` lists it): ``legws joystick keyboard``
+#: does not load the optimiser, the renderer or rerun.
+COMMANDS: dict[str, str] = {
+    "assets": "legws_daemon.cli.assets:assets_cmd",
+    "bridge": "legws_daemon.cli.bridge:bridge_group",
+    "certify": "legws_daemon.cli.certify:certify_cmd",
+    "daemon": "legws_daemon.cli.daemon:daemon_cmd",
+    "demo": "legws_daemon.cli.demo:demo_cmd",
+    "eval": "legws_daemon.cli.eval:eval_cmd",
+    "joystick": "legws_daemon.cli.joystick:joystick_group",
+    "operator": "legws_daemon.cli.operator:operator_group",
+    "optimize": "legws_daemon.cli.optimize:optimize_cmd",
+    "placement": "legws_daemon.cli.placement:placement_cmd",
+    "plan": "legws_daemon.cli.plan:plan_cmd",
+    "recording": "legws_daemon.cli.recording:recording_group",
+    "render": "legws_daemon.cli.render:render_cmd",
+    "replay": "legws_daemon.cli.replay:replay_cmd",
+    "scenes": "legws_daemon.cli.scenes:scenes_cmd",
+    "secure": "legws_daemon.cli.secure:secure_group",
+    "taskgraph": "legws_daemon.cli.taskgraph:taskgraph_group",
+    "track": "legws_daemon.cli.track:track_group",
+    "view": "legws_daemon.cli.view:view_cmd",
+}
+
+
+@click.group(
+    cls=LazyGroup,
+    lazy=COMMANDS,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
 @click.version_option(__version__, prog_name="legws")
 def cli() -> None:
     """legws: certified intent inference and workspace design for shared autonomy."""
-
-
-cli.add_command(assets_cmd)
-cli.add_command(certify_cmd)
-cli.add_command(render_cmd)
-cli.add_command(scenes_cmd)
-cli.add_command(eval_cmd)
-cli.add_command(optimize_cmd)
-cli.add_command(daemon_cmd)
-joystick_group.add_command(sim_user_cmd)
-cli.add_command(joystick_group)
-cli.add_command(bridge_group)
-cli.add_command(replay_cmd)
-cli.add_command(recording_group)
-cli.add_command(demo_cmd)
-cli.add_command(plan_cmd)
-cli.add_command(placement_cmd)
-cli.add_command(taskgraph_group)
-cli.add_command(secure_group)
-cli.add_command(view_cmd)
-cli.add_command(track_group)
-cli.add_command(operator_group)
 
 
 def _fail(message: str) -> int:

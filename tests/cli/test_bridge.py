@@ -14,36 +14,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from legws_daemon.cli.bridge import bridge_group, bridge_transport, limits_line
-from legws_daemon.cli.main import cli as legws_cli
+from legws_daemon.cli.bridge import bridge_transport, limits_line
 from legws_daemon.formats.bridge_messages import bridge_keys
 from legws_daemon.formats.profile import TransportSpec, load_profile
 from legws_daemon.hardware.sawyer import SawyerAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
-from tests.cli.helpers import Result, assert_bad_input
+from tests.cli.helpers import LEGWS, Result, assert_bad_input
 from tests.net import free_port
 
 REPO = Path(__file__).parents[2]
 PROFILE = REPO / "hw_profiles" / "sawyer.toml"
-#: ``legws`` with the bridge group (registered here until the entry point has it).
-SHIM = (
-    "import sys\n"
-    "from legws_daemon.cli.bridge import bridge_group\n"
-    "from legws_daemon.cli.main import cli, run\n"
-    "if 'bridge' not in cli.commands:\n"
-    "    cli.add_command(bridge_group)\n"
-    "sys.exit(run(sys.argv[1:]))\n"
-)
 
 Cli = Callable[..., Result]
-
-
-@pytest.fixture(autouse=True)
-def _bridge_registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Make ``legws bridge`` reachable in-process whether or not main.py registers it."""
-    if "bridge" not in legws_cli.commands:
-        monkeypatch.setitem(legws_cli.commands, "bridge", bridge_group)
 
 
 @pytest.mark.parametrize(
@@ -93,7 +76,7 @@ def test_serves_the_sawyer_adapter_and_stops_on_a_signal(signum: int) -> None:
         probe = daemon.declare_subscriber(keys["state"], lambda sample: heard.set())
         proc = subprocess.Popen(
             # the profile by name, as README and docs/daemon.md write it
-            [sys.executable, "-c", SHIM, "bridge", "fake", "--profile", "sawyer",
+            [str(LEGWS), "bridge", "fake", "--profile", "sawyer",
              "--connect", f"tcp/127.0.0.1:{port}", "--rate", "150"],
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip

@@ -14,8 +14,6 @@ from typing import Any
 
 import pytest
 
-from legws_daemon.cli.bridge import bridge_group
-from legws_daemon.cli.main import cli as legws_cli
 from legws_daemon.core.goals import MAX_GOALS
 from legws_daemon.core.montecarlo import MAX_TRIALS
 from legws_daemon.scene.catalog import scenes_dir
@@ -196,13 +194,6 @@ def test_an_object_100_m_away_is_refused(cli: Cli, tmp_path: Path) -> None:
 # --- endpoints --------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def with_bridge(monkeypatch: pytest.MonkeyPatch) -> None:
-    if "bridge" not in legws_cli.commands:
-        monkeypatch.setitem(legws_cli.commands, "bridge", bridge_group)
-
-
-@pytest.mark.usefixtures("with_bridge")
 @pytest.mark.parametrize("flag", ["--listen", "--connect"])
 def test_port_99999_on_the_command_line_is_refused(cli: Cli, flag: str) -> None:
     assert_bad_input(
@@ -212,7 +203,6 @@ def test_port_99999_on_the_command_line_is_refused(cli: Cli, flag: str) -> None:
     )
 
 
-@pytest.mark.usefixtures("with_bridge")
 def test_port_99999_in_a_profile_is_refused(cli: Cli, tmp_path: Path) -> None:
     text = (REPO / "hw_profiles" / "sim.toml").read_text(encoding="utf-8")
     path = tmp_path / "p.toml"

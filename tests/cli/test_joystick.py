@@ -8,38 +8,18 @@ import pty
 import select
 import signal
 import subprocess
-import sys
 import termios
 from collections.abc import Callable
 from pathlib import Path
 
-import pytest
-
-from legws_daemon.cli.joystick import joystick_group
-from legws_daemon.cli.main import cli as legws_cli
 from legws_daemon.formats.messages import Buttons, JoystickMessage, parse
-from tests.cli.helpers import Result, assert_bad_input
+from tests.cli.helpers import LEGWS, Result, assert_bad_input
 from tests.joystick.helpers import KEY, ROBOT, daemon_side
 from tests.net import free_port
 
 Cli = Callable[..., Result]
 REPO = Path(__file__).resolve().parents[2]
 SIM = REPO / "hw_profiles" / "sim.toml"
-
-#: ``legws`` with the joystick group registered (a no-op once main.py registers it).
-SCRIPT = (
-    "import sys\n"
-    "from legws_daemon.cli.main import cli, run\n"
-    "from legws_daemon.cli.joystick import joystick_group\n"
-    "cli.add_command(joystick_group)\n"
-    "sys.exit(run(sys.argv[1:]))\n"
-)
-
-
-@pytest.fixture(autouse=True)
-def _registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The in-process ``legws`` knows ``joystick`` whether or not main.py registers it yet."""
-    monkeypatch.setitem(legws_cli.commands, "joystick", joystick_group)
 
 
 def profile(tmp_path: Path, listen: list[str], **control: float) -> Path:
@@ -166,7 +146,7 @@ def test_can_on_a_quiet_virtual_bus_publishes_only_the_final_zero(cli: Cli, tmp_
 
 def _start(*argv: str | Path) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-c", SCRIPT, *map(str, argv)],
+        [str(LEGWS), *map(str, argv)],
         cwd=REPO,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
@@ -233,7 +213,7 @@ def test_keyboard_process_on_a_pseudo_terminal(tmp_path: Path) -> None:
     try:
         with daemon_side(port, KEY) as inbox:
             proc = subprocess.Popen(
-                [sys.executable, "-c", SCRIPT, "joystick", "keyboard", "--profile", prof],
+                [str(LEGWS), "joystick", "keyboard", "--profile", prof],
                 cwd=REPO,
                 stdin=slave,
                 stdout=subprocess.PIPE,

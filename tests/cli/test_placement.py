@@ -9,13 +9,8 @@ from pathlib import Path
 import pdfplumber
 import pytest
 
-from legws_daemon.cli.main import cli
-from legws_daemon.cli.placement import placement_cmd
 from legws_daemon.scene.catalog import scenes_dir
 from tests.cli.helpers import Result, assert_bad_input
-
-if "placement" not in cli.commands:  # until the command is registered in cli/main.py
-    cli.add_command(placement_cmd)
 
 Cli = Callable[..., Result]
 

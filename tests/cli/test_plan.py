@@ -9,14 +9,9 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from legws_daemon.cli.main import cli
-from legws_daemon.cli.plan import plan_cmd
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.task.plan_file import load_plan
 from tests.cli.helpers import Result, assert_bad_input
-
-if "plan" not in cli.commands:  # until the command is registered in cli/main.py
-    cli.add_command(plan_cmd)
 
 Cli = Callable[..., Result]
 

@@ -10,18 +10,10 @@ from typing import Any
 import pytest
 import rerun as rr
 
-from legws_daemon.cli import main as cli_main
-from legws_daemon.cli.replay import replay_cmd
 from tests.cli.helpers import Result, assert_bad_input
 from tests.telemetry.helpers import record, straight_episode
 
 Cli = Callable[..., Result]
-
-
-@pytest.fixture(autouse=True)
-def registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``replay`` in the ``legws`` group for the in-process runner (undone after the test)."""
-    monkeypatch.setitem(cli_main.cli.commands, "replay", replay_cmd)
 
 
 @pytest.fixture(scope="module")

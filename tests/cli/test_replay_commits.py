@@ -21,8 +21,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from legws_daemon.cli import main as cli_main
-from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.formats.log_lines import How, commit_text
@@ -33,12 +31,6 @@ from tests.telemetry.helpers import Episode, setup, straight_episode, tick_kwarg
 Cli = Callable[..., Result]
 
 HOME = 20  # samples from where inference stopped back to x0
-
-
-@pytest.fixture(autouse=True)
-def registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``replay`` in the ``legws`` group for the in-process runner (undone after the test)."""
-    monkeypatch.setitem(cli_main.cli.commands, "replay", replay_cmd)
 
 
 @dataclass(frozen=True)

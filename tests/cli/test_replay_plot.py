@@ -11,8 +11,6 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from legws_daemon.cli import main as cli_main
-from legws_daemon.cli.replay import replay_cmd
 from legws_daemon.formats.log_lines import commit_text
 from legws_daemon.telemetry.posterior_plot import COMMIT_STYLE, HEIGHT, WIDTH, goal_colours
 from legws_daemon.telemetry.rerun_log import RerunLog
@@ -20,12 +18,6 @@ from tests.cli.helpers import Result, assert_bad_input
 from tests.telemetry.helpers import log_episode, straight_episode
 
 Cli = Callable[..., Result]
-
-
-@pytest.fixture(autouse=True)
-def registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``replay`` in the ``legws`` group for the in-process runner (undone after the test)."""
-    monkeypatch.setitem(cli_main.cli.commands, "replay", replay_cmd)
 
 
 @pytest.fixture(scope="module")

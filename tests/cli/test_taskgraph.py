@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from legws_daemon.cli.main import cli
-from legws_daemon.cli.taskgraph import taskgraph_group
 from legws_daemon.task.diagram import CHOICE, REPEAT
 from tests.cli.helpers import Result, assert_bad_input
-
-if "taskgraph" not in cli.commands:  # until the group is registered in cli/main.py
-    cli.add_command(taskgraph_group)
 
 Cli = Callable[..., Result]
 GRAPHS = Path(__file__).parents[2] / "taskgraphs"

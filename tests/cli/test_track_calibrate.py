@@ -8,28 +8,17 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import click
 import cv2
 import numpy as np
 import pdfplumber
 import pytest
 
-from legws_daemon.cli import main as cli_main
 from legws_daemon.cli import track_calibrate
-from legws_daemon.cli.track_calibrate import calibrate_cmd
 from legws_daemon.tracking.calibration import detect_board, load_calibration
 from tests.cli.helpers import Result, assert_bad_input
 from tests.tracking.test_calibration import synthetic_views
 
 MM_PER_POINT = 25.4 / 72
-
-
-@pytest.fixture(autouse=True)
-def track_group(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``legws track`` with ``calibrate`` in it, until the lead's group is attached."""
-    if "track" not in cli_main.cli.commands:
-        group = click.Group("track", commands={"calibrate": calibrate_cmd})
-        monkeypatch.setitem(cli_main.cli.commands, "track", group)
 
 
 @pytest.fixture
