@@ -13,6 +13,10 @@ naming the file and the command that restores the folder. Hashing the ~55 MB fol
 ~0.15 s; the result is kept per process for each file's (path, size, mtime, ctime, inode),
 so later calls only ``lstat`` the files (~1 ms) and a changed file is hashed again.
 
+The fetch also writes each mesh that ``robot.xml`` loads in MuJoCo's binary format (see
+:mod:`legws_daemon.robot.mesh_files`: the same model, compiled ~0.4 s sooner), listed in
+the manifest like the rest.
+
 Cache location: ``$LEGWS_ASSETS``, else ``.assets/`` in a source checkout, else
 ``~/.cache/legws/assets``.
 """
@@ -29,12 +33,15 @@ import subprocess
 import sys
 import tempfile
 import threading
+import xml.etree.ElementTree as ET
 import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.robot.mesh_files import fast_mesh_path, obj_to_msh
 
 ROBOSUITE_VERSION = "1.5.2"
 _PREFIX = "robosuite/models/assets/robots/sawyer/"
@@ -63,6 +70,13 @@ class Verified:
     files: int
     size: int
     digest: str  # sha256 over the manifest's entries: one name for the whole model
+    sha256: Mapping[str, str]  # each listed file's sha256, by relative path
+
+    def fast_mesh(self, rel: str) -> str | None:
+        """The binary mesh the manifest lists for the OBJ ``rel`` as it is now, else None."""
+        digest = self.sha256.get(rel)
+        fast = fast_mesh_path(digest) if digest else None
+        return fast if fast in self.sha256 else None
 
 
 def assets_dir() -> Path:
@@ -331,7 +345,42 @@ def verify(root: Path | None = None) -> Verified:
                 _check_entry(str(folder), entry, dirs_ok)
             except _DamagedError as err:
                 raise _damaged(folder, err.what or entry.path, err.how) from None
-    return Verified(folder, len(entries), sum(e.size for e in entries), overall)
+    return Verified(
+        folder, len(entries), sum(e.size for e in entries), overall,
+        {e.path: e.sha256 for e in entries},
+    )  # fmt: skip
+
+
+def _model_meshes(folder: Path) -> list[str]:
+    """The OBJ files ``robot.xml`` loads, relative to the folder (none if it names a mesh
+    or asset folder, or cannot be parsed: then nothing is converted and MuJoCo reads the
+    model as shipped)."""
+    try:
+        root = ET.parse(folder / "robot.xml").getroot()
+    except (OSError, ET.ParseError):
+        return []
+    if any("meshdir" in c.attrib or "assetdir" in c.attrib for c in root.iter("compiler")):
+        return []
+    files = {m.get("file", "") for m in root.iter("mesh")}
+    return sorted(f for f in files if f.lower().endswith(".obj") and _clean_relpath(f) == f)
+
+
+def _write_fast_meshes(folder: Path) -> int:
+    """Convert the model's OBJ meshes to MuJoCo's binary format beside them; how many."""
+    written = 0
+    for rel in _model_meshes(folder):
+        path = folder / rel
+        if not path.is_file() or path.is_symlink():
+            continue
+        data = path.read_bytes()
+        msh = obj_to_msh(data)
+        if msh is None:
+            continue
+        out = folder / fast_mesh_path(hashlib.sha256(data).hexdigest())
+        out.parent.mkdir(exist_ok=True)
+        out.write_bytes(msh)
+        written += 1
+    return written
 
 
 def _write_manifest(folder: Path, source: dict[str, Any]) -> None:
@@ -397,8 +446,10 @@ def fetch(root: Path | None = None, *, force: bool = False) -> Path:
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 with wheel.open(name) as src, dest.open("wb") as out:
                     shutil.copyfileobj(src, out, _CHUNK)
+        converted = _write_fast_meshes(staging)
         _write_manifest(
-            staging, {"source": f"robosuite=={ROBOSUITE_VERSION}", "files": len(members)}
+            staging,
+            {"source": f"robosuite=={ROBOSUITE_VERSION}", "files": len(members) + converted},
         )
         if target.exists() or target.is_symlink():
             target.rename(Path(tmp) / "old")  # removed with the temporary folder

@@ -7,6 +7,7 @@ points at it): the real cache is only read.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -22,6 +23,7 @@ import pytest
 from legws_daemon.cli.main import run
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.robot import assets
+from legws_daemon.robot.mesh_files import fast_mesh_path
 from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from tests.cli.helpers import Result, assert_bad_input
@@ -131,6 +133,15 @@ def _same_size_mesh(folder: Path) -> str:
     return MESH
 
 
+def _truncated_fast_mesh(folder: Path) -> str:
+    # the binary copy the arm loads instead of MESH (tests/robot/test_mesh_files.py)
+    digest = assets.verify().sha256[MESH]
+    rel = fast_mesh_path(digest)
+    fast = folder / rel
+    fast.write_bytes(fast.read_bytes()[:100])
+    return rel
+
+
 def _deleted_mesh(folder: Path) -> str:
     (folder / MESH).unlink()
     return MESH
@@ -194,6 +205,7 @@ DAMAGE: dict[str, Callable[[Path], str]] = {
     "truncated mesh": _truncated_mesh,
     "same-size garbage mesh": _same_size_mesh,
     "deleted mesh": _deleted_mesh,
+    "truncated binary mesh": _truncated_fast_mesh,
     "marker without manifest": _marker_without_manifest,
     "unparsable marker": _unparsable_marker,
     "edited manifest": _edited_manifest,
@@ -324,6 +336,29 @@ def test_fetch_writes_a_manifest_and_restores_a_damaged_folder(
         assert (folder / "obj_meshes/a/a.obj").read_bytes() == files["obj_meshes/a/a.obj"]
         assert assets.sawyer_dir() == folder
     assert [p.name for p in root.iterdir()] == ["sawyer"]  # no staging left behind
+
+
+def test_fetch_writes_the_binary_meshes_robot_xml_loads_and_lists_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    box = (Path(__file__).parent / "data" / "box.obj").read_bytes()
+    xml = b"""<mujoco><asset><mesh name="a" file="obj_meshes/a.obj"/>
+      <mesh name="q" file="obj_meshes/quad.obj"/></asset><worldbody><body>
+      <geom type="mesh" mesh="a"/><geom type="mesh" mesh="q"/></body></worldbody></mujoco>"""
+    quad = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\nf 2 3 5\n"
+    files = {"robot.xml": xml, "obj_meshes/a.obj": box, "obj_meshes/quad.obj": quad,
+             "obj_meshes/unused.obj": box}  # fmt: skip
+    monkeypatch.setattr(assets, "subprocess", SimpleNamespace(run=_fake_pip(files)))
+    folder = assets.fetch(tmp_path)
+    marker = json.loads((folder / "legws-asset.json").read_text())
+    fast = fast_mesh_path(hashlib.sha256(box).hexdigest())
+    listed = sorted(e["path"] for e in marker["manifest"]["files"])
+    assert listed == sorted([*files, fast])  # the quad stays an OBJ; unused is not loaded
+    assert marker["files"] == len(listed)
+    model = assets.verify(tmp_path)
+    assert model.fast_mesh("obj_meshes/a.obj") == fast
+    assert model.fast_mesh("obj_meshes/quad.obj") is None
+    assert (folder / fast).read_bytes() == assets.obj_to_msh(box)
 
 
 def test_fetch_refuses_a_wheel_with_an_unsafe_file_name(
