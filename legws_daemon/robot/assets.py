@@ -41,7 +41,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
-from legws_daemon.robot.mesh_files import fast_mesh_path, obj_to_msh
+from legws_daemon.robot.mesh_files import FAST_MESH_DIR, fast_mesh_path, obj_to_msh
 
 ROBOSUITE_VERSION = "1.5.2"
 _PREFIX = "robosuite/models/assets/robots/sawyer/"
@@ -151,8 +151,12 @@ def _hash_file(path: Path, expected_size: int) -> str:
 
 
 def _overall_digest(entries: list[ManifestEntry]) -> str:
+    """The model's name: sha256 over the shipped files' entries. The binary meshes derived
+    from them are left out (each is still checked against its own entry): they are the
+    same model, and the caches keyed by it (the shipped reachability map) stay valid."""
     h = hashlib.sha256()
-    for e in sorted(entries, key=lambda e: e.path):
+    shipped = (e for e in entries if not e.path.startswith(f"{FAST_MESH_DIR}/"))
+    for e in sorted(shipped, key=lambda e: e.path):
         h.update(f"{e.path}\0{e.size}\0{e.sha256}\n".encode())
     return h.hexdigest()
 

@@ -359,6 +359,11 @@ def test_fetch_writes_the_binary_meshes_robot_xml_loads_and_lists_them(
     assert model.fast_mesh("obj_meshes/a.obj") == fast
     assert model.fast_mesh("obj_meshes/quad.obj") is None
     assert (folder / fast).read_bytes() == assets.obj_to_msh(box)
+    # the model's name (the caches' key) is that of the shipped files alone
+    monkeypatch.setattr(assets, "obj_to_msh", lambda data: None)
+    plain = assets.fetch(tmp_path / "plain")
+    assert not (plain / "fast_meshes").exists()
+    assert assets.verify(tmp_path / "plain").digest == model.digest
 
 
 def test_fetch_refuses_a_wheel_with_an_unsafe_file_name(
