@@ -14,7 +14,7 @@ naming the file and the command that restores the folder. Hashing the ~55 MB fol
 so later calls only ``lstat`` the files (~1 ms) and a changed file is hashed again.
 
 The fetch also writes each mesh that ``robot.xml`` loads in MuJoCo's binary format (see
-:mod:`legws_daemon.robot.mesh_files`: the same model, compiled ~0.4 s sooner), listed in
+:mod:`legws_daemon.robot.mesh_files`: the same model, compiled ~0.3 s sooner), listed in
 the manifest like the rest.
 
 Cache location: ``$LEGWS_ASSETS``, else ``.assets/`` in a source checkout, else

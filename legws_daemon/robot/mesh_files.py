@@ -1,7 +1,7 @@
 """The arm's meshes in MuJoCo's binary mesh format, written once when the model is fetched.
 
 robosuite's Sawyer ships ~55 MB of Wavefront OBJ text (233k vertices). MuJoCo parses it on
-every compile: ~0.4 s of each daemon start, calibration, render and test process. The same
+every compile: ~0.3 s of each daemon start, calibration, render and test process. The same
 vertices, normals, texture coordinates and triangles in MuJoCo's binary ``.msh`` layout load
 in a few milliseconds and compile to the same model, array for array (the test compares
 them). The fetch writes one ``.msh`` per OBJ that ``robot.xml`` loads, named after the OBJ's
@@ -34,8 +34,9 @@ def fast_mesh_path(obj_sha256: str) -> str:
 def _corner(text: str) -> int | None:
     """The one 1-based index of an ``f`` corner (``i``, ``i/i``, ``i//i``, ``i/i/i``), 0-based;
     None when the parts differ or are not positive integers."""
-    parts = [p for p in text.split("/") if p]
-    if not parts or len(text.split("/")) > 3 or any(p != parts[0] for p in parts):
+    raw = text.split("/")
+    parts = [p for p in raw if p]
+    if not parts or len(raw) > 3 or any(p != parts[0] for p in parts):
         return None
     if not parts[0].isdigit() or int(parts[0]) < 1:
         return None
