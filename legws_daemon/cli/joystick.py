@@ -3,8 +3,12 @@
 Every subcommand takes the options of :func:`publisher_options` (profile, zenoh
 configuration, rate, recording, duration), connects to the daemon's endpoints (the
 profile's listen endpoints become connect endpoints) unless ``--zenoh-config`` is given,
-and publishes on ``legws/<robot>/joystick``. SIGINT or SIGTERM ends a run cleanly: one last
-zero-deflection message, the session closed, exit 0. Progress goes to standard error.
+and publishes on ``legws/<robot>/joystick``. It reads the daemon's status on the same
+session: no status within ``--wait-daemon`` seconds is one line saying where it looked
+(exit 2), and while it runs one line on standard error says what the daemon does (mode, top
+goal and p, commit, phase, operator, deadman; :mod:`legws_daemon.joystick.daemon_status`).
+SIGINT or SIGTERM ends a run cleanly: one last zero-deflection message, the session closed,
+exit 0. Progress goes to standard error.
 
 To add a subcommand with the same options::
 
@@ -14,13 +18,16 @@ To add a subcommand with the same options::
     def sim_user_cmd(options: PublisherOptions, goal: str) -> None:
         profile = options.load_profile()
         with stop_on_signals() as stop, options.publisher(profile, "sim-user") as pub:
-            pub.run(sample_fn, options.rate_for(profile), options.duration, stop)
+            with watching(pub, profile, options):
+                pub.run(sample_fn, options.rate_for(profile), options.duration, stop)
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -32,14 +39,15 @@ from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 
 if TYPE_CHECKING:
+    from legws_daemon.joystick.daemon_status import StatusWatch
     from legws_daemon.joystick.publisher import Publisher
 
 R = TypeVar("R")
 
 #: A profile name in hw_profiles/ (or a .toml path).
 DEFAULT_PROFILE = Path("sim")
-#: How long a command waits for the daemon's subscriber before it starts anyway, s.
-MATCH_WAIT = 2.0
+#: How long a command waits for the daemon's first status by default, s.
+WAIT_DAEMON = 5.0
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,7 @@ class PublisherOptions:
     record: Path | None = None
     duration: float | None = None
     take_control: bool = False
+    wait_daemon: float = WAIT_DAEMON
 
     def load_profile(self) -> ProfileSpec:
         """The hardware profile; errors name the file and the field."""
@@ -73,8 +82,18 @@ class PublisherOptions:
             take_control=self.take_control,
         )
 
+    def dialled(self, profile: ProfileSpec) -> list[str]:
+        """Where the session looks for the daemon, for messages."""
+        if self.zenoh_config is not None:
+            return [f"the endpoints of {self.zenoh_config}"]
+        from legws_daemon.joystick.publisher import dial_spec
 
-_OPTION_NAMES = ("profile", "zenoh_config", "rate", "record", "duration", "take_control")
+        return list(dial_spec(profile.transport).connect)
+
+
+_OPTION_NAMES = (
+    "profile", "zenoh_config", "rate", "record", "duration", "take_control", "wait_daemon"
+)  # fmt: skip
 
 
 def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Callable[..., R]]:
@@ -90,6 +109,8 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
             common = {name: kwargs.pop(name, None) for name in _OPTION_NAMES}
             common["profile"] = common["profile"] or DEFAULT_PROFILE
             common["take_control"] = bool(common["take_control"])
+            if common["wait_daemon"] is None:
+                common["wait_daemon"] = WAIT_DAEMON
             return f(options=PublisherOptions(**common), **kwargs)
 
         options = [
@@ -123,6 +144,14 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
                 "take_control command; its access control must let this identity send "
                 "commands).",
             ),
+            click.option(
+                "--wait-daemon",
+                type=FiniteFloat(min=0.0, max=600.0, min_open=True),
+                default=WAIT_DAEMON,
+                show_default=True,
+                help="Seconds to wait for the daemon's first status; none by then is an "
+                "error (exit 2) saying where it looked.",
+            ),
         ]
         if rate:
             options.insert(
@@ -140,14 +169,32 @@ def publisher_options(*, rate: bool = True) -> Callable[[Callable[..., R]], Call
     return decorate
 
 
+@contextlib.contextmanager
+def watching(
+    pub: Publisher, profile: ProfileSpec, options: PublisherOptions, *, line: bool = True
+) -> Iterator[StatusWatch]:
+    """The daemon's status on the publisher's session, for the block: the first one waited
+    for (none within ``--wait-daemon``: :class:`InputError`, exit 2), then — ``line`` — one
+    line on standard error saying what the daemon does."""
+    from legws_daemon.joystick.daemon_status import StatusLine, StatusWatch, wait_for_status
+    from legws_daemon.transport.session import keys
+
+    watch = StatusWatch(keys(profile.robot)["status"])
+    sub = pub.session.declare_subscriber(watch.key, lambda s: watch.offer(s.payload.to_bytes()))
+    try:
+        wait_for_status(watch, options.wait_daemon, options.dialled(profile))
+        with (
+            StatusLine(watch, sys.stderr, pub.session_id, "legws: daemon: ")
+            if line
+            else (contextlib.nullcontext())
+        ):
+            yield watch
+    finally:
+        sub.undeclare()  # type: ignore[no-untyped-call]
+
+
 def _started(pub: Publisher, what: str) -> None:
-    """Wait briefly for the daemon's subscriber; say what runs, and warn if nobody listens."""
-    if not pub.wait_matched(MATCH_WAIT):
-        click.echo(
-            f"legws: warning: nobody subscribes to {pub.key} yet (is the daemon running, and "
-            "does its access control let this identity steer?); publishing anyway",
-            err=True,
-        )
+    """Say what runs."""
     click.echo(f"legws: {what} on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
 
 
@@ -192,6 +239,7 @@ def keyboard_cmd(options: PublisherOptions, step: float, hold: float, hold_to_ru
     delay must be shorter than --hold). Hold-to-run: the arm moves only while you steer or
     hold space; after a commit, hold space to let the assistance finish.
     """
+    from legws_daemon.joystick.daemon_status import status_text
     from legws_daemon.joystick.keyboard import (
         KeyboardState,
         RawTerminal,
@@ -204,12 +252,22 @@ def keyboard_cmd(options: PublisherOptions, step: float, hold: float, hold_to_ru
     state = KeyboardState(step=step, hold=hold, hold_to_run=hold_to_run)
     fd = stdin_terminal_fd()
     rate = options.rate_for(profile)
-    with stop_on_signals() as stop, options.publisher(profile, "keyboard") as pub:
+    with (
+        stop_on_signals() as stop,
+        options.publisher(profile, "keyboard") as pub,
+        watching(pub, profile, options, line=False) as watch,
+    ):
         _started(pub, f"keyboard at {rate:g} Hz")
+
+        def daemon() -> str | None:
+            status = watch.newest
+            return None if status is None else status_text(status, pub.session_id)
+
         with RawTerminal(fd) as terminal:
             run_keyboard(
-                pub, terminal, state, rate=rate, duration=options.duration, stop_event=stop
-            )
+                pub, terminal, state, rate=rate, duration=options.duration,
+                stop_event=stop, daemon=daemon,
+            )  # fmt: skip
 
 
 @joystick_group.command("can")
@@ -243,7 +301,11 @@ def can_cmd(options: PublisherOptions, interface: str, channel: str, bitrate: in
     )
     try:
         reader = CanReader(bus, profile.can, profile.control.deadman_timeout)
-        with stop_on_signals() as stop, options.publisher(profile, f"can-{channel}") as pub:
+        with (
+            stop_on_signals() as stop,
+            options.publisher(profile, f"can-{channel}") as pub,
+            watching(pub, profile, options),
+        ):
             _started(
                 pub, f"CAN {interface} {channel} id 0x{profile.can.arbitration_id:X} at {rate:g} Hz"
             )
@@ -279,7 +341,11 @@ def replay_cmd(options: PublisherOptions, file: Path, speed: float, loop: bool) 
     profile = options.load_profile()
     messages = load_recording(file)
     gap = nominal_interval(messages, 1.0 / profile.control.rate_hz)
-    with stop_on_signals() as stop, options.publisher(profile, "replay") as pub:
+    with (
+        stop_on_signals() as stop,
+        options.publisher(profile, "replay") as pub,
+        watching(pub, profile, options),
+    ):
         _started(pub, f"replay of {len(messages)} messages from {file} at speed {speed:g}")
         published = replay(
             pub,
@@ -364,7 +430,11 @@ def evdev_cmd(
     )
     published = 0
     try:
-        with stop_on_signals() as stop, options.publisher(profile, f"evdev-{name}") as pub:
+        with (
+            stop_on_signals() as stop,
+            options.publisher(profile, f"evdev-{name}") as pub,
+            watching(pub, profile, options),
+        ):
             reader.start()
             _started(
                 pub,

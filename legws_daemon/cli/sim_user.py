@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from legws_daemon.cli.joystick import PublisherOptions, publisher_options
+from legws_daemon.cli.joystick import PublisherOptions, publisher_options, watching
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.core.operator import (
     BIAS_RANGE_DEG,
@@ -132,17 +132,22 @@ def sim_user_cmd(
     (method.md §10), its noise correlated over the time that really passes between samples.
     """
     from legws_daemon.joystick.publisher import Sample, stop_on_signals
-    from legws_daemon.joystick.sim_user import SimUser, StatusWatch
-    from legws_daemon.transport.session import keys
+    from legws_daemon.joystick.sim_user import SimUser, UserView
 
     profile = options.load_profile()
     operator = simulated_operator(sigma, speed, rho, bias, steering, operator_file)
     rng = np.random.default_rng(seed)
     dt = 1.0 / profile.control.rate_hz
     user = SimUser(goals, sigma, profile.control.v_max, rng, cancel_after, operator=operator, dt=dt)
-    watch = StatusWatch(keys(profile.robot)["status"])
-    with stop_on_signals() as stop, options.publisher(profile, "sim-user") as pub:
-        sub = pub.session.declare_subscriber(watch.key, lambda s: watch.offer(s.payload.to_bytes()))
+    with (
+        stop_on_signals() as stop,
+        options.publisher(profile, "sim-user") as pub,
+        watching(pub, profile, options) as watch,
+    ):
+        first = watch.newest
+        view = UserView.from_status(first) if first is not None else None
+        if view is not None:
+            user.choose(view)  # a goal that is no target of this decision: one line, exit 2
 
         def sample() -> Sample | None:
             if until_done and watch.done.is_set():
@@ -154,10 +159,7 @@ def sim_user_cmd(
         wanted = ", ".join(goals) or "a random goal at each decision"
         who = "" if operator is None else f" steering like {operator.describe()}"
         click.echo(f"legws: simulated user{who} going for {wanted} on {pub.key}", err=True)
-        try:
-            pub.run(sample, options.rate_for(profile), options.duration, stop)
-        finally:
-            sub.undeclare()  # type: ignore[no-untyped-call]
-        click.echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
-        for decision, goal in user.chosen:
-            click.echo(f"legws: at {decision} the user went for {goal}", err=True)
+        pub.run(sample, options.rate_for(profile), options.duration, stop)
+    click.echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
+    for decision, goal in user.chosen:
+        click.echo(f"legws: at {decision} the user went for {goal}", err=True)

@@ -20,6 +20,7 @@ import termios
 import threading
 import time
 import tty
+from collections.abc import Callable
 from types import TracebackType
 from typing import TextIO
 
@@ -206,12 +207,15 @@ def run_keyboard(
     duration: float | None = None,
     stop_event: threading.Event | None = None,
     out: TextIO | None = None,
+    daemon: Callable[[], str | None] | None = None,
 ) -> int:
     """Publish the keyboard's deflection at ``rate`` Hz until ``q``, a signal or ``duration``.
 
     Prints :data:`HELP` and then the current deflection on one overwritten line to ``out``
-    (default standard error). Returns the number of messages published (without the final
-    zero message :meth:`Publisher.run` adds).
+    (default standard error), followed by ``daemon()``: what the daemon does (its status
+    line, :func:`~legws_daemon.joystick.daemon_status.status_text`; ``None``: nothing yet).
+    Returns the number of messages published (without the final zero message
+    :meth:`Publisher.run` adds).
     """
     stream = out if out is not None else sys.stderr
     stop = stop_event if stop_event is not None else threading.Event()
@@ -229,6 +233,9 @@ def run_keyboard(
             return None
         axes, buttons = state.sample(now)
         line = status_line(axes, buttons)
+        said = daemon() if daemon is not None else None
+        if said is not None:
+            line += " | " + said
         if line != shown:
             stream.write("\r" + line + "\x1b[K")
             stream.flush()

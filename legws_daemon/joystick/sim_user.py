@@ -22,8 +22,6 @@ target on offer (``targets: {"calibration": [x, y, z]}``) and never confirms.
 from __future__ import annotations
 
 import math
-import threading
-import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -41,11 +39,9 @@ from legws_daemon.core.user_model import (
     noise,
 )
 from legws_daemon.errors import InputError
-from legws_daemon.formats.messages import Buttons, StatusMessage, parse
+from legws_daemon.formats.messages import Buttons, StatusMessage
 from legws_daemon.joystick.publisher import Sample
 
-#: A status older than this is not used to steer, seconds.
-STATUS_STALE = 0.5
 #: Within this distance of the goal position the user stops pushing and confirms, metres.
 ARRIVED = 0.01
 #: The daemon's mode while it calibrates an operator, and the name of its one target.
@@ -81,6 +77,19 @@ class UserView:
             status.mode, status.decision, status.stage or "", np.array(status.ee.position),
             targets,
         )  # fmt: skip
+
+
+def _not_offered(view: UserView, wants: Sequence[str], used: set[str]) -> str:
+    """Why the user cannot go on: no goal it was given is a target of this decision."""
+    left = [g for g in wants if g not in used]
+    targets = ", ".join(sorted(view.targets))
+    where = f"decision {view.decision} (stage {view.stage})"
+    if not left:
+        return (
+            f"--goal: every goal given was gone for ({', '.join(wants)}); {where} has the "
+            f"targets {targets}: give one --goal per decision"
+        )
+    return f"--goal: {', '.join(left)} is not a target of {where}; its targets: {targets}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +151,16 @@ class SimUser:
     def goal(self) -> str | None:
         return self._goal
 
+    def choose(self, view: UserView) -> str | None:
+        """The goal the user goes for at ``view``'s decision (``None``: nothing to steer
+        for) — in ``teleop``; in other modes nothing is chosen.
+
+        Raises:
+            InputError: goals were given and none still wanted is a target of a decision
+                with several candidates (the user would wait for ever).
+        """
+        return self._choose(view) if view.mode == "teleop" else None
+
     def _choose(self, view: UserView) -> str | None:
         offered = tuple(sorted(view.targets))
         key = (view.decision, view.stage, offered)
@@ -151,8 +170,11 @@ class SimUser:
             pick = [g for g in self.wants if g in offered and g not in used]
             if pick:
                 self._goal = pick[0]
-            elif not self.wants and offered:
+            elif len(offered) == 1 or (not self.wants and offered):
+                # one candidate needs no choice; without wanted goals, one at random
                 self._goal = offered[int(self.rng.integers(len(offered)))]
+            elif offered:
+                raise InputError(_not_offered(view, self.wants, used))
             else:
                 self._goal = None
             if self._goal is not None:
@@ -247,39 +269,3 @@ class SimUser:
             if end > start:  # the robot clips |u| to 1
                 moved += self.v_max * (end - start) * u / max(1.0, float(np.linalg.norm(u)))
         return moved
-
-
-class StatusWatch:
-    """The newest valid status of one robot (fed by a zenoh subscriber callback)."""
-
-    def __init__(self, key: str) -> None:
-        self.key = key
-        self._lock = threading.Lock()
-        self._status: StatusMessage | None = None
-        self._received = -math.inf
-        self.modes_seen: list[str] = []
-        self.done = threading.Event()
-
-    def offer(self, payload: bytes) -> None:
-        try:
-            status = parse(StatusMessage, payload, self.key)
-        except InputError:
-            return
-        with self._lock:
-            self._status, self._received = status, time.monotonic()
-            if not self.modes_seen or self.modes_seen[-1] != status.mode:
-                self.modes_seen.append(status.mode)
-        if status.mode == "idle":
-            self.done.set()
-
-    def latest(self, now: float) -> StatusMessage | None:
-        with self._lock:
-            if now - self._received > STATUS_STALE:
-                return None
-            return self._status
-
-    @property
-    def received(self) -> float:
-        """When the newest status arrived (``time.monotonic``)."""
-        with self._lock:
-            return self._received

@@ -121,25 +121,28 @@ def test_bad_zenoh_config_and_bad_options(cli: Cli, tmp_path: Path) -> None:
 
 
 def test_can_on_a_quiet_virtual_bus_publishes_only_the_final_zero(cli: Cli, tmp_path: Path) -> None:
-    isolated = profile(tmp_path, [])  # no endpoints: nothing leaves the process
+    port = free_port()
     out = tmp_path / "out.jsonl"
-    result = cli(
-        "joystick",
-        "can",
-        "--interface",
-        "virtual",
-        "--channel",
-        "legws-quiet",
-        "--profile",
-        isolated,
-        "--duration",
-        "0.3",
-        "--record",
-        out,
-    )
+    with daemon_side(port, KEY, status_fields={}):
+        result = cli(
+            "joystick",
+            "can",
+            "--interface",
+            "virtual",
+            "--channel",
+            "legws-quiet",
+            "--profile",
+            profile(tmp_path, [f"tcp/127.0.0.1:{port}"]),
+            "--duration",
+            "0.3",
+            "--record",
+            out,
+        )
     assert result.code == 0, result
     assert result.out == ""
     assert "0 frames, 0 rejected, 0 messages published" in result.err
+    # what the daemon does, on one line (a pipe here: a line per change)
+    assert "legws: daemon: teleop · top - · commit - · phase - · operator none" in result.err
     messages = [parse(JoystickMessage, line, "out") for line in out.read_text().splitlines()]
     assert [m.axes for m in messages] == [(0.0, 0.0, 0.0)]
 
@@ -170,7 +173,7 @@ def test_replay_process_reaches_a_listening_daemon(tmp_path: Path) -> None:
     prof = profile(tmp_path, [f"tcp/127.0.0.1:{port}"])
     rec = recording(tmp_path, 6)
     out = tmp_path / "out.jsonl"
-    with daemon_side(port, KEY) as inbox:
+    with daemon_side(port, KEY, status_fields={}) as inbox:
         proc = _start("joystick", "replay", rec, "--profile", prof, "--record", out)
         result = _finish(proc)
         got = inbox.wait_for(7)
@@ -190,7 +193,7 @@ def test_sigterm_ends_a_looping_replay_with_a_zero_message_and_exit_0(tmp_path: 
     port = free_port()
     prof = profile(tmp_path, [f"tcp/127.0.0.1:{port}"])
     rec = recording(tmp_path, 4)
-    with daemon_side(port, KEY) as inbox:
+    with daemon_side(port, KEY, status_fields={}) as inbox:
         proc = _start("joystick", "replay", rec, "--loop", "--profile", prof, "--duration", "60")
         try:
             inbox.wait_for(10, timeout=20.0)  # looping: more than the file holds
@@ -211,7 +214,7 @@ def test_keyboard_process_on_a_pseudo_terminal(tmp_path: Path) -> None:
     master, slave = pty.openpty()
     before = termios.tcgetattr(slave)
     try:
-        with daemon_side(port, KEY) as inbox:
+        with daemon_side(port, KEY, status_fields={}) as inbox:
             proc = subprocess.Popen(
                 [str(LEGWS), "joystick", "keyboard", "--profile", prof],
                 cwd=REPO,

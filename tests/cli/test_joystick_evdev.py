@@ -18,6 +18,8 @@ from legws_daemon.formats.messages import Buttons, JoystickMessage, parse
 from legws_daemon.joystick import evdev_input
 from tests.cli.helpers import Result, assert_bad_input
 from tests.joystick.fake_evdev import FakeInputDir, keyboard, spacemouse_rel, xbox_pad
+from tests.joystick.helpers import daemon_side
+from tests.net import free_port
 
 Cli = Callable[..., Result]
 
@@ -36,13 +38,14 @@ def devices(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeInp
         fake.close_all()
 
 
-def isolated_profile(tmp_path: Path) -> Path:
-    """A stand-in profile whose publisher has no endpoints: nothing leaves the process."""
+def loopback_profile(tmp_path: Path, port: int) -> Path:
+    """A stand-in profile of the test robot whose daemon listens on a loopback port."""
     path = tmp_path / "profile.toml"
     path.write_text(
         'schema_version = 1\nname = "test"\nrobot = "test_robot"\nadapter = "sim"\n'
         "[control]\nrate_hz = 50.0\n"
-        "[transport]\nlisten = []\nconnect = []\nmulticast_scouting = false\n",
+        f'[transport]\nlisten = ["tcp/127.0.0.1:{port}"]\nconnect = []\n'
+        "multicast_scouting = false\n",
         encoding="utf-8",
     )
     return path
@@ -149,21 +152,23 @@ def test_a_run_publishes_the_pad_and_stops_on_unplug(
         wait_lines(lines() + 10)
         devices.unplug(path)
 
+    port = free_port()
     player = threading.Thread(target=play)
-    player.start()
-    try:
-        result = cli(
-            "joystick",
-            "evdev",
-            "--profile",
-            isolated_profile(tmp_path),
-            "--duration",
-            "1.5",
-            "--record",
-            out,
-        )
-    finally:
-        player.join(10.0)
+    with daemon_side(port, status_fields={}):  # the daemon's side: a subscriber, a status
+        player.start()
+        try:
+            result = cli(
+                "joystick",
+                "evdev",
+                "--profile",
+                loopback_profile(tmp_path, port),
+                "--duration",
+                "1.5",
+                "--record",
+                out,
+            )
+        finally:
+            player.join(10.0)
     assert result.code == 0, result
     assert result.out == ""
     err = result.err.splitlines()

@@ -6,6 +6,7 @@ from :func:`tests.net.free_port`.
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -78,14 +79,40 @@ class Inbox:
             return list(self.messages)
 
 
+def status(seq: int, **fields: Any) -> bytes:
+    """A valid status of the test robot (teleop, nobody steering), ``fields`` over it."""
+    data = {"schema": 1, "robot": ROBOT, "seq": seq, "stamp": time.time(), "mode": "teleop",
+            "adapter": "sim", **fields}  # fmt: skip
+    return json.dumps(data).encode()
+
+
 @contextmanager
-def daemon_side(port: int, key: str = KEY) -> Iterator[Inbox]:
-    """A listening session on ``port`` with a subscriber on ``key``; closed on exit."""
+def daemon_side(
+    port: int, key: str = KEY, *, status_fields: dict[str, Any] | None = None
+) -> Iterator[Inbox]:
+    """A listening session on ``port`` with a subscriber on ``key`` and a status published
+    at 10 Hz beside it (every publisher waits for the daemon's status; ``status_fields``
+    over :func:`status`, ``None``: no status at all); closed on exit."""
     inbox = Inbox()
+    stop = threading.Event()
     with open_session(config_from_spec(listen_spec(port))) as session:
 
         def on_sample(sample: Any) -> None:
             inbox.offer(sample.payload.to_bytes())
 
+        def publish_status() -> None:
+            seq = 0
+            while not stop.wait(0.1):
+                seq += 1
+                session.put(key.rsplit("/", 1)[0] + "/status", status(seq, **status_fields or {}))
+
         session.declare_subscriber(key, on_sample)
-        yield inbox
+        thread = threading.Thread(target=publish_status, daemon=True)
+        if status_fields is not None:
+            thread.start()
+        try:
+            yield inbox
+        finally:
+            stop.set()
+            if thread.is_alive():
+                thread.join(2.0)

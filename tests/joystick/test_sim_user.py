@@ -6,10 +6,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from legws_daemon.core.operator import OperatorModel
+from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import StatusMessage
-from legws_daemon.joystick.sim_user import SimUser
+from legws_daemon.joystick.sim_user import SimUser, UserView
 
 
 def status(mode: str = "teleop", stage: str = "s", **targets: Any) -> StatusMessage:
@@ -195,3 +197,25 @@ def test_between_status_messages_it_aims_from_where_its_own_deflections_moved_th
     s = u.sample(status(a=[0.1, 0.1, 0.0]), 0.5)
     assert s is not None
     np.testing.assert_allclose(s[0], [2**-0.5, 2**-0.5, 0.0], atol=1e-9)
+
+
+def test_a_goal_that_is_no_target_of_the_decision_is_one_line_naming_the_targets() -> None:
+    u = user("cereal")
+    view = status(stage="pick", white_mug=[1, 0, 0], black_stapler=[0, 1, 0])
+    with pytest.raises(InputError) as err:
+        u.sample(view, 0.0)
+    assert str(err.value) == (
+        "--goal: cereal is not a target of decision 0 (stage pick); its targets: "
+        "black_stapler, white_mug"
+    )
+    # goals used up at a later decision: said so, with what it offers
+    u = user("a")
+    assert u.sample(status(stage="s", a=[1, 0, 0], b=[0, 1, 0]), 0.0) is not None
+    later = status(stage="t", c=[1, 0, 0], d=[0, 1, 0]).model_copy(update={"decision": 2})
+    with pytest.raises(InputError, match=r"every goal given was gone for \(a\); decision 2"):
+        u.sample(later, 0.0)
+    # one candidate needs no goal of its own; outside teleop nothing is chosen
+    u = user("a")
+    assert u.choose(UserView.from_status(status("assist", b=[1, 0, 0]))) is None  # type: ignore[arg-type]
+    assert u.sample(status(stage="s", b=[1, 0, 0]), 0.0) is not None
+    assert u.chosen == [("s", "b")]
