@@ -5,6 +5,7 @@ from __future__ import annotations
 import ipaddress
 import signal
 import threading
+import time
 from contextlib import ExitStack
 from pathlib import Path
 from types import FrameType
@@ -29,16 +30,41 @@ from legws_daemon.transport.security import authentication_problem
 from legws_daemon.transport.session import config_from_file, config_from_spec
 
 
-def _load_plan(arg: str, graph: TaskGraph, scene: Scene) -> Plan:
-    """``auto``: the cached plan of the graph (planned now if there is none, or if the cached
-    one does not validate: a warning, then it is replaced); else a folder (or its
-    ``plan.json``) written by ``legws plan``, refused with one line naming the file, the
-    stage and the failed check unless every stage layout passes the checks of a
-    ``--layout`` file and records the certificates it gives (``check_plan``)."""
+def _load_plan(
+    arg: str, graph: TaskGraph, scene: Scene, operator: OperatorFile | None = None
+) -> Plan:
+    """``auto``: the cached plan of the graph (for ``operator`` when given), planned now if
+    there is none or the cached one does not validate (a warning, then it is replaced) —
+    before the control loop starts, with progress; else a folder (or its ``plan.json``)
+    written by ``legws plan``, refused with one line naming the file, the stage and the
+    failed check unless every stage layout passes the checks of a ``--layout`` file and
+    records the certificates it gives (``check_plan``)."""
     if arg == "auto":
-        from legws_daemon.design.stage_plan import plan_taskgraph
+        from legws_daemon.design.stage_plan import cached_plan, plan_taskgraph
 
-        return plan_taskgraph(graph, scene)
+        people = (operator,) if operator is not None else ()
+        try:
+            plan = cached_plan(graph, scene, operators=people)
+        except InputError as err:  # not usable: planned again and replaced
+            click.echo(f"legws daemon: warning: {err}", err=True)
+            plan = None
+        if plan is not None:
+            where = plan.directory
+            click.echo(f"legws daemon: {graph.name} runs on its cached plan ({where}); "
+                       "--plan none: the shipped layout", err=True)  # fmt: skip
+            return plan
+        who = f" for operator {operator.name}" if operator is not None else ""
+        click.echo(
+            f"legws daemon: no cached plan of {graph.name}{who}: planning it now, before the "
+            f"control loop starts (`legws plan {graph.name}` makes it ahead; --plan none runs "
+            "the shipped layout)",
+            err=True,
+        )
+        started = time.monotonic()
+        plan = plan_taskgraph(graph, scene, operators=people, progress=True)
+        click.echo(f"legws daemon: planned {graph.name} in {time.monotonic() - started:.0f} s",
+                   err=True)  # fmt: skip
+        return plan
     from legws_daemon.task.plan_file import check_plan, load_plan
 
     path = Path(arg)
@@ -135,9 +161,10 @@ def install_stop_handlers(stop: threading.Event) -> None:
 @click.option(
     "--plan",
     "plan_arg",
-    metavar="DIR|auto",
-    help="Stage-specific layouts for --taskgraph: a folder from `legws plan --out`, or auto "
-    "(plan now, or take the cached plan).",
+    metavar="DIR|auto|none",
+    help="Stage-specific layouts for --taskgraph: auto (the default without --layout: the "
+    "cached plan, planned now if missing), a folder from `legws plan --out`, or none (the "
+    "shipped layout, or --layout's).",
 )
 @click.option(
     "--layout",
@@ -227,6 +254,8 @@ def daemon_cmd(
         raise click.UsageError("give --scene or --taskgraph, not both")
     if plan_arg is not None and taskgraph is None:
         raise click.UsageError("--plan needs --taskgraph")
+    if plan_arg is not None and plan_arg != "none" and layout_file is not None:
+        raise click.UsageError("give --layout or --plan, not both (--plan none --layout FILE)")
     if trace_file is not None:
         output_path(trace_file)  # a device or folder there: one line before anything starts
     spec = load_profile_named(profile)
@@ -240,8 +269,10 @@ def daemon_cmd(
     graph = plan = None
     if taskgraph is not None:
         graph, sc = load_taskgraph(resolve_taskgraph(taskgraph))
-        if plan_arg is not None:
-            plan = _load_plan(plan_arg, graph, sc)
+        # hands-off by default: a task graph runs on its plan unless told otherwise
+        wanted = plan_arg if plan_arg is not None else "none" if layout_file else "auto"
+        if wanted != "none":
+            plan = _load_plan(wanted, graph, sc, operator)
     else:
         sc = load_scene(scene or "desk")
     layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()

@@ -370,9 +370,12 @@ def plan_settings(
     return settings
 
 
-def cached_plan(graph: TaskGraph, scene: Scene) -> Plan | None:
-    """The graph's plan with the default settings (``legws plan NAME``) from the cache, or
-    ``None`` (nothing is planned: for the daemon's ``load_taskgraph``, on the loop).
+def cached_plan(
+    graph: TaskGraph, scene: Scene, operators: Sequence[OperatorFile] = ()
+) -> Plan | None:
+    """The graph's plan with the default settings (``legws plan NAME``, with ``operators``:
+    ``--operator``) from the cache, or ``None`` (nothing is planned: for the daemon's
+    ``load_taskgraph``, on the loop).
 
     Raises:
         InputError: the cached plan does not validate (as in
@@ -380,7 +383,7 @@ def cached_plan(graph: TaskGraph, scene: Scene) -> Plan | None:
             certificates included); the message says what is wrong and to plan it again
             with ``legws plan NAME``.
     """
-    folder = plan_cache_dir() / plan_key(graph, scene, plan_settings())
+    folder = plan_cache_dir() / plan_key(graph, scene, plan_settings(operators=operators))
     plan, problem = read_cached(folder, graph, scene)
     if problem is not None:
         raise InputError(

@@ -37,7 +37,7 @@ def load(rig: Rig, plan: str | None, plans: object = None) -> dict[str, object]:
     return rig.c.command(CommandRequest.model_validate(body), *LOADERS, loader)  # type: ignore[arg-type]
 
 
-def test_auto_uses_the_plan_and_a_plain_load_drops_it_with_a_warning(rig: Rig) -> None:
+def test_auto_uses_the_plan_and_plan_none_drops_it_with_a_warning(rig: Rig) -> None:
     asked: list[tuple[TaskGraph, Scene]] = []
 
     def plans(graph: TaskGraph, scene: Scene) -> Plan:
@@ -52,7 +52,7 @@ def test_auto_uses_the_plan_and_a_plain_load_drops_it_with_a_warning(rig: Rig) -
     np.testing.assert_allclose(grape[:2], [0.4, 0.2], atol=1e-6)
     assert not [d for k, d in rig.events if k == "warning" and "plan" in d]
 
-    load(rig, None)
+    load(rig, "none")
     assert rig.c.layouts.plan is None
     dropped = [d for k, d in rig.events if k == "warning" and "plan" in d]
     assert len(dropped) == 1
@@ -63,8 +63,26 @@ def test_auto_uses_the_plan_and_a_plain_load_drops_it_with_a_warning(rig: Rig) -
 
 
 def test_a_load_without_a_plan_in_use_warns_nothing(rig: Rig) -> None:
-    load(rig, None)
+    load(rig, "none")
     assert not [d for k, d in rig.events if k == "warning" and "plan" in d]
+
+
+def test_a_plain_load_takes_the_cached_plan_and_says_when_there_is_none(rig: Rig) -> None:
+    load(rig, None)  # hands-off by default: the cached plan
+    assert rig.c.layouts.plan is not None
+    assert not [d for k, d in rig.events if k == "warning"]
+
+    def none(graph: TaskGraph, scene: Scene) -> Plan:
+        raise InputError(f"no cached plan of task graph '{graph.name}'; make it with "
+                         f"`legws plan {graph.name}`", field="plan")  # fmt: skip
+
+    load(rig, None, none)
+    assert rig.c.layouts.plan is None
+    warnings = [d for k, d in rig.events if k == "warning"]
+    assert warnings[-1] == {
+        "no_plan": "feeding",
+        "reason": "plan: no cached plan of task graph 'feeding'; make it with `legws plan feeding`",
+    }
 
 
 def test_plan_is_only_for_load_taskgraph_and_needs_a_loader(rig: Rig) -> None:

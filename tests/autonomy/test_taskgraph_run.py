@@ -63,6 +63,11 @@ def test_tea_picks_places_and_needs_no_inference_for_the_cup(profile: ProfileSpe
     ]  # fmt: skip
     done = [d["stage"] for k, d in events if k == "stage_done"]
     assert done == ["choose_tea", "steep", "choose_snack", "serve"]
+    # each stage's own ticks: one begins on the tick the one before it ended, so together
+    # they are every tick of the run
+    ticks = [d["ticks"] for k, d in events if k == "stage_done"]
+    assert all(t > 0 for t in ticks)
+    assert sum(ticks) == c.ticks
     assert events[-1][0] == "task_done"
     assert on_top_of(c, "green_tea", "cup")
     assert on_top_of(c, "biscotti", "plate")
