@@ -30,6 +30,7 @@ LAYERS = [
     "autonomy",  # the shared-autonomy state machine
     "daemon",  # the service around it
     "joystick",  # publishers and the simulated user
+    "client",  # a client library for labs: status, events, commands, a joystick
     "tracking",  # a camera tracker of the objects: fiducial markers, the sim camera
     "design",  # layout optimisation and stage plans
     "placement",  # printable placement mats of planned layouts
