@@ -46,8 +46,9 @@ R = TypeVar("R")
 
 #: A profile name in hw_profiles/ (or a .toml path).
 DEFAULT_PROFILE = Path("sim")
-#: How long a command waits for the daemon's first status by default, s.
-WAIT_DAEMON = 5.0
+#: How long a command waits for the daemon's first status by default, s
+#: (:data:`legws_daemon.joystick.daemon_status.STATUS_WAIT`, not imported: a light CLI).
+WAIT_DAEMON = 20.0
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,10 @@ def watching(
     watch = StatusWatch(keys(profile.robot)["status"])
     sub = pub.session.declare_subscriber(watch.key, lambda s: watch.offer(s.payload.to_bytes()))
     try:
-        wait_for_status(watch, options.wait_daemon, options.dialled(profile))
+        wait_for_status(
+            watch, options.wait_daemon, options.dialled(profile),
+            lambda text: click.echo(f"legws: {text}", err=True),
+        )  # fmt: skip
         with (
             StatusLine(watch, sys.stderr, pub.session_id, "legws: daemon: ")
             if line

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TextIO
 
 from legws_daemon.errors import InputError
@@ -27,8 +27,11 @@ from legws_daemon.formats.messages import StatusMessage, parse
 
 #: A status older than this is not used to steer, seconds.
 STATUS_STALE = 0.5
-#: How long a publisher waits for the daemon's first status by default, seconds.
-STATUS_WAIT = 5.0
+#: How long a publisher waits for the daemon's first status by default, seconds (a
+#: daemon started at the same moment takes ~5-10 s to load its robot model).
+STATUS_WAIT = 20.0
+#: After this long without a status the publisher says it waits, and where, seconds.
+STATUS_NOTE = 2.0
 #: How often the terminal line is rewritten at most, seconds.
 LINE_PERIOD = 0.2
 
@@ -89,18 +92,29 @@ class StatusWatch:
         return self.newest
 
 
-def wait_for_status(watch: StatusWatch, timeout: float, where: Sequence[str]) -> StatusMessage:
+def wait_for_status(
+    watch: StatusWatch,
+    timeout: float,
+    where: Sequence[str],
+    note: Callable[[str], None] | None = None,
+) -> StatusMessage:
     """The daemon's first status, waited for up to ``timeout`` s.
 
     Args:
         where: the endpoints the session dials (for the message).
+        note: told once, after :data:`STATUS_NOTE` s without a status, that it waits and
+            where it looks (``None``: nothing is said).
 
     Raises:
         InputError: none came — one line naming the key and the endpoints.
     """
-    status = watch.wait_first(timeout)
+    dialled = ", ".join(where) if where else "the zenoh configuration's endpoints"
+    status = watch.wait_first(min(timeout, STATUS_NOTE) if note is not None else timeout)
+    if status is None and note is not None and timeout > STATUS_NOTE:
+        note(f"waiting up to {timeout:g} s for the daemon's status on {watch.key} (dialled "
+             f"{dialled})")  # fmt: skip
+        status = watch.wait_first(timeout - STATUS_NOTE)
     if status is None:
-        dialled = ", ".join(where) if where else "the zenoh configuration's endpoints"
         raise InputError(
             f"no status from the daemon on {watch.key} within {timeout:g} s (dialled "
             f"{dialled}): is it running, for this robot, listening there?"

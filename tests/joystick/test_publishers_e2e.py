@@ -42,6 +42,7 @@ def recording(tmp_path: Path, count: int = 20) -> Path:
     return path
 
 
+@pytest.mark.slow  # ~12 s: three publishers, each waiting in vain
 def test_no_daemon_is_one_line_saying_where_it_looked(tmp_path: Path) -> None:
     port = free_port()  # nobody listens here
     profile = write_profile(tmp_path, "sim", port)
@@ -57,6 +58,14 @@ def test_no_daemon_is_one_line_saying_where_it_looked(tmp_path: Path) -> None:
         assert done.returncode == 2, done.stderr
         assert done.stderr.strip().splitlines() == [looked], done.stderr
         assert "going for" not in done.stderr
+    # a longer wait says that it waits, and where, before it gives up
+    done = run(["joystick", "sim-user", "--profile", str(profile), "--wait-daemon", "3"])
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"legws: waiting up to 3 s for the daemon's status on legws/{ROBOT}/status (dialled "
+        f"tcp/127.0.0.1:{port})",
+        looked.replace("within 1 s", "within 3 s"),
+    ], done.stderr
 
 
 @pytest.mark.slow
