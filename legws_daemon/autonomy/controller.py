@@ -297,15 +297,19 @@ class Controller:
         self.check_placement(now)
 
     def check_placement(self, now: float | None = None) -> PlacementReport | None:
-        """Judge the placed layout (:attr:`placement`) and say what to move while it is not
-        certified (:meth:`LayoutBook.guide`); ``None`` until a tracker reports. The daemon
-        calls it at the status rate, so objects a tracker stopped reporting turn unseen."""
+        """Judge the placed layout (:attr:`placement`) against :attr:`planned_layout` and,
+        while the decision is open (nothing committed), say what to move while an object is
+        misplaced or the layout is not certified (:meth:`LayoutBook.guide`); ``None`` until
+        a tracker reports. Objects the task picked are not judged: the robot moved them. The
+        daemon calls it at the status rate, so objects a tracker stopped reporting turn
+        unseen."""
         if not self.layouts.tracking or self.task.finished:
             self.placement = None
             return None
         now = self.clock() if now is None else now
         layout = self.layouts.layout
-        should = {**self.scene.poses(), **self.layouts.planned}
+        moved = self.task.consumed | ({self.task.held} if self.task.held else set())
+        should = {n: p for n, p in self.planned_layout.items() if n not in moved}
         symmetry = {n: g.symmetry for n, g in self.scene.grasps.items()}
         objects = self.layouts.placements(now, should, symmetry)
         current = commit = certified_goals = None
@@ -320,10 +324,24 @@ class Controller:
             certified_goals, certified,
         )  # fmt: skip
         self.placement = report
+        if self.committed is not None:
+            return report  # decided: the robot is moving objects now, nothing to guide
         event = self.layouts.guide(report, self.decisions, now, self._decision_certificate)
         if event is not None:
             self.emit(event)
         return report
+
+    @property
+    def planned_layout(self) -> Layout:
+        """Where every object should stand in the current decision: the plan's layout of it,
+        else the daemon's layout (``--layout``) or the scene file's poses."""
+        return {**self.scene.poses(), **self.layouts.planned}
+
+    def layout_status(self) -> dict[str, Any]:
+        """Status ``layout``: the scene and :attr:`planned_layout` (what a sim tracker
+        renders)."""
+        objects = {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in self.planned_layout.items()}
+        return {"scene": self.scene.name, "objects": objects}
 
     def _placed_certificates(self, layout: Layout) -> tuple[float, float, int]:
         """``J``, ``K`` and the commit-certified count of the decision in ``layout`` (the

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from legws_daemon.autonomy.placing import verdict
 from legws_daemon.formats.log_lines import How, commit_text, reach_text, reached_text
 from legws_daemon.formats.messages import EventKind
 
@@ -380,9 +381,11 @@ class PlanDropped(Event):
 
 @dataclass(frozen=True, slots=True)
 class Misplaced(Event):
-    """Reported object poses leave the decision's placed layout uncertified: every object
-    off its outline with the correction in words, the unseen ones, and the object whose
-    move back gains the most (``move``, ``to``: its planned pose)."""
+    """Reported object poses leave the decision's placed layout off the plan (an object off
+    its planned pose, whatever J says) or uncertified: every object off its outline with
+    the correction in words, the unseen ones, the object whose move back gains the most
+    (``move``, ``to``: its planned pose), and whether the placed layout is ``certified``
+    all the same. The log line's verdict follows J's sign (:func:`.placing.verdict`)."""
 
     kind: ClassVar[EventKind] = "warning"
     certificate: float
@@ -393,6 +396,7 @@ class Misplaced(Event):
     corrections: tuple[str, ...]  # "cup: 4 cm left, turn 20° anticlockwise"
     unseen: tuple[str, ...]
     stage: str
+    certified: bool
 
     def detail(self) -> dict[str, Any]:
         d = Event.detail(self)
@@ -408,8 +412,9 @@ class Misplaced(Event):
             if self.planned_certificate is None
             else (f", planned {self.planned_certificate:+.2f}")
         )
+        words = verdict(self.certificate, self.certified, bool(self.corrections))
         return (
-            f"warning placement of {self.stage} NOT certified (J {self.certificate:+.2f}"
+            f"warning placement of {self.stage} {words} (J {self.certificate:+.2f}"
             f"{planned}): {'; '.join(what)}"
         )
 

@@ -6,9 +6,10 @@ The planned layout starts as the layout the daemon was given; a stage-specific p
 decision begins (:meth:`LayoutBook.plan_moves`). Poses reported on
 ``legws/<robot>/objects`` override the plan for movable objects (:meth:`LayoutBook.observe`);
 every reported object, fixed ones too, is judged against where it should stand
-(:meth:`LayoutBook.placements`, :mod:`.placing`). While the placed layout of a decision is
-not certified, :meth:`LayoutBook.guide` says what to move: again when what is wrong
-changes, and as a reminder every :data:`REMIND_EVERY` seconds.
+(:meth:`LayoutBook.placements`, :mod:`.placing`). While an object is off its planned pose
+(whatever J says) or the placed layout of a decision is not certified,
+:meth:`LayoutBook.guide` says what to move: again when what is wrong changes, and as a
+reminder every :data:`REMIND_EVERY` seconds.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class LayoutBook:
         self.seen: dict[str, tuple[ObjectPose, float]] = {}
         #: objects the newest report says the tracker does not see
         self.unseen: set[str] = set()
-        self._warned: tuple[int, tuple[str, ...], tuple[str, ...]] | None = None
+        self._warned: tuple[int, bool, tuple[str, ...], tuple[str, ...]] | None = None
         self._warned_at = 0.0
         self.reset(layout, plan)
 
@@ -127,20 +128,21 @@ class LayoutBook:
         certificate: Callable[[Layout], float],
     ) -> Event | None:
         """The event to send about ``report`` (decision ``decision``), or ``None``: a
-        :class:`Misplaced` warning while it is not certified and something is off (again
-        when that changes, or after :data:`REMIND_EVERY` s), a :class:`Placed` when it is
-        certified after a warning."""
+        :class:`Misplaced` warning while an object is misplaced — whatever J says — or the
+        layout is not certified and something is off (again when that or the verdict
+        changes, or after :data:`REMIND_EVERY` s); a :class:`Placed` when, after a warning,
+        it is certified with nothing misplaced."""
         if report.certified is None or report.certificate is None:
             return None
-        if report.certified:
+        wrong = tuple(o.name for o in report.misplaced)
+        if report.certified and not wrong:
             if self._warned is None or self._warned[0] != decision:
                 return None
             self._warned = None
             return Placed(report.stage, report.certificate, report.commit_certificate)
-        wrong = tuple(o.name for o in report.misplaced)
         if not wrong and not report.unseen:
             return None  # all in place, and not certified all the same: nothing to move
-        key = (decision, wrong, report.unseen)
+        key = (decision, report.certified, wrong, report.unseen)
         if key == self._warned and now - self._warned_at < REMIND_EVERY:
             return None
         self._warned, self._warned_at = key, now
@@ -150,6 +152,7 @@ class LayoutBook:
             report.certificate, report.planned_certificate, report.commit_certificate, best,
             None if to is None else {"x": to.x, "y": to.y, "yaw": to.yaw},
             tuple(o.text for o in report.misplaced), report.unseen, report.stage,
+            report.certified,
         )  # fmt: skip
 
     def _best_move(self, current: float, certificate: Callable[[Layout], float]) -> str | None:

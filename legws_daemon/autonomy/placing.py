@@ -8,6 +8,12 @@ from where it stands to where it should) or ``unseen`` (the tracker says so, or 
 seen it for :data:`STALE_AFTER` seconds; its last pose stays as it was: an unseen object is
 never moved). Directions are those of the placement mat: the robot at its bottom edge,
 ``left`` the robot's left (+y), ``away from the robot`` +x; turns seen from above.
+
+An object off its planned pose is misplaced whatever J says: a placed layout may keep
+J > 0 and still not be the plan. The verdict's words follow J's sign
+(:func:`verdict`): ``NOT certified`` only for J <= 0; J > 0 with a candidate unseen is
+``unconfirmed`` (J is that of the poses last seen); J > 0 with every candidate seen is
+``certified``, ``off the plan`` while something is misplaced.
 """
 
 from __future__ import annotations
@@ -41,6 +47,17 @@ def wrap(angle: float, symmetry: int) -> float:
     elif a <= -period / 2:
         a += period
     return a
+
+
+def verdict(certificate: float, certified: bool, misplaced: bool) -> str:
+    """The verdict on a placed layout in words that follow the sign of J (``certificate``):
+    ``certified`` needs J > 0 and no candidate unseen (``certified``); ``misplaced``: some
+    tracked object is off its planned pose."""
+    if certificate <= 0:
+        return "NOT certified"
+    if not certified:
+        return "unconfirmed, a candidate unseen"
+    return "off the plan, certified all the same" if misplaced else "certified"
 
 
 def _length(metres: float) -> str:
@@ -125,7 +142,9 @@ class PlacementReport:
         planned_certificate: ``J`` in the planned layout.
         commit_certificate: ``K`` (method.md §9) in the placed layout; commit_certified:
             how many candidates are commit-certified there.
-        certified: ``J > 0`` and no candidate unseen (``None`` without inference).
+        certified: ``J > 0`` and no candidate unseen (``None`` without inference); an
+            object off its planned pose does not change it (it is :attr:`misplaced`, and
+            warned about, whatever J says).
     """
 
     stage: str
@@ -149,11 +168,11 @@ class PlacementReport:
 
     def lines(self) -> list[str]:
         """What an operator reads: the verdict, then one line per object not in place."""
-        if self.certified is None:
+        if self.certified is None or self.certificate is None:
             head = "placement: nothing to certify (one candidate)"
         else:
-            verdict = "certified" if self.certified else "NOT certified"
-            head = f"placement {verdict}: J {_number(self.certificate)}"
+            words = verdict(self.certificate, self.certified, bool(self.misplaced))
+            head = f"placement {words}: J {_number(self.certificate)}"
             if self.commit_certificate is not None:
                 head += f", K {_number(self.commit_certificate)}"
         return [head] + [o.text for o in self.objects if o.state != "placed"]
@@ -168,6 +187,7 @@ class PlacementReport:
             "commit_certificate": _rounded(self.commit_certificate),
             "commit_certified": self.commit_certified,
             "objects": {o.name: o.status() for o in self.objects},
+            "misplaced": [o.name for o in self.misplaced],
         }
 
 

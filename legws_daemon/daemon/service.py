@@ -546,6 +546,7 @@ class DaemonService:
             "insecure_transport": cfg.insecure_transport,
             "realtime_priority": self.realtime_priority,
             "placement": c.placement.status() if c.placement is not None else None,
+            "layout": c.layout_status(),
             "calibration": calibration,
             "operator_model": self._operator_status(),
         }

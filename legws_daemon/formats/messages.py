@@ -132,6 +132,19 @@ class PlacementStatus(BaseModel):
     commit_certificate: Finite | None
     commit_certified: Seq | None
     objects: Annotated[dict[Label, ObjectPlacementStatus], Field(max_length=64)]
+    #: the tracked objects off their planned poses (beyond the tolerance), in scene order,
+    #: whatever J says
+    misplaced: Annotated[list[Label], Field(max_length=64)] = []
+
+
+class LayoutStatus(BaseModel):
+    """Where every object of the daemon's scene should stand in the current decision: the
+    plan's layout of it, else the daemon's ``--layout`` or the scene file's poses."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scene: Label
+    objects: Annotated[dict[Label, PlanarPose], Field(max_length=64)]
 
 
 class CalibrationStatus(BaseModel):
@@ -226,6 +239,8 @@ class StatusMessage(_Message):
     realtime_priority: Annotated[int, Strict(), Field(ge=0, le=99)] = 0
     #: the placed layout as a tracker reports it (``legws track``); None until one does
     placement: PlacementStatus | None = None
+    #: the layout the daemon runs now (what ``legws track --source sim:`` renders)
+    layout: LayoutStatus | None = None
     #: the calibration target shown (``legws operator calibrate``); None otherwise
     calibration: CalibrationStatus | None = None
     #: the person the certificates are for (``legws daemon --operator``); None: section 2's

@@ -12,17 +12,20 @@ Sources:
 
 * :class:`CameraSource` — a UVC camera through OpenCV (``--camera N``), with the
   intrinsics of a calibration file (``legws track calibrate``).
-* :class:`SimSource` — the MuJoCo stand-in's camera (``--source sim:SCENE[:LAYOUT]``),
-  rendering the layout file again whenever it changes: move an object by editing the file.
+* :class:`SimSource` — the MuJoCo stand-in's camera (``--source sim:SCENE[:LAYOUT]``)
+  over the layout the daemon runs (:class:`~legws_daemon.tracking.follow.DaemonLayout`),
+  or the scene file's; a layout file's objects and ``--move`` shifts over it, rendered
+  again whenever any of them changes: move an object by editing the file.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,8 +38,9 @@ from legws_daemon.formats.messages import SCHEMA_VERSION, ObjectsMessage, dump
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.joystick.publisher import publisher_config
 from legws_daemon.scene.layout_file import load_layout
-from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.tracking.camera import Intrinsics
+from legws_daemon.tracking.follow import DaemonLayout
 from legws_daemon.tracking.tracker import Tracker, TrackFrame
 from legws_daemon.transport.session import keys, open_session
 
@@ -58,6 +62,9 @@ class FrameSource(Protocol):
 
     def read(self) -> np.ndarray | None:
         """The next frame (BGR ``uint8``), or ``None`` when none could be read."""
+
+    def waiting(self) -> str | None:
+        """Why :meth:`read` has nothing to show yet (not a failed read), or ``None``."""
 
     def close(self) -> None: ...
 
@@ -146,6 +153,9 @@ class CameraSource:
             return None
         return np.asarray(frame, dtype=np.uint8)
 
+    def waiting(self) -> str | None:
+        return None  # a camera shows what stands there
+
     def close(self) -> None:
         self._cap.release()
 
@@ -170,12 +180,54 @@ def parse_sim_source(text: str) -> SimSpec:
     return SimSpec(scene, Path(layout) if layout else None)
 
 
-class SimSource:
-    """The MuJoCo stand-in's camera over ``scene``, objects where the layout file says.
+#: A shift of an object from where it would stand: ``(dx, dy, dyaw)``, m, m, rad.
+Move = tuple[float, float, float]
+#: The largest shift ``--move`` takes, m (beyond any table).
+MAX_MOVE = 10.0
 
-    The file is read again whenever it changes (its modification time or size) and the
-    picture rendered again; a bad version is one warning and the last good layout stays. A
-    layout may put an object off the table (out of view)."""
+
+def parse_move(text: str, scene: Scene) -> tuple[str, Move]:
+    """``--move OBJ=DX,DY[,DYAW]``: metres along the base frame's x (away from the robot)
+    and y (its left), and degrees anticlockwise seen from above; an error naming what is
+    expected."""
+    name, eq, rest = text.partition("=")
+    parts = rest.split(",")
+    try:
+        if not eq or len(parts) not in (2, 3):
+            raise ValueError
+        values = [float(v) for v in parts] + ([0.0] if len(parts) == 2 else [])
+    except ValueError:
+        raise InputError(
+            f"expected OBJ=DX,DY[,DYAW] (m, m, degrees), got {text!r}", field="--move"
+        ) from None
+    dx, dy, dyaw = values
+    if not all(math.isfinite(v) for v in values) or max(abs(dx), abs(dy)) > MAX_MOVE:
+        raise InputError(
+            f"a shift of at most {MAX_MOVE:g} m and finite numbers, got {text!r}",
+            field="--move",
+        )
+    if name not in scene.objects:
+        raise InputError(
+            f"unknown object '{name}'; scene '{scene.name}' has: {', '.join(scene.objects)}",
+            field="--move",
+        )
+    return name, (dx, dy, math.radians(dyaw))
+
+
+class SimSource:
+    """The MuJoCo stand-in's camera over ``scene`` (:meth:`layout` says what it shows).
+
+    Args:
+        layout: a layout file whose objects stand where it says, over the base layout;
+            read again whenever it changes (its modification time or size) and the picture
+            rendered again; a bad version is one warning and the last good one stays. A
+            layout may put an object off the table (out of view).
+        follow: the layout the daemon runs, as the base (``None``: the scene file's
+            poses); until it is known, or while it does not fit the scene, nothing is
+            rendered (:meth:`waiting` says why).
+        moves: object → its shift from where the base and the file put it (``--move``).
+        say: a line for people when the daemon's layout changes.
+    """
 
     def __init__(
         self,
@@ -184,6 +236,10 @@ class SimSource:
         width: int,
         height: int,
         warn: Callable[[str], None],
+        *,
+        follow: DaemonLayout | None = None,
+        moves: Mapping[str, Move] | None = None,
+        say: Callable[[str], None] | None = None,
     ) -> None:
         from legws_daemon.tracking.sim_camera import SimCamera
 
@@ -191,11 +247,27 @@ class SimSource:
         self._scene = scene
         self._path = layout
         self._warn = warn
+        self._say = say
+        self._follow = follow
+        self._moves = dict(moves or {})
+        unknown = [n for n in self._moves if n not in scene.objects]
+        if unknown:
+            raise InputError(f"unknown object '{unknown[0]}' in scene '{scene.name}'")
         self._stamp: tuple[int, int] | None = None
-        first = self._read_layout() if layout is not None else None
-        self._camera = SimCamera(scene, first, width, height)
+        self._file: Layout = (self._read_layout() or {}) if layout is not None else {}
+        self._camera = SimCamera(scene, None, width, height)
         self._image: np.ndarray | None = None
         self.intrinsics = self._camera.intrinsics
+
+    def layout(self) -> dict[str, ObjectPose]:
+        """What the camera shows: every object where the daemon's layout (or the scene
+        file) puts it, the layout file's where it says, each ``moves`` shift added."""
+        base = self._follow.layout if self._follow is not None else None
+        poses = {**self._scene.poses(), **(base or {}), **self._file}
+        for name, (dx, dy, dyaw) in self._moves.items():
+            p = poses[name]
+            poses[name] = ObjectPose(p.x + dx, p.y + dy, p.yaw + dyaw)
+        return poses
 
     def _read_layout(self) -> Layout | None:
         """The layout file if it changed since last read (``None``: unchanged)."""
@@ -215,19 +287,39 @@ class SimSource:
     def read(self) -> np.ndarray | None:
         """The camera's picture: rendered again when the layout changed (a render takes
         ~70 ms on a software renderer), else the last one (nothing moved: a real camera
-        would see the same)."""
+        would see the same); ``None`` while the daemon's layout is not known
+        (:meth:`waiting`)."""
+        changed = self._image is None
         if self._path is not None:
             try:
                 layout = self._read_layout()
             except InputError as err:
                 self._warn(str(err))
                 layout = None
-            if layout is not None:  # objects the file leaves out stand as in the scene file
-                self._camera.set_layout(self._scene.poses(layout))
+            if layout is not None:  # the objects it leaves out stand on the base layout
+                self._file, changed = layout, True
+        follow = self._follow
+        if follow is not None:
+            if follow.update():
+                changed = True
+                if follow.layout is not None and self._say is not None:
+                    self._say(
+                        f"rendering the layout the daemon runs (stage {follow.stage}, "
+                        f"decision {follow.decision})"
+                    )
+            if follow.layout is None:
                 self._image = None
-        if self._image is None:
+                return None
+        if changed:
+            self._camera.set_layout(self.layout())
             self._image = self._camera.render()
         return self._image
+
+    def waiting(self) -> str | None:
+        """Why there is no picture: the daemon's layout is not known or does not fit."""
+        if self._follow is None or self._follow.layout is not None:
+            return None
+        return self._follow.problem
 
     def close(self) -> None:
         self._camera.close()
@@ -235,11 +327,14 @@ class SimSource:
 
 @dataclass
 class TrackStats:
-    """What a run did: frames read, dropped (unreadable) and tracked, messages sent."""
+    """What a run did: frames read, dropped (unreadable) and tracked, messages sent, and
+    the times the source had nothing to show (``waited``: the sim camera without the
+    daemon's layout)."""
 
     frames: int = 0
     dropped: int = 0
     published: int = 0
+    waited: int = 0
     started: float = field(default_factory=time.monotonic)
 
     def rate(self) -> float:
@@ -286,18 +381,26 @@ class ObjectsPublisher:
         self.source = source
         self.seq = 0
         self._publisher: Any = None
+        self._session: Any = None
         self._stack = ExitStack()
 
     def __enter__(self) -> ObjectsPublisher:
         with ExitStack() as stack:
-            session = stack.enter_context(open_session(self.config))
-            self._publisher = session.declare_publisher(self.key)
+            self._session = stack.enter_context(open_session(self.config))
+            self._publisher = self._session.declare_publisher(self.key)
             self._stack = stack.pop_all()
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._publisher = None
+        self._publisher = self._session = None
         self._stack.close()
+
+    def subscribe(self, key: str, receive: Callable[[bytes], None]) -> None:
+        """Hear ``key`` on the same session (``receive`` runs on zenoh's thread) until the
+        publisher closes (e.g. the daemon's status, :class:`DaemonLayout`)."""
+        assert self._session is not None
+        sub = self._session.declare_subscriber(key, lambda s: receive(s.payload.to_bytes()))
+        self._stack.callback(sub.undeclare)
 
     def message(self, frame: TrackFrame, unseen: list[str], stamp: float) -> bytes:
         """The validated payload of one frame."""
@@ -340,11 +443,16 @@ def track(
     while not stop.is_set() and (end is None or time.monotonic() < end):
         image = source.read()
         stamp = time.time()
-        stats.frames += 1
-        if image is None:
+        why = source.waiting() if image is None else None
+        if why is not None:  # nothing to show yet, not a failed read
+            stats.waited += 1
+            warn(f"{source.name}: {why}; nothing published")
+        elif image is None:
+            stats.frames += 1
             stats.dropped += 1
             warn(f"{source.name}: a frame could not be read; nothing published for it")
         else:
+            stats.frames += 1
             frame = tracker.process(image)
             for text in frame.warnings:
                 warn(text)

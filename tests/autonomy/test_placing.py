@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import pytest
 from hypothesis import given
@@ -16,9 +17,12 @@ from legws_daemon.autonomy.placing import (
     PlacementReport,
     correction_text,
     judge,
+    verdict,
     wrap,
 )
+from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
+from tests.autonomy.rig import Rig, stand_in_profile
 
 
 @given(st.floats(-50, 50), st.sampled_from([1, 2, 4, 6]))
@@ -101,15 +105,16 @@ def test_reports_of_unknown_objects_are_ignored() -> None:
     assert "fixed" not in book.layout
 
 
-def _report(certified: bool, misplaced: bool, unseen: bool = False) -> PlacementReport:
+def _report(
+    certified: bool, misplaced: bool, unseen: bool = False, j: float | None = None
+) -> PlacementReport:
     objects = [
         judge("a", SHOULD["a"], ObjectPose(0.6, 0.25, 0.0) if misplaced else SHOULD["a"], 1, 0.0)
     ]
     if unseen:
         objects.append(judge("b", SHOULD["b"], None, 1, None))
-    return PlacementReport(
-        "pick", tuple(objects), 1.0 if certified else -0.5, 1.2, None, None, certified
-    )
+    j = (1.0 if certified else -0.5) if j is None else j
+    return PlacementReport("pick", tuple(objects), j, 1.2, None, None, certified)
 
 
 def test_the_warning_comes_when_something_changes_and_as_a_reminder() -> None:
@@ -134,6 +139,48 @@ def test_the_warning_comes_when_something_changes_and_as_a_reminder() -> None:
     assert _book().guide(_report(False, False), 1, 0.0, cert) is None
 
 
+def test_a_misplaced_object_is_warned_about_whatever_j_says() -> None:
+    book = _book()
+    book.observe({"a": ObjectPose(0.6, 0.25, 0.0)}, [], KNOWN, ("a", "b"), now=0.0)
+    cert = lambda layout: 1.2 if layout["a"] == SHOULD["a"] else 1.0  # noqa: E731
+    warning = book.guide(_report(True, True), 1, 0.0, cert)  # J = +1.0: certified all the same
+    assert isinstance(warning, Misplaced)
+    assert warning.certified is True and warning.certificate == 1.0
+    assert warning.corrections == ("a: 5 cm right",)
+    assert warning.move == "a"  # moving it back gains 0.2
+    assert warning.detail()["certified"] is True
+    text = warning.text()
+    assert "NOT certified" not in text
+    assert text == (
+        "warning placement of pick off the plan, certified all the same (J +1.00, planned "
+        "+1.20): a: 5 cm right"
+    )
+    assert book.guide(_report(True, True), 1, 1.0, cert) is None  # nothing new
+    # J turns negative with the same object off: the verdict changed, said at once
+    lost = book.guide(_report(False, True), 1, 2.0, cert)
+    assert isinstance(lost, Misplaced) and lost.certified is False
+    assert "NOT certified (J -0.50" in lost.text()
+    # put back: certified and nothing off, after a warning
+    assert isinstance(book.guide(_report(True, False), 1, 3.0, cert), Placed)
+
+
+def test_the_verdict_follows_the_sign_of_j() -> None:
+    assert verdict(-0.1, False, False) == "NOT certified"
+    assert verdict(0.0, False, True) == "NOT certified"
+    # J > 0 but a candidate unseen (a tracker that stopped): not "NOT certified"
+    assert verdict(3.23, False, False) == "unconfirmed, a candidate unseen"
+    assert verdict(3.23, True, False) == "certified"
+    assert verdict(0.05, True, True) == "off the plan, certified all the same"
+    book = _book()
+    book.observe({"a": SHOULD["a"]}, ["b"], KNOWN, ("a", "b"), now=0.0)
+    quiet = book.guide(_report(False, False, unseen=True, j=3.23), 1, 0.0, lambda _: 3.23)
+    assert isinstance(quiet, Misplaced)
+    assert quiet.text() == (
+        "warning placement of pick unconfirmed, a candidate unseen (J +3.23, planned +1.20): "
+        "b: unseen"
+    )
+
+
 def test_the_report_reads_as_an_operator_wants_it() -> None:
     r = _report(False, True, unseen=True)
     assert r.lines() == ["placement NOT certified: J -0.50", "a: 5 cm right", "b: unseen"]
@@ -141,3 +188,54 @@ def test_the_report_reads_as_an_operator_wants_it() -> None:
     assert status["certified"] is False
     assert status["objects"]["a"]["state"] == "misplaced"
     assert status["objects"]["b"] == {"state": "unseen", "text": "b: unseen"}
+    assert status["misplaced"] == ["a"]
+    assert _report(True, True).lines() == [
+        "placement off the plan, certified all the same: J +1.00",
+        "a: 5 cm right",
+    ]
+    assert _report(True, False).status()["misplaced"] == []
+
+
+# --- the controller: judged against the planned layout while the decision is open ---------
+@pytest.fixture
+def desk() -> Iterator[Rig]:
+    r = Rig(stand_in_profile(), load_scene("desk"))
+    yield r
+    r.c.shutdown()
+
+
+def test_a_misplaced_object_is_warned_about_while_the_decision_is_open(desk: Rig) -> None:
+    c = desk.c
+    mug = c.planned_layout["white_mug"]
+    assert c.layout_status() == {
+        "scene": "desk",
+        "objects": {n: {"x": p.x, "y": p.y, "yaw": p.yaw} for n, p in c.planned_layout.items()},
+    }
+    # 3 cm away from the robot: the goals stay well apart (J > 0), yet it is not the plan
+    c.observe({"white_mug": ObjectPose(mug.x + 0.03, mug.y, mug.yaw)})
+    kind, detail = desk.events[-1]
+    assert kind == "warning"
+    assert detail["corrections"] == ["white_mug: 3 cm towards the robot"]
+    assert detail["certified"] is True and detail["certificate"] > 0
+    assert "NOT certified" not in desk.typed[-1].text()
+    report = c.placement
+    assert report is not None and report.certified is True
+    assert report.status()["misplaced"] == ["white_mug"]
+    # decided: the robot moves objects now; no guidance until the next decision
+    desk.drive_to_commit("black_stapler")
+    assert c.committed is not None
+    n = len(desk.events)
+    c.observe({"white_mug": ObjectPose(mug.x + 0.08, mug.y, mug.yaw)})
+    assert c.placement is not None and c.placement.status()["misplaced"] == ["white_mug"]
+    assert len(desk.events) == n
+
+
+def test_an_object_the_task_picked_is_not_judged(desk: Rig) -> None:
+    c = desk.c
+    mug = c.planned_layout["white_mug"]
+    c.observe({"white_mug": ObjectPose(mug.x, mug.y + 0.2, mug.yaw)})
+    assert c.placement is not None and c.placement.status()["misplaced"] == ["white_mug"]
+    c.task.consumed.add("white_mug")  # picked: where the robot put it, not the plan's
+    report = c.check_placement()
+    assert report is not None
+    assert "white_mug" not in {o.name for o in report.objects}

@@ -22,6 +22,8 @@ from legws_daemon.tracking.stream import (
 )
 from legws_daemon.tracking.tracker import Tracker, TrackFrame
 from tests.cli.helpers import assert_bad_input, run_script
+from tests.daemon.procs import write_profile
+from tests.net import free_port
 
 
 @pytest.mark.parametrize(
@@ -40,6 +42,12 @@ from tests.cli.helpers import assert_bad_input, run_script
         (["track", "--camera", "0", "--scene", "tea", "--calibration", "{tmp}/cal.json"],
          ["camera 0", "cannot open the camera"]),
         (["track", "--source", "sim:tea", "--rate", "0"], ["--rate"]),
+        (["track", "--source", "sim:tea", "--move", "teapot=0,0.06"],
+         ["--move", "unknown object 'teapot'"]),
+        (["track", "--source", "sim:tea", "--move", "green_tea=0.06"], ["--move", "OBJ=DX,DY"]),
+        (["track", "--source", "sim:tea", "--layout-from", "plan"], ["--layout-from"]),
+        (["track", "--camera", "0", "--scene", "tea", "--calibration", "{tmp}/cal.json",
+          "--move", "cup=0,0.1"], ["--move go with --source sim:"]),
     ],
 )  # fmt: skip
 def test_bad_input_is_one_line(tmp_path: Path, argv: list[str], needles: list[str]) -> None:
@@ -88,6 +96,9 @@ class _Flaky:
         self.reads += 1
         return self.image if self.reads % 2 else None
 
+    def waiting(self) -> str | None:
+        return None
+
     def close(self) -> None:
         pass
 
@@ -111,3 +122,47 @@ def test_a_frame_that_cannot_be_read_publishes_nothing() -> None:
     assert any("table marker" in w for w in warnings)
     # after UNSEEN_AFTER frames every object with a marker is reported unseen
     assert set(sent[-1][1]) == {n for n, o in scene.objects.items() if o.marker is not None}
+
+
+def test_without_a_daemon_the_sim_camera_is_one_line_naming_where_it_looked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    port = free_port()  # nothing listens there
+    profile = write_profile(tmp_path, "sim", port)
+    result = run_script(
+        "track", "--profile", profile, "--source", "sim:tea", "--wait-daemon", "0.5",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert_bad_input(
+        result, "no status from the daemon", "legws/sawyer_sim/status", f"127.0.0.1:{port}",
+        "--layout-from scene",
+    )  # fmt: skip
+
+
+class _Waiting(_Flaky):
+    """A source with nothing to show yet (the sim camera before the daemon's layout)."""
+
+    def read(self) -> np.ndarray | None:
+        return None
+
+    def waiting(self) -> str | None:
+        return "no status from the daemon yet"
+
+
+def test_a_source_with_nothing_to_show_publishes_nothing_and_says_why() -> None:
+    scene = load_scene("tea")
+    intrinsics = Intrinsics.pinhole(50.0, 320, 240)
+    blank = np.full((240, 320, 3), 255, dtype=np.uint8)
+    sent: list[object] = []
+    warnings: list[str] = []
+    stats = track(
+        _Waiting(blank, intrinsics), Tracker(scene, intrinsics),
+        lambda frame, unseen, stamp: sent.append(frame),
+        rate=60.0, stop=threading.Event(), duration=0.3, warn=warnings.append,
+    )  # fmt: skip
+    assert sent == [] and stats.published == 0
+    assert stats.waited >= 5 and stats.frames == stats.dropped == 0  # not unreadable frames
+    assert warnings and all(
+        "no status from the daemon yet; nothing published" in w for w in warnings
+    )
