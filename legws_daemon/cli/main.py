@@ -1,7 +1,8 @@
 """Entry point of ``legws``: the command group and the error policy.
 
 Bad input of any kind (a usage error, a file or field that does not validate, an
-unknown name) prints one line ``legws: error: ...`` on stderr and exits 2. Nothing the
+unknown name) prints ``legws: error: ...`` on stderr and exits 2: one line per error (a
+file with three wrong fields: three lines, each ``FILE:LINE: field: ...``). Nothing the
 user can cause prints a traceback.
 """
 
@@ -15,7 +16,7 @@ import click
 from legws_daemon import __version__
 from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.validation import printable
+from legws_daemon.formats.validation import error_lines, printable
 
 EXIT_BAD_INPUT = 2
 
@@ -56,11 +57,12 @@ def cli() -> None:
     """legws: certified intent inference and workspace design for shared autonomy."""
 
 
-def _fail(message: str) -> int:
-    # one line, and nothing a terminal would act on (a path or a message field may hold
-    # escape sequences or bidirectional controls): those are written as Python escapes
-    text = printable(" ".join(message.split()))
-    click.echo(f"legws: error: {text}", err=True)
+def _fail(*messages: str) -> int:
+    # one line each, and nothing a terminal would act on (a path or a message field may
+    # hold escape sequences or bidirectional controls): those are written as Python escapes
+    for message in messages:
+        text = printable(" ".join(message.split()))
+        click.echo(f"legws: error: {text}", err=True)
     return EXIT_BAD_INPUT
 
 
@@ -78,7 +80,7 @@ def run(argv: Sequence[str] | None = None) -> int:
         click.echo("legws: aborted", err=True)
         return 130
     except LegwsError as exc:
-        return _fail(str(exc))
+        return _fail(*error_lines(exc))
     except RuntimeError as exc:
         # mujoco refuses to import with an unknown MUJOCO_GL: bad input, not a crash
         if "MUJOCO_GL" not in str(exc):

@@ -12,13 +12,15 @@ from legws_daemon.core.geometry import Pose
 from legws_daemon.core.goals import MAX_GOALS, GoalSet, too_many_goals
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.positions import SourceText
 from legws_daemon.formats.scene_file import CellPosition
 from legws_daemon.formats.validation import (
     Finite,
     Quat,
+    located,
     nonzero_quaternion,
     printable,
-    read_json,
+    read_json_with_lines,
     validate,
 )
 
@@ -78,16 +80,23 @@ def _strip(err: InputError) -> str:
     return printable(text)  # goal names are free text: a line break stays escaped
 
 
-def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:
-    """Validate parsed JSON of a goal-set file.
+def goalset_from_data(
+    data: Any, source: str, where: SourceText | None = None
+) -> tuple[GoalSet, Params]:
+    """Validate parsed JSON of a goal-set file (``where``: its text, for the line of each
+    error).
 
     More than :data:`~legws_daemon.core.goals.MAX_GOALS` goals are refused before any goal
     is validated (the certificates' cost grows with the square of their number)."""
     goals = data.get("goals") if isinstance(data, dict) else None
     if isinstance(goals, list) and len(goals) > MAX_GOALS:
-        raise InputError(too_many_goals(len(goals)), source=source, field="goals")
-    doc = validate(GoalSetFile, data, source)
-    params = params_from_schema(doc.params, source)
+        error = InputError(too_many_goals(len(goals)), source=source, field="goals")
+        raise located(error, where)
+    doc = validate(GoalSetFile, data, source, where)
+    try:
+        params = params_from_schema(doc.params, source)
+    except InputError as err:
+        raise located(err, where) from None
     x0 = Pose(np.array(doc.x0.position), np.array(doc.x0.quaternion))
     try:
         goals = GoalSet.build(
@@ -98,13 +107,14 @@ def goalset_from_data(data: Any, source: str) -> tuple[GoalSet, Params]:
             [g.symmetry for g in doc.goals],
         )
     except InputError as err:
-        raise InputError(_strip(err), source=source, field=err.field) from None
+        raise located(InputError(_strip(err), source=source, field=err.field), where) from None
     return goals, params
 
 
 def load_goalset(path: Path) -> tuple[GoalSet, Params]:
-    """Read and validate a goal-set file; every error is one line naming file and field."""
-    return goalset_from_data(read_json(path, "goal set"), str(path))
+    """Read and validate a goal-set file; every error is a line naming file, line and field."""
+    data, where = read_json_with_lines(path, "goal set")
+    return goalset_from_data(data, str(path), where)
 
 
 def goalset_to_data(goals: GoalSet, params: Params) -> dict[str, Any]:

@@ -88,10 +88,11 @@ from pydantic import (
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import profiles_dir
 from legws_daemon.formats.validation import (
+    did_you_mean,
     field_error,
     field_path,
     printable,
-    read_toml,
+    read_toml_with_lines,
     validate,
 )
 
@@ -427,8 +428,10 @@ class InputMapping(_Model):
 
 
 def load_mapping(path: Path) -> InputMapping:
-    """Read and validate a mapping file; errors name the file and the field."""
-    return validate(InputMapping, read_toml(path, "input mapping"), str(path))
+    """Read and validate a mapping file; errors name the file, the line and the field
+    (every one of them)."""
+    data, where = read_toml_with_lines(path, "input mapping")
+    return validate(InputMapping, data, str(path), where)
 
 
 def mappings_dir() -> Path:
@@ -443,15 +446,19 @@ def mapping_names() -> list[str]:
 
 def load_mapping_named(name_or_path: str | Path) -> tuple[str, InputMapping]:
     """A mapping by name (``xbox`` -> ``hw_profiles/input/xbox.toml``) or from a path, and
-    its name (the file's stem). An unknown name lists the known ones."""
+    its name (the file's stem). An unknown name lists the known ones (``did you mean``
+    a close one)."""
     text = str(name_or_path)
     if text.endswith(".toml") or os.sep in text:
         return Path(text).stem, load_mapping(Path(text))
     path = mappings_dir() / f"{text}.toml"
     if not path.is_file():
-        known = ", ".join(mapping_names()) or "(none)"
+        names = mapping_names()
+        guess = did_you_mean(text, names)
+        hint = f"; did you mean {guess!r}?" if guess is not None else ";"
+        known = ", ".join(names) or "(none)"
         raise InputError(
-            f"unknown input mapping {printable(text)!r}; known: {known} (or a .toml path)",
+            f"unknown input mapping {printable(text)!r}{hint} known: {known} (or a .toml path)",
             field="mapping",
         )
     return text, load_mapping(path)

@@ -30,7 +30,15 @@ from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.operator_fit import Fit
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
-from legws_daemon.formats.validation import Finite, field_error, printable, read_json, validate
+from legws_daemon.formats.positions import SourceText
+from legws_daemon.formats.validation import (
+    Finite,
+    field_error,
+    located,
+    printable,
+    read_json_with_lines,
+    validate,
+)
 
 #: Names of people: letters, digits and ``_ . -`` (printed in status lines and warnings).
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$"
@@ -171,11 +179,15 @@ def check_name(name: str, field: str = "name") -> str:
     return name
 
 
-def operator_from_data(data: Any, source: str) -> OperatorFile:
-    """Validate a parsed operator file (one line naming ``source`` and the field)."""
-    doc = validate(OperatorSchema, data, source)
-    fitted = _model(doc, source, "")
-    certify_with = _model(doc.certify_with, source, "certify_with.")
+def operator_from_data(data: Any, source: str, where: SourceText | None = None) -> OperatorFile:
+    """Validate a parsed operator file (a line per error naming ``source``, the line of
+    the field when ``where`` holds the file's text, and the field)."""
+    doc = validate(OperatorSchema, data, source, where)
+    try:
+        fitted = _model(doc, source, "")
+        certify_with = _model(doc.certify_with, source, "certify_with.")
+    except InputError as err:
+        raise located(err, where) from None
     intervals = {k: (float(getattr(doc.intervals, k)[0]), float(getattr(doc.intervals, k)[1]))
                  for k in NUMBERS}  # fmt: skip
     extra = {k: v for k, v in data.items() if k not in OperatorSchema.model_fields
@@ -186,5 +198,6 @@ def operator_from_data(data: Any, source: str) -> OperatorFile:
 
 
 def load_operator(path: Path) -> OperatorFile:
-    """Read and validate an operator file; every error is one line naming file and field."""
-    return operator_from_data(read_json(Path(path), "operator"), str(path))
+    """Read and validate an operator file; every error is a line naming file, line and field."""
+    data, where = read_json_with_lines(Path(path), "operator")
+    return operator_from_data(data, str(path), where)

@@ -28,12 +28,15 @@ from pydantic import (
 )
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.positions import SourceText
 from legws_daemon.formats.validation import (
     Coordinate,
     Name,
+    did_you_mean,
     field_error,
-    read_toml,
+    read_toml_with_lines,
     validate,
+    within,
 )
 
 Rate = Annotated[float, Strict(), Field(gt=0, le=1000)]
@@ -228,15 +231,17 @@ class ProfileSpec(_Model):
 
 
 def load_profile(path: Path) -> ProfileSpec:
-    """Read and validate a hardware profile; errors name the file and the field. A
-    ``control.operator`` file is read and validated too (its path made absolute)."""
-    spec = validate(ProfileSpec, read_toml(path, "hardware profile"), str(path))
+    """Read and validate a hardware profile; errors name the file, the line and the field
+    (every one of them). A ``control.operator`` file is read and validated too (its path
+    made absolute)."""
+    data, where = read_toml_with_lines(path, "hardware profile")
+    spec = validate(ProfileSpec, data, str(path), where)
     if spec.control.operator is None:
         return spec
-    return _with_operator(spec, Path(path))
+    return _with_operator(spec, Path(path), where)
 
 
-def _with_operator(spec: ProfileSpec, path: Path) -> ProfileSpec:
+def _with_operator(spec: ProfileSpec, path: Path, where: SourceText) -> ProfileSpec:
     """``control.operator`` resolved against the profile's folder and validated."""
     from legws_daemon.formats.operator_file import load_operator
 
@@ -246,7 +251,8 @@ def _with_operator(spec: ProfileSpec, path: Path) -> ProfileSpec:
     try:
         load_operator(full)
     except InputError as err:
-        raise InputError(str(err), source=str(path), field="control.operator") from None
+        source = where.at(str(path), ("control", "operator"))
+        raise within(err, source, "control.operator") from None
     control = spec.control.model_copy(update={"operator": str(full)})
     return spec.model_copy(update={"control": control})
 
@@ -258,12 +264,43 @@ def profiles_dir() -> Path:
 
 
 def load_profile_named(name_or_path: str | Path) -> ProfileSpec:
-    """A profile by name (``sim`` -> ``hw_profiles/sim.toml``) or from a ``.toml`` path."""
+    """A profile by name (``sim`` -> ``hw_profiles/sim.toml``) or from a ``.toml`` path.
+
+    An unknown name lists the known ones, and says ``did you mean 'sim'?`` for a close
+    one; a ``.toml`` path that does not exist does so for the profiles of its folder."""
     text = str(name_or_path)
     if text.endswith(".toml") or os.sep in text:
-        return load_profile(Path(text))
+        path = Path(text)
+        if not _exists(path):
+            raise _no_such_profile_file(path)
+        return load_profile(path)
     path = profiles_dir() / f"{text}.toml"
     if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in profiles_dir().glob("*.toml"))) or "(none)"
-        raise InputError(f"unknown hardware profile '{text}'; known: {known}", field="profile")
+        names = sorted(p.stem for p in profiles_dir().glob("*.toml"))
+        guess = did_you_mean(text, names)
+        hint = f"; did you mean '{guess}'?" if guess is not None else ";"
+        known = ", ".join(names) or "(none)"
+        raise InputError(f"unknown hardware profile '{text}'{hint} known: {known}", field="profile")
     return load_profile(path)
+
+
+def _exists(path: Path) -> bool:
+    """Whether anything (a dangling link too) is at ``path``; a path :func:`load_profile`
+    refuses for its own reason (a NUL character) counts as existing."""
+    if "\0" in str(path):
+        return True
+    try:
+        return path.exists() or path.is_symlink()
+    except (OSError, ValueError):
+        return True
+
+
+def _no_such_profile_file(path: Path) -> InputError:
+    """``no such file``, with the closest profile file of the same folder, if one is close."""
+    try:
+        stems = sorted(p.stem for p in path.parent.glob("*.toml") if p.is_file())
+    except OSError:
+        stems = []
+    guess = did_you_mean(path.stem, stems)
+    hint = f"; did you mean '{path.parent / guess}.toml'?" if guess is not None else ""
+    return InputError(f"no such file{hint}", source=str(path))

@@ -31,7 +31,7 @@ from legws_daemon.formats.validation import (
     field_error,
     field_path,
     nonzero_quaternion,
-    read_toml,
+    read_toml_with_lines,
     validate,
 )
 
@@ -328,12 +328,14 @@ class SceneSpec(_Model):
 
 
 def load_scene_spec(path: Path) -> SceneSpec:
-    """Read and validate a scene file; errors name the file and the field."""
-    spec = validate(SceneSpec, read_toml(path, "scene"), str(path))
+    """Read and validate a scene file; errors name the file, the line and the field (every
+    one of them)."""
+    data, where = read_toml_with_lines(path, "scene")
+    spec = validate(SceneSpec, data, str(path), where)
     if spec.name != path.stem:
         raise InputError(
             f"expected '{path.stem}' (the file's name), got '{spec.name}'",
-            source=str(path),
+            source=where.at(str(path), ("name",)),
             field="name",
         )
     return spec

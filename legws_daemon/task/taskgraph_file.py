@@ -4,14 +4,14 @@ Structure is checked by the schema; meaning by :func:`check_graph` against the s
 every candidate an object or place of the scene, no cycle, every stage reachable from the
 first, no empty candidate set, alternatives of a choice with disjoint candidates, and
 actions that fit what the gripper holds on every path (checked without listing the
-paths: :func:`held_problem`). Errors name the file, the line of
-the stage and the field, e.g.
-``taskgraphs/tea.toml:14: stages[1].candidates: unknown object 'mug'; ...``.
+paths: :func:`held_problem`). Errors name the file, the line of the field (or of its
+stage) and the field, e.g.
+``taskgraphs/tea.toml:14: stages[1].candidates[0]: unknown object 'mug'; ...``; a file
+that does not fit the schema gets every error, one per field.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -19,7 +19,16 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Name, parse_toml, read_text, validate
+from legws_daemon.formats.positions import Loc, SourceText
+from legws_daemon.formats.validation import (
+    Name,
+    did_you_mean,
+    field_path,
+    parse_toml,
+    read_text,
+    validate,
+    within,
+)
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.actions import action
@@ -48,40 +57,21 @@ class TaskGraphSpec(_Model):
     stages: Annotated[list[StageSpec], Field(min_length=1, max_length=64)]
 
 
-class _Locator:
-    """Line numbers of stages and their fields in the file's text (for messages)."""
+def check_graph(
+    spec: TaskGraphSpec, scene: Scene, where: SourceText | None, source: str
+) -> TaskGraph:
+    """Semantic checks; returns the graph or raises one :class:`InputError` (naming the
+    line of the field when ``where`` holds the file's text)."""
 
-    def __init__(self, text: str) -> None:
-        self.lines = text.splitlines()
-        self.headers = [i for i, ln in enumerate(self.lines) if ln.strip() == "[[stages]]"]
-
-    def line(self, stage: int | None, field: str | None) -> int | None:
-        if stage is None or stage >= len(self.headers):
-            start, end = 0, (self.headers[0] if self.headers else len(self.lines))
-        else:
-            start = self.headers[stage]
-            end = self.headers[stage + 1] if stage + 1 < len(self.headers) else len(self.lines)
-        if field is not None:
-            pattern = re.compile(rf"^\s*{re.escape(field)}\s*=")
-            for i in range(start, end):
-                if pattern.match(self.lines[i]):
-                    return i + 1
-        return start + 1 if stage is not None else None
-
-
-def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str) -> TaskGraph:
-    """Semantic checks; returns the graph or raises one :class:`InputError`."""
-
-    def fail(stage: int | None, field: str, message: str) -> InputError:
-        line = where.line(stage, field.split(".")[-1].split("[")[0] if field else None)
-        src = f"{source}:{line}" if line else source
-        path = f"stages[{stage}].{field}" if stage is not None else field
-        return InputError(message, source=src, field=path)
+    def fail(stage: int | None, loc: Loc, message: str) -> InputError:
+        full: Loc = ("stages", stage, *loc) if stage is not None else loc
+        src = where.at(source, full) if where is not None else source
+        return InputError(message, source=src, field=field_path(full))
 
     index = {s.name: i for i, s in enumerate(spec.stages)}
     for i, s in enumerate(spec.stages):
         if index[s.name] != i:
-            raise fail(i, "name", f"stage name '{s.name}' is used twice")
+            raise fail(i, ("name",), f"stage name '{s.name}' is used twice")
     objects = set(scene.objects)
     places = {p.name for p in scene.spec.places}
     known = ", ".join([*scene.objects, *sorted(places)])
@@ -89,26 +79,26 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
         for j, c in enumerate(s.candidates):
             if c not in objects and c not in places:
                 raise fail(
-                    i, f"candidates[{j}]", f"unknown object or place '{c}' in scene "
+                    i, ("candidates", j), f"unknown object or place '{c}' in scene "
                     f"'{scene.name}'; known: {known}"
                 )  # fmt: skip
             if c in s.candidates[:j]:
-                raise fail(i, f"candidates[{j}]", f"'{c}' is listed twice")
+                raise fail(i, ("candidates", j), f"'{c}' is listed twice")
             if c in places and not action(s.action).at_places:
                 raise fail(
-                    i, f"candidates[{j}]", f"'{c}' is a place: it can be fed or placed at, "
+                    i, ("candidates", j), f"'{c}' is a place: it can be fed or placed at, "
                     f"not used by '{s.action}'"
                 )  # fmt: skip
             if action(s.action).takes_object and c in objects and c not in scene.movable:
                 raise fail(
-                    i, f"candidates[{j}]", f"'{c}' is fixed in the scene: it cannot be picked"
+                    i, ("candidates", j), f"'{c}' is fixed in the scene: it cannot be picked"
                 )
         for j, n in enumerate(s.next):
             if n not in index:
-                raise fail(i, f"next[{j}]", f"unknown stage '{n}'; stages: {', '.join(index)}")
+                raise fail(i, ("next", j), f"unknown stage '{n}'; stages: {', '.join(index)}")
     for j, f in enumerate(spec.fixed):
         if f not in objects:
-            raise fail(None, f"fixed[{j}]", f"unknown object '{f}'; objects: {', '.join(objects)}")
+            raise fail(None, ("fixed", j), f"unknown object '{f}'; objects: {', '.join(objects)}")
     stages = {
         s.name: Stage(s.name, tuple(s.candidates), s.action, tuple(s.next), s.prompt)
         for s in spec.stages
@@ -116,21 +106,21 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
     cycle = find_cycle(stages)
     if cycle:
         raise fail(
-            index[cycle[-2]], "next", f"cycle {' -> '.join(cycle)}; use repeat = "
+            index[cycle[-2]], ("next",), f"cycle {' -> '.join(cycle)}; use repeat = "
             f"\"until_consumed\" to run a graph again"
         )  # fmt: skip
     start = spec.stages[0].name
     seen = reachable(stages, start)
     for i, s in enumerate(spec.stages):
         if s.name not in seen:
-            raise fail(i, "name", f"stage '{s.name}' cannot be reached from '{start}'")
+            raise fail(i, ("name",), f"stage '{s.name}' cannot be reached from '{start}'")
     for i, s in enumerate(spec.stages):
         owner: dict[str, str] = {}
         for n in s.next:
             for c in stages[n].candidates:
                 if c in owner:
                     raise fail(
-                        i, "next", f"alternatives '{owner[c]}' and '{n}' share candidate "
+                        i, ("next",), f"alternatives '{owner[c]}' and '{n}' share candidate "
                         f"'{c}': the commit could not tell which branch the user took"
                     )  # fmt: skip
                 owner[c] = n
@@ -142,15 +132,15 @@ def check_graph(spec: TaskGraphSpec, scene: Scene, where: _Locator, source: str)
         last = problem.path[-1]
         if problem.ends_held:
             raise fail(
-                index[last], "action", "the graph repeats but ends holding an object (after "
+                index[last], ("action",), "the graph repeats but ends holding an object (after "
                 f"{' -> '.join(problem.path)})"
             )  # fmt: skip
         act = stages[last].action
         what = "already holds an object" if problem.held else "holds nothing"
         before = " -> ".join(problem.path[:-1]) or "the start"
-        raise fail(index[last], "action", f"'{act}' after {before}: the gripper {what} there")
+        raise fail(index[last], ("action",), f"'{act}' after {before}: the gripper {what} there")
     if spec.repeat == "until_consumed" and not action(spec.stages[0].action).takes_object:
-        raise fail(0, "action", "a repeated graph must start with 'pick' (what it consumes)")
+        raise fail(0, ("action",), "a repeated graph must start with 'pick' (what it consumes)")
     return graph
 
 
@@ -211,20 +201,20 @@ def held_problem(graph: TaskGraph) -> HeldProblem | None:
 
 def load_taskgraph(path: Path, scene: Scene | None = None) -> tuple[TaskGraph, Scene]:
     """Read and validate a task graph and its scene; errors name file, line and field."""
-    text = read_text(path, "task graph")
-    spec = validate(TaskGraphSpec, parse_toml(text, str(path)), str(path))  # read once
+    where = SourceText(read_text(path, "task graph"), "toml")  # read once
+    spec = validate(TaskGraphSpec, parse_toml(where.text, str(path)), str(path), where)
     if spec.name != path.stem:
         raise InputError(
             f"expected '{path.stem}' (the file's name), got '{spec.name}'",
-            source=str(path),
+            source=where.at(str(path), ("name",)),
             field="name",
         )
     if scene is None:
         try:
             scene = load_scene(spec.scene)
         except InputError as err:
-            raise InputError(str(err), source=str(path), field="scene") from None
-    return check_graph(spec, scene, _Locator(text), str(path)), scene
+            raise within(err, where.at(str(path), ("scene",)), "scene") from None
+    return check_graph(spec, scene, where, str(path)), scene
 
 
 def taskgraphs_dir() -> Path:
@@ -237,6 +227,11 @@ def resolve_taskgraph(name_or_path: str) -> Path:
         return Path(name_or_path)
     path = taskgraphs_dir() / f"{name_or_path}.toml"
     if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in taskgraphs_dir().glob("*.toml"))) or "(none)"
-        raise InputError(f"unknown task graph '{name_or_path}'; known: {known}", field="taskgraph")
+        names = sorted(p.stem for p in taskgraphs_dir().glob("*.toml"))
+        guess = did_you_mean(name_or_path, names)
+        hint = f"; did you mean '{guess}'?" if guess is not None else ";"
+        known = ", ".join(names) or "(none)"
+        raise InputError(
+            f"unknown task graph '{name_or_path}'{hint} known: {known}", field="taskgraph"
+        )
     return path

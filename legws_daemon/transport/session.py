@@ -6,11 +6,16 @@ interface — not for a robot. Sessions here are built from the hardware profile
 given for a real network (router/client, TLS, access control). A session must be closed
 (a session left open with a callback subscriber hangs the process at exit): use
 :func:`open_session` as a context manager.
+
+A session that cannot open is one line without zenoh's source locations
+(:func:`session_problem`): a listen endpoint another process holds is
+``tcp/127.0.0.1:7447 is in use — another daemon?``.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -105,14 +110,47 @@ def config_from_file(path: Path) -> zenoh.Config:
         raise InputError(f"invalid zenoh configuration: {detail}", source=str(path)) from None
 
 
+#: zenoh's words for a listener it could not open: the endpoint and the cause (bracketed)
+_LISTENER = re.compile(r"Can not create a new \w+ listener bound to (\S+?):?\s+\[(.*)\]", re.DOTALL)
+#: a Rust source location zenoh appends to its errors (`` at /root/.cargo/...rs:61.``)
+_RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+(:\d+)?\.?")
+_OS_ERROR = re.compile(r"\s*\(os error \d+\)")
+#: the address a cause starts with (``127.0.0.1:7447: ``, ``... listener on HOST:PORT: ``)
+_CAUSE_PREFIX = re.compile(r"^(Can not create a new \w+ listener on )?\S+:\d+:\s*")
+_IN_USE = ("Address already in use", "os error 98", "address in use")
+
+
+def session_problem(err: BaseException) -> str:
+    """What zenoh's error on opening a session says, in one line of the user's words.
+
+    A listen endpoint already in use (another daemon on the same port, or any other
+    process): ``tcp/127.0.0.1:7447 is in use — another daemon?``; another endpoint that
+    cannot listen: ``cannot listen on ENDPOINT: CAUSE``; anything else: ``cannot open a
+    zenoh session: ...``. Rust source paths and OS error numbers are left out.
+    """
+    text = str(err).strip() or type(err).__name__
+    listener = _LISTENER.search(text)
+    if listener is not None:
+        endpoint, cause = listener.group(1), listener.group(2)
+        if any(word in cause for word in _IN_USE):
+            return f"{endpoint} is in use — another daemon?"
+        cause = _CAUSE_PREFIX.sub("", _OS_ERROR.sub("", _RUST_SOURCE.sub("", cause))).strip()
+        return f"cannot listen on {endpoint}: {cause[:1].lower()}{cause[1:]}"
+    detail = _OS_ERROR.sub("", _RUST_SOURCE.sub("", text)).strip()
+    detail = (detail.splitlines() or [type(err).__name__])[0].strip()
+    return f"cannot open a zenoh session: {detail}"
+
+
 @contextmanager
 def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
-    """Open a session and always close it."""
+    """Open a session and always close it; a session that cannot open is one
+    :class:`InputError` line (:func:`session_problem`)."""
     try:
         session = zenoh.open(config)
     except Exception as err:
-        detail = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise InputError(f"cannot open a zenoh session: {detail}", field="transport") from None
+        problem = session_problem(err)
+        field = None if problem.endswith("another daemon?") else "transport"
+        raise InputError(problem, field=field) from None
     try:
         yield session
     finally:

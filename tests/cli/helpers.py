@@ -73,3 +73,19 @@ def assert_bad_input(result: Result, *needles: str) -> str:
     for needle in needles:
         assert needle in line, f"{needle!r} not in {line!r}"
     return line
+
+
+def assert_bad_input_lines(result: Result, *needles: str) -> list[str]:
+    """Exit 2, nothing on stdout, one or more ``legws: error:`` lines (one per error of a
+    file), each containing every needle; no traceback."""
+    assert result.code == 2, result
+    assert result.out == "", result
+    assert "Traceback" not in result.err
+    assert result.err.endswith("\n"), result.err
+    lines = result.err.splitlines()
+    assert lines, result.err
+    for line in lines:
+        assert line.startswith("legws: error: "), line
+        for needle in needles:
+            assert needle in line, f"{needle!r} not in {line!r}"
+    return lines

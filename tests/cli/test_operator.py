@@ -101,8 +101,15 @@ def test_bad_traces_and_operator_files_are_one_line_naming_file_line_and_field(
         cli("operator", "fit", few, "--out", tmp_path / "o.json", "--name", "bad name")
     )
     bad = write_json("op.json", {"schema": 1, "name": "x"})
-    line = _one_line(cli("certify", goals_file, "--operator", bad))
-    assert str(bad) in line and "speed" in line
+    r = cli("certify", goals_file, "--operator", bad)
+    assert r.code == 2 and r.out == "" and "Traceback" not in r.err
+    missing = ["speed", "sigma", "rho", "bias_deg",
+               "steering: Field required (one of 'free', 'axes', 'axes+diagonals')",
+               "segments", "ticks", "intervals", "certify_with"]  # fmt: skip
+    # every missing key, each on its line (no file line: the file has no such key anywhere)
+    assert r.err.splitlines() == [
+        f"legws: error: {bad}: {k if ':' in k else f'{k}: Field required'}" for k in missing
+    ]
     assert (
         "not a" in _one_line(cli("operator", "trace", goals_file, "--out", tmp_path / "t.jsonl"))
         or True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 from pathlib import Path
 
@@ -51,12 +52,14 @@ from tests.net import free_port
     ],
 )  # fmt: skip
 def test_bad_input_is_one_line(tmp_path: Path, argv: list[str], needles: list[str]) -> None:
-    (tmp_path / "bad.json").write_text('{"schema": 1, "kind": "legws camera calibration"}')
     intrinsics = Intrinsics.pinhole(50.0, 640, 480)
     save_calibration(
         Calibration(intrinsics, 0.2, 10, (0.2,) * 10, DEFAULT_BOARD, "2026-12-02T12:00:00+00:00"),
         tmp_path / "cal.json",
     )
+    bad = json.loads((tmp_path / "cal.json").read_text())
+    bad["width"] = 0  # one wrong field: one line (a file with several gets one each)
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
     args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     if Path("/dev/video0").exists() and "cal.json" in " ".join(args):
         pytest.skip("this machine has a camera 0")

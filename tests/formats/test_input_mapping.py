@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -21,6 +22,7 @@ from legws_daemon.formats.input_mapping import (
     resolve_code,
     shipped_mappings,
 )
+from legws_daemon.formats.validation import ManyInputsError
 from tests.formats.helpers import toml_dumps
 
 INPUT = Path(__file__).parents[2] / "hw_profiles" / "input"
@@ -229,10 +231,11 @@ def test_bad_mappings_name_file_and_field(
     with pytest.raises(InputError) as info:
         load_mapping(path)
     message = str(info.value)
-    assert message.startswith(f"{path}: {field}: "), message
+    # (no line for a table the file leaves out: "no buttons")
+    assert re.match(rf"{re.escape(str(path))}(:[0-9]+)?: {re.escape(field)}: ", message), message
     assert needle in message
     assert "\n" not in message
-    assert "[and" not in message  # one error, not a union's list
+    assert not isinstance(info.value, ManyInputsError), message  # one error, not a union's list
 
 
 def test_the_enable_declaration_message() -> None:
@@ -267,5 +270,5 @@ def test_toml_syntax_and_non_finite_numbers(tmp_path: Path) -> None:
     doc = xbox_data()
     doc["axis"][0]["scale"] = float("nan")
     path.write_text(toml_dumps(doc), encoding="utf-8")
-    with pytest.raises(InputError, match=r"pad\.toml: axis\[0\]\.scale: expected a finite"):
+    with pytest.raises(InputError, match=r"pad\.toml:[0-9]+: axis\[0\]\.scale: expected a finite"):
         load_mapping(path)

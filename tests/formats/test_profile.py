@@ -46,7 +46,7 @@ def test_bad_profiles_name_file_and_field(
     with pytest.raises(InputError) as info:
         load_profile(path)
     message = str(info.value)
-    assert message.startswith(f"{path}: {field}")
+    assert message.startswith(f"{path}:{_line_of(text, edit)}: {field}: "), message
     assert "\n" not in message
 
 
@@ -114,8 +114,15 @@ def test_bridge_limits_agree_with_the_control_table(
     with pytest.raises(InputError) as info:
         load_profile(path)
     message = str(info.value)
-    assert message.startswith(f"{path}: {field}") and why in message
+    assert message.startswith(f"{path}:{_line_of(text, edit)}: {field}: "), message
+    assert why in message
     assert "\n" not in message
+
+
+def _line_of(text: str, edit: tuple[str, str]) -> int:
+    """The line the edit's last line is on once made (where the error must point)."""
+    edited = text.replace(edit[0], edit[1], 1)
+    return edited[: edited.index(edit[1]) + len(edit[1])].count("\n") + 1
 
 
 OPERATOR_FILE = {
@@ -168,7 +175,8 @@ def test_a_bad_operator_file_is_one_line_naming_the_profile_the_file_and_the_fie
     with pytest.raises(InputError) as info:
         load_profile(profile)
     message = str(info.value)
-    assert message.startswith(f"{profile}: {says}")
+    line = profile.read_text().splitlines().index('operator = "alice.json"') + 1
+    assert message.startswith(f"{profile}:{line}: {says}"), message
     assert str(target) in message
     assert "\n" not in message
     if content == "rho":

@@ -3,6 +3,7 @@ naming the file and the field."""
 
 from __future__ import annotations
 
+import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -190,8 +191,8 @@ def test_malformed_scene(
     with pytest.raises(InputError) as info:
         load_scene(path)
     message = str(info.value)
-    assert info.value.source == str(path)
-    assert message.startswith(f"{path}: ")
+    assert re.fullmatch(rf"{re.escape(str(path))}(:[0-9]+)?", info.value.source or ""), message
+    assert message.startswith(f"{info.value.source}: ")
     assert "\n" not in message
     for needle in needles:
         assert needle in message, f"{needle!r} not in {message!r}"
