@@ -27,8 +27,8 @@ import numpy as np
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.files import last_line, open_output, output_folder, write_atomic
 from legws_daemon.formats.profile import ProfileSpec, TransportSpec
-from legws_daemon.joystick.publisher import Publisher, Sample
 from legws_daemon.joystick.daemon_status import StatusWatch
+from legws_daemon.joystick.publisher import Publisher, Sample
 from legws_daemon.joystick.sim_user import SimUser
 from legws_daemon.transport.session import config_from_spec, keys
 

@@ -39,7 +39,8 @@ def test_the_line_says_mode_top_goal_commit_phase_operator_and_deadman() -> None
     assert status_text(s) == (
         "assist · top a 0.90 · commit a · phase grasp · operator none · deadman on"
     )
-    assert "fault read_state: estop" in status_text(message(mode="fault", fault="read_state: estop"))
+    fault = message(mode="fault", fault="read_state: estop")
+    assert "fault read_state: estop" in status_text(fault)
     assert top_goal(message()) is None
     # a tie goes to the first name, whatever the dict's order
     assert top_goal(message(posterior={"b": 0.5, "a": 0.5})) == ("a", 0.5)

@@ -33,11 +33,8 @@ def run(args: list[str], timeout: float = 60.0) -> subprocess.CompletedProcess[s
 
 def recording(tmp_path: Path, count: int = 20) -> Path:
     path = tmp_path / "rec.jsonl"
-    lines = [
-        json.dumps({"schema": 1, "seq": i, "stamp": 1000.0 + 0.05 * i, "axes": [0.0, 0.3, 0.0],
-                    "source": "rec"})  # fmt: skip
-        for i in range(count)
-    ]
+    message = {"schema": 1, "axes": [0.0, 0.3, 0.0], "source": "rec"}
+    lines = [json.dumps({**message, "seq": i, "stamp": 1000.0 + 0.05 * i}) for i in range(count)]
     path.write_text("\n".join(lines) + "\n")
     return path
 
