@@ -47,6 +47,7 @@ from legws_daemon.autonomy.events import (
     Emit,
     Fault,
     Loaded,
+    NoPlan,
     PlaceObjects,
     PlanDropped,
     Recovered,
@@ -108,6 +109,7 @@ class PreparedLoad:
     adapter: Adapter | None = None  # None: the current scene stays
     planner: MotionPlanner | None = None
     warn_dropped: bool = False  # a task graph loaded without a plan: say if one is dropped
+    missing_plan: str | None = None  # why a load that would take the cached plan has none
 
     def discard(self) -> None:
         """Not installed after all (a stop came first): disconnect the prepared adapter."""
@@ -207,6 +209,7 @@ class Controller:
         moves applied); inference starts (or, with a single candidate, the commit is
         immediate)."""
         self.decisions += 1
+        self._stage_tick = self.ticks  # the decision starts on this tick
         if prepared is None:
             self._apply_plan()
             prepared = StageState.of(
@@ -397,7 +400,12 @@ class Controller:
             elif self.mode == Mode.CALIBRATE:
                 command = self._calibrate(state, inp)
             if self.mode == Mode.ASSIST and self.assistant is not None:
+                ran = self.assistant
                 command, phase = self._assist(state, inp)
+                if self.mode != Mode.ASSIST or self.assistant is None:
+                    phase = None  # the tick that ended it (done, cancelled, given back): its event
+                elif self.assistant is not ran:
+                    phase = self.assistant.phase  # the next stage's (or a fallback's) plan
         sent, joints = self._send(state, command)
         self._motion = sent
         return TickRecord(
@@ -577,7 +585,8 @@ class Controller:
         self.emit(Cancel(reason, a.target, a.phase))
         if a.gripper_acted:
             stage = self.task.advance(a.target, self.layouts.layout)
-            self.emit(StageDone(stage.name, a.target, stage.action, self.ticks, cancelled=True))
+            ticks = self.ticks - self._stage_tick
+            self.emit(StageDone(stage.name, a.target, stage.action, ticks, cancelled=True))
             self._begin_stage()
             if self.mode != Mode.TELEOP:
                 return  # a single-candidate stage goes on by itself, or the task is done
@@ -599,7 +608,7 @@ class Controller:
             self._begin_stage()
             return
         stage = self.task.advance(a.target, self.layouts.layout)
-        self.emit(StageDone(stage.name, a.target, stage.action, self.ticks))
+        self.emit(StageDone(stage.name, a.target, stage.action, self.ticks - self._stage_tick))
         self._begin_stage()
 
     def _send(
@@ -731,14 +740,21 @@ class Controller:
         if request.command == "load_scene":
             return self.prepare_load(scenes(request.argument), None, None)
         graph, scene = graphs(request.argument)
-        plan = None
+        plan, missing = None, None
         if request.plan == "auto":
             if plans is None:
                 raise InputError("this daemon loads no plans", field="plan")
             plan = plans(graph, scene)
+        elif request.plan is None and plans is not None:
+            # hands-off by default: the graph's cached plan when there is one
+            try:
+                plan = plans(graph, scene)
+            except InputError as err:
+                missing = str(err)
         same = scene.name == self.scene.name
         prepared = self.prepare_load(self.scene if same else scene, graph, plan)
         prepared.warn_dropped = True
+        prepared.missing_plan = missing
         return prepared
 
     def prepare_load(
@@ -806,6 +822,8 @@ class Controller:
         self.emit(loaded)
         if dropped is not None:
             self._warn_plan_dropped(dropped)
+        if prepared.missing_plan is not None:
+            self.emit(NoPlan(self.graph.name, prepared.missing_plan))
         return loaded.detail(), old
 
     def _refuse_during_calibration(self) -> None:

@@ -357,6 +357,48 @@ class TraceFailed(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class NoPlan(Event):
+    """A ``load_taskgraph`` without ``plan`` found no usable cached plan of the graph: its
+    decisions run on the shipped layout (``reason`` says how to make one)."""
+
+    kind: ClassVar[EventKind] = "warning"
+    no_plan: str  # the task graph
+    reason: str
+
+    def text(self) -> str:
+        return f"task graph {self.no_plan} runs on the shipped layout: {self.reason}"
+
+
+@dataclass(frozen=True, slots=True)
+class ConfirmsNeeded(Event):
+    """At start: a decision whose goals are not all commit-certified from home in the layout
+    it runs in (``layout``: ``plan`` or ``layout``; :mod:`.confirms`) — steered at straight,
+    the posterior may stay below the threshold for ``goals``: a confirm commits them."""
+
+    kind: ClassVar[EventKind] = "warning"
+    confirms: str  # the decision
+    layout: str
+    goals: tuple[str, ...]  # those not commit-certified
+    of: int  # the decision's goals
+    commit_certificate: float  # K
+
+    def detail(self) -> dict[str, Any]:
+        d = Event.detail(self)
+        d["commit_certificate"] = round(self.commit_certificate, 4)
+        return d
+
+    def text(self) -> str:
+        where = "the plan's layout" if self.layout == "plan" else "the layout without a plan"
+        return (
+            f"confirms needed: decision {self.confirms} ({where}): {len(self.goals)} of "
+            f"{self.of} goals not "
+            f"commit-certified (K {self.commit_certificate:.3g}): {', '.join(self.goals)} — "
+            "steered at straight, the posterior may stay below the threshold: confirm "
+            "commits them"
+        )
+
+
+@dataclass(frozen=True, slots=True)
 class PlaceObjects(Event):
     """A plan's layout on a robot that cannot move objects itself: where to put them."""
 

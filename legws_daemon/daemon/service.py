@@ -57,9 +57,11 @@ import zenoh
 
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
 from legws_daemon.autonomy.calibration import CALIBRATION
+from legws_daemon.autonomy.confirms import confirm_forecast
 from legws_daemon.autonomy.controller import LOADS, Controller, PreparedLoad
 from legws_daemon.autonomy.events import (
     Commit,
+    ConfirmsNeeded,
     Deadman,
     Event,
     Fallback,
@@ -137,6 +139,21 @@ REJECTION_EVENT_INTERVAL = 2.0
 DEADMAN_EVENT_INTERVAL = 1.0
 #: Recent events kept in memory (for a look in a debugger; the record is the event stream).
 RECENT_EVENTS = 256
+
+
+#: What a reset's way home waits for, by why no input reaches the loop (``None``: nothing).
+WAITING: dict[str, str] = {
+    "no_operator": "the operator: nobody holds the lease; the arm moves home only while "
+    "the operator's input arrives with enable held",
+    "no_input": "the operator's input: none arrived within the deadman timeout; the arm "
+    "moves home only while it arrives with enable held",
+    "enable_released": "the enable button: the arm moves home only while it is held",
+}
+
+
+def _waiting(why: str | None) -> str | None:
+    """The ``waiting`` of a ``reset``'s reply: what the arm waits for before it moves."""
+    return WAITING[why] if why is not None else None
 
 
 class Telemetry(Protocol):
@@ -375,6 +392,7 @@ class DaemonService:
             self.keys["joystick"], control.deadman_timeout, control.lease_grace
         )
         self._deadman: NoInput | None = "no_operator"  # as last reported (None: input flows)
+        self.started_at: float | None = None  # the daemon's wall clock at its start, s
         self._last_deadman_event = -np.inf
         self._last_rejection_event: dict[str, float] = {}
         self._rejections_unreported: dict[str, InputRejected] = {}
@@ -506,6 +524,22 @@ class DaemonService:
             watch.event(event, position)
         self._emit(event)
 
+    def _forecast_confirms(self, c: Controller) -> None:
+        """Warn for each decision whose goals are not all commit-certified in the layout it
+        runs in: confirms will be needed (:mod:`~legws_daemon.autonomy.confirms`)."""
+        cfg = self.config
+        operator = cfg.operator.certify_with if cfg.operator is not None else None
+        try:
+            forecast = confirm_forecast(c.graph, c.scene, cfg.layout, cfg.plan, cfg.params,
+                                        operator)  # fmt: skip
+        except LegwsError as err:  # a layout the forecast cannot certify: said, not fatal
+            log.warning("no forecast of the confirms: %s", err)
+            return
+        for d in forecast:
+            if d.confirms:
+                self._emit(ConfirmsNeeded(d.decision, d.layout, d.uncertified, len(d.goals),
+                                          d.objective))  # fmt: skip
+
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
         c, cfg = self.controller, self.config
         assert c is not None
@@ -524,6 +558,7 @@ class DaemonService:
             "robot": self.profile.robot,
             "seq": self._status_seq,
             "stamp": time.time(),
+            "started": self.started_at,
             "mode": c.mode.value,
             "stage": CALIBRATION if calibrating else c.stage.name,
             "posterior": c.posterior(),
@@ -663,7 +698,7 @@ class DaemonService:
         if reports and self.controller is not None:
             self.controller.observe_all(reports)
 
-    def _run_commands(self, install: bool = True) -> int:
+    def _run_commands(self, now: float, install: bool = True) -> int:
         """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
         installed counts as one; only when ``install``); returns how many. Loads are
         prepared off the loop, one at a time, in order; a ``stop`` cancels the loads before
@@ -697,6 +732,8 @@ class DaemonService:
                 else:
                     detail = c.command(request, self.config.scene_loader, self.config.graph_loader)
                     reply = {"ok": True, "command": request.command, **detail}
+                    if request.command == "reset":
+                        reply["waiting"] = _waiting(self.inbox.poll(now)[1])
             except LegwsError as err:
                 reply = {"ok": False, "command": request.command, "error": str(err)}
             pending.finish(reply)
@@ -967,6 +1004,7 @@ class DaemonService:
             self._log_robot()
             self._log_setup()
             calibrating = controller.calibration is not None
+            self.started_at = time.time()
             self._emit(
                 Started(
                     "sim" if self.fallback else self.adapter_kind, cfg.scene.name,
@@ -977,6 +1015,8 @@ class DaemonService:
                     },
                 )
             )  # fmt: skip
+            if not calibrating:
+                self._forecast_confirms(controller)
             subscriber = session.declare_subscriber(
                 self.keys["joystick"],
                 lambda s: self.inbox.offer(s.payload.to_bytes(), time.monotonic()),
@@ -1067,7 +1107,7 @@ class DaemonService:
             self._run_stops()
             # a prepared load is swapped in on a tick that publishes no status (each costs
             # ~1-2 ms; together they would make the longest ticks)
-            commands = self._run_commands(install=(c.ticks + 1) % status_every != 0)
+            commands = self._run_commands(now, install=(c.ticks + 1) % status_every != 0)
             self._apply_objects()
             sample, why = self.inbox.poll(now)
             rec = c.tick(sample.operator if sample is not None else None)

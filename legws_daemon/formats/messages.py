@@ -210,6 +210,7 @@ class StatusMessage(_Message):
     robot: Label
     seq: Seq
     stamp: Finite
+    started: Finite | None = None  # the daemon's wall clock when it started, s
     mode: Literal["idle", "teleop", "assist", "stopped", "fault", "calibrate"]
     stage: Label | None = None
     posterior: dict[Label, Annotated[float, Field(ge=0.0, le=1.0)]] = {}
@@ -286,8 +287,10 @@ class CommandRequest(_Message):
     ]
     #: ``load_scene``/``load_taskgraph``: a catalog name; ``take_control``: a session id
     argument: Label | None = None
-    #: ``load_taskgraph`` only: ``"auto"`` uses the graph's cached plan (``legws plan``)
-    plan: Literal["auto"] | None = None
+    #: ``load_taskgraph`` only: ``"auto"`` the graph's cached plan (``legws plan``), refused
+    #: without one; ``"none"`` the shipped layout; left out: the cached plan when there is
+    #: one, else the shipped layout with a warning
+    plan: Literal["auto", "none"] | None = None
 
     @model_validator(mode="after")
     def _argument(self) -> CommandRequest:

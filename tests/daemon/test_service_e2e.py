@@ -72,6 +72,16 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
             assert set(teleop[-1]["targets"]) == set(teleop[-1]["posterior"])
             assert teleop[-1]["certificate"] is not None
             assert next(s["committed"] for _, s in m.status if s["mode"] == "assist") == "white_mug"
+            # a phase only while assisting
+            assert all(s["phase"] is None for _, s in m.status if s["mode"] != "assist")
+            assert {s["phase"] for _, s in m.status if s["mode"] == "assist"} >= {"grasp", "home"}
+            # the stage's own ticks: from its decision's start (the daemon's first tick, here)
+            # to the end of its action -- the status ticks at 20 Hz before the daemon was
+            # steered are not the stage's
+            done = next(e["detail"] for e in m.events if e["kind"] == "stage_done")
+            commit_status = next(s for _, s in m.status if s["mode"] == "assist")
+            assert 0 < done["ticks"] <= last["tick"]
+            assert done["ticks"] > last["tick"] - commit_status["tick"]
             input_kinds = ("operator", "deadman", "input_rejected")
             task_kinds = [k for k in m.kinds() if k not in input_kinds]
             assert task_kinds[-2:] == ["stage_done", "task_done"]
@@ -168,9 +178,12 @@ def test_deadman_malformed_input_and_commands(tmp_path: Path) -> None:
             assert reply["mode"] == "stopped"
             push(json.dumps({**good, "seq": 2 * 10**6}).encode(), 0.5)
             np.testing.assert_array_equal(ee(), p1)  # stopped: the stick does nothing
+            time.sleep(1.0)  # past the deadman timeout and the lease's grace
             ok, reply = m.command("reset")
             assert ok
             assert reply["plan"][-1] == "home"
+            # the way home waits for an operator, and the reply says so
+            assert reply["waiting"].startswith("the operator: nobody holds the lease")
             ok, reply = m.command("load_scene", "../../etc/passwd")
             assert not ok
             assert "catalog" in reply["error"]
