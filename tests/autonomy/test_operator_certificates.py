@@ -96,7 +96,7 @@ def test_a_dropped_plan_and_a_placement_request_name_the_operators_certificates(
     planned = feeding_plan().layout_for("choose_food")
     expected_planned = c._decision_certificate(planned)
     assert c.stage.certificate == pytest.approx(expected_planned, abs=1e-12)
-    load(None)
+    load("none")
     (dropped,) = [d for k, d in feeding.events if k == "warning" and "plan" in d]
     assert dropped["planned_certificate"] == pytest.approx(expected_planned, abs=1e-12)
     assert dropped["planned_certificate"] != 2.5  # not the plan's own (section 2's) number

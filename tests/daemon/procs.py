@@ -109,15 +109,20 @@ class Monitor:
             time.sleep(0.05)
         return what(self)
 
-    def command(self, command: str, argument: str | None = None) -> tuple[bool, dict[str, Any]]:
+    def command(
+        self, command: str, argument: str | None = None, plan: str | None = None
+    ) -> tuple[bool, dict[str, Any]]:
         body: dict[str, Any] = {"schema": 1, "command": command}
         if argument is not None:
             body["argument"] = argument
+        if plan is not None:
+            body["plan"] = plan
         for reply in self.session.get(
             self.keys["command"], payload=json.dumps(body).encode(), timeout=10.0
         ):
             if reply.ok is not None:
                 return True, json.loads(reply.ok.payload.to_bytes())
+            assert reply.err is not None
             return False, json.loads(reply.err.payload.to_bytes())
         raise AssertionError("no reply to the command")
 

@@ -258,10 +258,10 @@ def test_the_tracker_renders_the_plan_the_daemon_runs_and_any_object_off_it_is_w
             move = placement["objects"]["green_tea"]["move"]
             assert (move["x"], move["y"]) == pytest.approx((-dx, -dy), abs=0.005)
 
-            # 4. the plan dropped (load_taskgraph without one): the daemon runs the scene
+            # 4. the plan dropped (load_taskgraph with plan none): the daemon runs the scene
             #    file's layout now, and the tracker renders that one (green tea still moved)
             since = len(m.events)
-            ok, reply = m.command("load_taskgraph", "tea")
+            ok, reply = m.command("load_taskgraph", "tea", plan="none")
             assert ok, reply
 
             def reloaded(m: Monitor) -> bool:
