@@ -17,6 +17,7 @@ The formatting is pure; :class:`StatusLine` is the one part that writes.
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -156,6 +157,18 @@ def status_text(status: StatusMessage, session: str | None = None) -> str:
     return " · ".join(parts)
 
 
+def fit(line: str, stream: TextIO) -> str:
+    """``line`` cut to one row of the terminal ``stream`` is (a wrapped line cannot be
+    rewritten in place: ``\\r`` goes back to the start of its last row only)."""
+    try:
+        width = os.get_terminal_size(stream.fileno()).columns
+    except (AttributeError, OSError, ValueError):
+        return line  # not a terminal (or it does not say): the whole line
+    if width <= 1 or len(line) < width:
+        return line  # (a pseudo-terminal nobody sized says 0)
+    return line[: width - 2] + "…"
+
+
 def change_key(status: StatusMessage) -> tuple[object, ...]:
     """What a line per change changes on: everything :func:`status_text` shows but the
     probability's digits (they change every status)."""
@@ -212,7 +225,7 @@ class StatusLine:
             if line == self._shown:
                 return
             self._shown = line
-            self.stream.write("\r" + line + "\x1b[K")
+            self.stream.write("\r" + fit(line, self.stream) + "\x1b[K")
         else:
             key = change_key(status)
             if key == self._shown:

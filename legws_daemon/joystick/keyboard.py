@@ -26,6 +26,7 @@ from typing import TextIO
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import Buttons
+from legws_daemon.joystick.daemon_status import fit
 from legws_daemon.joystick.publisher import Axes, Publisher, Sample, clip_norm
 
 #: key -> (axis index, sign)
@@ -237,7 +238,7 @@ def run_keyboard(
         if said is not None:
             line += " | " + said
         if line != shown:
-            stream.write("\r" + line + "\x1b[K")
+            stream.write("\r" + fit(line, stream) + "\x1b[K")
             stream.flush()
             shown = line
         return axes, buttons

@@ -13,6 +13,7 @@ from legws_daemon.formats.messages import StatusMessage
 from legws_daemon.joystick.daemon_status import (
     StatusLine,
     StatusWatch,
+    fit,
     status_text,
     top_goal,
     wait_for_status,
@@ -95,3 +96,23 @@ def test_no_status_within_the_wait_is_one_line_naming_the_key_and_the_endpoints(
     assert watch.newest is None
     watch.offer(status(1))
     assert wait_for_status(watch, 0.2, []).seq == 1
+
+
+def test_a_terminal_line_is_cut_to_the_terminal_width() -> None:
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    try:
+        with os.fdopen(slave, "w", closefd=False) as tty:
+            assert fit("x" * 300, tty) == "x" * 300  # unsized: the whole line
+            fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+            assert fit("x" * 300, tty) == "x" * 78 + "…"
+            assert fit("short", tty) == "short"
+        assert fit("x" * 300, io.StringIO()) == "x" * 300  # not a terminal
+    finally:
+        os.close(master)
+        os.close(slave)
