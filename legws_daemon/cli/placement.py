@@ -101,12 +101,14 @@ def placement_cmd(
     """Print placement mats: the table at true scale, tiled on A4 or A3 pages.
 
     Per decision of TASKGRAPH's plan (--plan DIR, or the cached plan of `legws plan
-    TASKGRAPH`), or for one layout (--layout), writes NN-<decision>.pdf (one page per tile,
-    with registration marks, cut lines, page labels and a 100 mm scale bar) and a PNG
-    preview of the whole mat, plus markers.pdf: each object's fiducial marker at true size,
-    to stick on the objects. Print at 100 % (actual size), cut along the dashed lines,
-    tape the pages so their registration crosses coincide, and put each object on its
-    outline. The table's own markers are printed on the mat at their scene poses.
+    TASKGRAPH`), or for one layout (--layout), writes NN-<decision>.pdf (only the pages
+    that carry an object or a table marker, with registration marks, cut lines, page
+    labels, where each page lies on the table and a 100 mm scale bar) and a PNG preview of
+    the table with the printed pages, plus markers.pdf: each object's fiducial marker at
+    true size, to stick on the objects. Print at 100 % (actual size), cut along the dashed
+    lines, tape the pages that join so their registration crosses coincide, lay the rest
+    by their printed distances from the table's edges, and put each object on its outline.
+    The table's own markers are printed on the mat at their scene poses.
     """
     from legws_daemon.formats.files import output_folder, write_atomic
     from legws_daemon.placement.mat import decision_mat, layout_mat
@@ -133,16 +135,11 @@ def placement_cmd(
             (decision_stem(i, d.label), decision_mat(scene, d, paper))
             for i, d in enumerate(plan.decisions, 1)
         ]
-    _warn_split(mats[0][1])
     for stem, mat in mats:
         pdf, png = write_mat(mat, out_dir, stem)
-        t = mat.tiling
-        click.echo(
-            f"wrote {pdf} ({len(t.pages)} {paper.upper()} pages, "
-            f"{'landscape' if t.landscape else 'portrait'}: {t.rows} rows x "
-            f"{t.columns} columns)"
-        )
+        click.echo(f"wrote {pdf} ({_pages(mat, paper)})")
         click.echo(f"wrote {png} (preview)")
+        _warn_split(mat, pdf.name)
     markers = markers_pdf(scene, paper)
     if markers is not None:
         path = write_atomic(out_dir / "markers.pdf", markers)
@@ -150,13 +147,28 @@ def placement_cmd(
         click.echo(f"wrote {path} ({count} object markers to cut out)")
 
 
-def _warn_split(mat: Mat) -> None:
-    """One line on stderr per table marker cut between pages (the tiling is the same for
-    every mat of a scene and paper)."""
+def _pages(mat: Mat, paper: str) -> str:
+    """``11 A4 pages, 9 portrait and 2 landscape, only where something lies; the whole
+    table takes 21``."""
+    t = mat.tiling
+    count, (portrait, landscape) = len(t.pages), t.orientations
+    if portrait and landscape:
+        kinds = f"{portrait} portrait and {landscape} landscape"
+    else:
+        kinds = "portrait" if portrait else "landscape"
+    out = f"{count} {paper.upper()} page{'s' if count != 1 else ''}, {kinds}"
+    return f"{out}, only where something lies; the whole table takes {t.full}"
+
+
+def _warn_split(mat: Mat, name: str) -> None:
+    """One line on stderr per table marker that no tiling of the mat keeps on one page."""
+    advice = "tape it flat and exact" + (
+        ", or print on --paper a3" if mat.tiling.paper == "a4" else ""
+    )
     for marker, pages in mat.split_markers():
         numbers = ", ".join(str(p.number) for p in pages)
         click.echo(
             f"legws: warning: table marker {marker.id} lies across the cut between "
-            f"pages {numbers}: tape it flat and exact, or print on --paper a3",
+            f"pages {numbers} of {name}: {advice}",
             err=True,
         )

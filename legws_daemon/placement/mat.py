@@ -1,28 +1,41 @@
-"""The geometry of a placement mat: the table drawn at true scale, tiled over paper pages.
+"""The geometry of a placement mat: the table drawn at true scale, on the pages that carry it.
 
 Everything here is millimetres on the *sheet*: the whole mat as one big picture, before it
 is cut into pages. The sheet is the table seen from above with the robot at the bottom
 edge: sheet right is the robot's -y, sheet up is its +x (a rotation of the base frame,
 never a mirror, so a marker printed on the sheet reads as the camera above the table sees
-it). :class:`SheetFrame` maps base-frame metres to sheet millimetres and back.
+it). :class:`SheetFrame` maps base-frame metres to sheet millimetres and back; the table's
+left near corner (the robot's left, its side) is the sheet's origin.
 
-The sheet is tiled by a grid of pages (:func:`tile`): each page prints its *tile* (the
-part of the sheet it owns) and a band of :data:`OVERLAP` / 2 around it that the
-neighbouring pages own too, inside a white :data:`MARGIN` that carries the page label,
-the header and a 100 mm scale bar. Registration marks sit on every grid corner: each
-appears on every page that shows it, at the same sheet point, so taped pages line up.
+Only the parts of the sheet that carry something are printed (:func:`tile`): every
+object's outline and arrows and every table marker lie on the *tiles* of the pages, and
+no page is printed for bare table. The tiles lie in strips (rows, or columns) whose
+position, page orientation and tile starts are chosen to need the fewest pages, then to
+hang least over the table's edge; a table marker lies whole on one tile (taped across a
+cut it would not lie flat). Each page prints
+its tile and a band of :data:`OVERLAP` / 2 around it, inside a white :data:`MARGIN` that
+carries the page label, where the page lies on the table, the header and a 100 mm scale
+bar. Registration marks sit on every tile corner: each appears on every page whose tile
+holds it, at the same sheet point, so taped pages line up.
+
+Labels (:class:`Label`) are placed, not just anchored: each lies inside one tile, clear of
+the outlines, arrows, markers, registration marks and other labels, next to what it names
+(with a leader line when it had to move away), so no cut goes through one.
 
 :func:`build_mat` gathers what is drawn (table, robot base, every object's footprint,
-grasp and orientation arrows, the table's fiducial markers) as plain shapes in sheet
-millimetres; :func:`decision_mat` and :func:`layout_mat` add the header (the decision, its
-certificates). Nothing here draws or writes a file (:mod:`legws_daemon.placement.pdf` does).
+grasp and orientation arrows, the table's fiducial markers, the labels) as plain shapes in
+sheet millimetres; :func:`decision_mat` and :func:`layout_mat` add the header (the
+decision, its certificates). Nothing here draws or writes a file
+(:mod:`legws_daemon.placement.pdf` does); text is only measured (the font's metrics).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cache, lru_cache
+from itertools import pairwise
 from typing import Literal
 
 import numpy as np
@@ -44,14 +57,33 @@ PAPERS: dict[str, tuple[float, float]] = {"a4": (210.0, 297.0), "a3": (297.0, 42
 #: label, header and scale bar sit in this border, outside the drawing.
 MARGIN = 12.0
 #: Width of the band two neighbouring pages both print, mm: the registration marks on
-#: the grid corners lie in it, whole on both pages.
+#: the tile corners lie in it, whole on both pages.
 OVERLAP = 20.0
 #: Radius of a registration mark's circle and half the length of its cross, mm (within
-#: half the overlap: a mark is whole on every page that shows its corner).
+#: half the overlap: a mark is whole on every page whose tile holds its corner).
 MARK_RADIUS = 4.0
 MARK_ARM = 7.0
 #: Length of the scale bar on every page, mm.
 SCALE_BAR = 100.0
+#: Text sizes, points (6 pt is 2.1 mm: legible, small enough for a 55 mm tea bag).
+SMALL = 6.0
+NORMAL = 7.5
+#: The font of every text (embedded in the PDF), and the distance of two lines of a label
+#: in font sizes.
+FONT = "DejaVu Sans"
+LINE_PITCH = 1.15
+#: Where a character's box lies around its baseline, in font sizes (DejaVu Sans' ascent
+#: and descent; a PDF reader reports the same box).
+ASCENT = 0.764
+DESCENT = 0.236
+#: Clearance of a label from a cut line and from what it must not cover, mm.
+LABEL_INSET = 1.5
+LABEL_GAP = 1.0
+#: A label further than this from its object gets a leader line, mm.
+LEADER = 4.0
+
+MM_PER_POINT = 25.4 / 72
+_EPS = 1e-6
 
 Role = Literal["candidate", "movable", "fixed"]
 Point = tuple[float, float]
@@ -74,13 +106,52 @@ class Rect:
     def height(self) -> float:
         return self.y1 - self.y0
 
+    @property
+    def center(self) -> Point:
+        return ((self.x0 + self.x1) / 2, (self.y0 + self.y1) / 2)
+
     def contains(self, x: float, y: float) -> bool:
         return self.x0 <= x <= self.x1 and self.y0 <= y <= self.y1
+
+    def holds(self, other: Rect) -> bool:
+        """Whether ``other`` lies wholly inside (its edges may touch)."""
+        return (
+            self.x0 <= other.x0 + _EPS
+            and other.x1 <= self.x1 + _EPS
+            and self.y0 <= other.y0 + _EPS
+            and other.y1 <= self.y1 + _EPS
+        )
 
     def overlaps(self, other: Rect) -> bool:
         return (
             self.x0 < other.x1 and other.x0 < self.x1 and self.y0 < other.y1 and other.y0 < self.y1
         )
+
+    def grown(self, d: float) -> Rect:
+        return Rect(self.x0 - d, self.y0 - d, self.x1 + d, self.y1 + d)
+
+    def union(self, other: Rect) -> Rect:
+        return Rect(
+            min(self.x0, other.x0),
+            min(self.y0, other.y0),
+            max(self.x1, other.x1),
+            max(self.y1, other.y1),
+        )
+
+    def distance(self, other: Rect) -> float:
+        """The gap between the two rectangles (0 when they touch or overlap), mm."""
+        dx = max(other.x0 - self.x1, self.x0 - other.x1, 0.0)
+        dy = max(other.y0 - self.y1, self.y0 - other.y1, 0.0)
+        return math.hypot(dx, dy)
+
+    def nearest(self, x: float, y: float) -> Point:
+        """The point of the rectangle nearest ``(x, y)``."""
+        return (min(max(x, self.x0), self.x1), min(max(y, self.y0), self.y1))
+
+    @staticmethod
+    def around(points: Iterable[Point]) -> Rect:
+        xs, ys = zip(*points, strict=True)
+        return Rect(min(xs), min(ys), max(xs), max(ys))
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,64 +187,98 @@ class SheetFrame:
         return yaw + math.pi / 2
 
 
+# --- pages --------------------------------------------------------------------------------
+
+
 @dataclass(frozen=True, slots=True)
 class Page:
     """One sheet of paper of the mat.
 
     Attributes:
-        row, column: 1-based; row 1 is the far edge (top), column 1 the robot's left.
-        number: 1-based, row by row from the top left.
-        tile: the part of the sheet this page owns, mm.
+        number: 1-based, in reading order of the tiles (top to bottom, left to right).
+        tile: the part of the sheet this page owns (inside its dashed cut line), mm.
         window: the part of the sheet it prints (the tile and half the overlap around it).
         paper: the page, in sheet coordinates (the window and the margin around it).
+        landscape: the page is printed in landscape.
     """
 
-    row: int
-    column: int
     number: int
     tile: Rect
     window: Rect
     paper: Rect
+    landscape: bool
 
     def to_page(self, x: float, y: float) -> Point:
         """A sheet point in the page's own millimetres (origin at its bottom-left corner)."""
         return (x - self.paper.x0, y - self.paper.y0)
 
 
+Side = Literal["left", "right", "above", "below"]
+
+
 @dataclass(frozen=True, slots=True)
 class Tiling:
-    """The pages covering a sheet.
+    """The pages of a mat.
 
     Attributes:
         paper: ``a4`` or ``a3``.
-        landscape: the pages are printed in landscape.
-        rows, columns: of the page grid.
-        pitch: ``(width, height)`` of a tile, mm.
-        pages: row by row from the top left.
+        pages: in reading order (see :attr:`Page.number`).
+        full: how many pages a grid over the whole table would need (what is saved).
     """
 
     paper: str
-    landscape: bool
-    rows: int
-    columns: int
-    pitch: Point
     pages: tuple[Page, ...]
+    full: int
 
     @property
-    def size(self) -> Point:
-        """The sheet covered by the tiles, mm."""
-        return (self.columns * self.pitch[0], self.rows * self.pitch[1])
+    def orientations(self) -> tuple[int, int]:
+        """How many pages are portrait, and how many landscape."""
+        landscape = sum(p.landscape for p in self.pages)
+        return (len(self.pages) - landscape, landscape)
+
+    def bounds(self) -> Rect:
+        """The part of the sheet the tiles cover, mm."""
+        out = self.pages[0].tile
+        for p in self.pages[1:]:
+            out = out.union(p.tile)
+        return out
 
     def corners(self) -> list[Point]:
-        """Every grid corner (where the registration marks go), sheet mm."""
-        px, py = self.pitch
-        return [(c * px, r * py) for r in range(self.rows + 1) for c in range(self.columns + 1)]
+        """Every tile corner (where the registration marks go), sheet mm, each once."""
+        seen: dict[tuple[float, float], Point] = {}
+        for p in self.pages:
+            t = p.tile
+            for c in ((t.x0, t.y0), (t.x1, t.y0), (t.x0, t.y1), (t.x1, t.y1)):
+                seen.setdefault((round(c[0], 6), round(c[1], 6)), c)
+        return list(seen.values())
 
     def page_at(self, x: float, y: float) -> Page:
-        """The page whose tile holds the sheet point ``(x, y)`` (the last one on a cut)."""
-        column = min(max(int(x // self.pitch[0]), 0), self.columns - 1) + 1
-        row = self.rows - min(max(int(y // self.pitch[1]), 0), self.rows - 1)
-        return self.pages[(row - 1) * self.columns + column - 1]
+        """The page whose tile holds the sheet point ``(x, y)`` (the last one on a cut);
+        the nearest tile's page when no tile holds it."""
+        holding = [p for p in self.pages if p.tile.contains(x, y)]
+        if holding:
+            return holding[-1]
+        return min(self.pages, key=lambda p: p.tile.distance(Rect(x, y, x, y)))
+
+    def neighbours(self, page: Page) -> list[tuple[Side, Page]]:
+        """The pages whose tiles share a stretch of ``page``'s cut line (taped to it)."""
+        t = page.tile
+        out: list[tuple[Side, Page]] = []
+        for p in self.pages:
+            o = p.tile
+            shared_x = min(t.x1, o.x1) - max(t.x0, o.x0)
+            shared_y = min(t.y1, o.y1) - max(t.y0, o.y0)
+            if p is page:
+                continue
+            if shared_y > 1.0 and abs(o.x1 - t.x0) < _EPS:
+                out.append(("left", p))
+            elif shared_y > 1.0 and abs(o.x0 - t.x1) < _EPS:
+                out.append(("right", p))
+            elif shared_x > 1.0 and abs(o.y0 - t.y1) < _EPS:
+                out.append(("above", p))
+            elif shared_x > 1.0 and abs(o.y1 - t.y0) < _EPS:
+                out.append(("below", p))
+        return out
 
 
 def paper_size(paper: str, landscape: bool) -> Point:
@@ -185,34 +290,314 @@ def paper_size(paper: str, landscape: bool) -> Point:
     return (h, w) if landscape else (w, h)
 
 
-def _grid(paper: str, landscape: bool, width: float, height: float) -> Tiling:
+def tile_size(paper: str, landscape: bool) -> Point:
+    """``(width, height)`` of a page's tile, mm: the paper inside its margin and band."""
     pw, ph = paper_size(paper, landscape)
-    pitch = (pw - 2 * MARGIN - OVERLAP, ph - 2 * MARGIN - OVERLAP)
-    columns = max(1, math.ceil(width / pitch[0] - 1e-9))
-    rows = max(1, math.ceil(height / pitch[1] - 1e-9))
-    pages: list[Page] = []
-    half = OVERLAP / 2
-    for row in range(1, rows + 1):
-        for column in range(1, columns + 1):
-            x0, y0 = (column - 1) * pitch[0], (rows - row) * pitch[1]
-            tile = Rect(x0, y0, x0 + pitch[0], y0 + pitch[1])
-            window = Rect(tile.x0 - half, tile.y0 - half, tile.x1 + half, tile.y1 + half)
-            sheet = Rect(
-                window.x0 - MARGIN,
-                window.y0 - MARGIN,
-                window.x0 - MARGIN + pw,
-                window.y0 - MARGIN + ph,
+    return (pw - 2 * MARGIN - OVERLAP, ph - 2 * MARGIN - OVERLAP)
+
+
+def make_page(number: int, tile: Rect, paper: str, landscape: bool) -> Page:
+    """The page of ``tile`` (its window and paper around it)."""
+    pw, ph = paper_size(paper, landscape)
+    window = tile.grown(OVERLAP / 2)
+    sheet = Rect(
+        window.x0 - MARGIN, window.y0 - MARGIN, window.x0 - MARGIN + pw, window.y0 - MARGIN + ph
+    )
+    return Page(number, tile, window, sheet, landscape)
+
+
+def full_grid(paper: str, width: float, height: float) -> int:
+    """How many pages of ``paper`` a grid over a whole ``width`` x ``height`` mm sheet
+    needs (portrait or landscape, whichever needs fewer)."""
+    counts = []
+    for landscape in (False, True):
+        tw, th = tile_size(paper, landscape)
+        counts.append(max(1, math.ceil(width / tw - 1e-9)) * max(1, math.ceil(height / th - 1e-9)))
+    return min(counts)
+
+
+@dataclass(frozen=True, slots=True)
+class Content:
+    """Something the pages must carry: a box of the sheet (mm); ``whole``: on one tile."""
+
+    box: Rect
+    whole: bool = False
+
+
+_Span = tuple[float, float, bool]
+
+
+def _cover(
+    spans: Sequence[_Span], length: float, end_at: float = math.inf
+) -> tuple[tuple[float, ...], int]:
+    """Tiles of ``length`` along a line covering every span ``(start, end, whole)``, from
+    the left: each starts at the first point not yet covered (or ends just before a whole
+    span it would cut, when there is room). Then the last tiles, when they reach past
+    ``end_at`` (the table's edge), slide back as far as what they cover and the tile
+    before them allow. Returns the tiles' starts and the whole spans cut."""
+    tiles: list[list[float]] = []  # start, end, the furthest point it has to cover
+    covered, cut = -math.inf, 0
+
+    def cuts(end: float, spans: Sequence[_Span]) -> int:
+        return sum(1 for a, b, whole in spans if whole and a < end - _EPS and b > end + _EPS)
+
+    while True:
+        rest = [s for s in spans if s[1] > covered + _EPS]
+        if not rest:
+            break
+        start = max(covered, min(s[0] for s in rest))
+        end = start + length
+        blocked = [a for a, b, whole in rest if whole and start + _EPS < a < end - _EPS < b]
+        if blocked and min(blocked) - length >= covered - _EPS:
+            earlier = min(blocked)
+            if cuts(earlier, rest) < cuts(end, rest):
+                start, end = earlier - length, earlier
+        cut += cuts(end, rest)
+        reach = max(min(b, end) for a, b, _ in rest if a < end - _EPS)
+        tiles.append([start, end, reach])
+        covered = end
+    if tiles and tiles[-1][1] > end_at + _EPS:
+        # the last tiles that abut slide back together: by how far the last reaches past
+        # ``end_at``, as far as what it has to cover and the tile before them allow
+        first = len(tiles) - 1
+        while first and abs(tiles[first - 1][1] - tiles[first][0]) < _EPS:
+            first -= 1
+        floor = tiles[first - 1][1] if first else -math.inf
+        start, end, reach = tiles[-1]
+        by = min(end - end_at, end - reach, tiles[first][0] - floor)
+        ends = [t[1] for t in tiles[first:]]
+        if by > _EPS and sum(cuts(e - by, spans) for e in ends) <= sum(
+            cuts(e, spans) for e in ends
+        ):
+            for t in tiles[first:]:
+                t[0], t[1] = t[0] - by, t[1] - by
+    return tuple(t[0] for t in tiles), cut
+
+
+@dataclass(frozen=True, slots=True)
+class _Strip:
+    """A strip of tiles: from ``start`` across, ``thickness`` thick, tiles of ``length``."""
+
+    start: float
+    thickness: float
+    length: float
+    landscape: bool
+    starts: tuple[float, ...]
+
+
+_Option = tuple[int, int, float, tuple[_Strip, ...]]
+
+
+def _overhang(lo: float, hi: float, within: tuple[float, float]) -> float:
+    """How far ``[lo, hi]`` reaches out of ``within``, mm."""
+    return max(within[0] - lo, 0.0) + max(hi - within[1], 0.0)
+
+
+def _strips(
+    items: Sequence[Content], sizes: Sequence[tuple[float, float, bool]], within: Rect
+) -> _Option:
+    """Strips along x, stacked in y, covering ``items`` with the fewest tiles: each strip
+    is one of ``sizes`` ``(thickness, length, landscape)`` and starts at or after the end
+    of the one below, at the lowest point not yet covered or lower (down to where it
+    still covers that point). Of those, the tiles reaching least out of ``within`` (the
+    table). Returns the whole items cut, the tiles, their overhang (mm) and the strips."""
+    boxes = [(c.box, c.whole) for c in items]
+    edges = sorted({v for b, _ in boxes for v in (b.y0, b.y1)})
+    lengthwise, crosswise = (within.x0, within.x1), (within.y0, within.y1)
+
+    @cache
+    def strip(
+        start: float, thickness: float, length: float
+    ) -> tuple[int, float, tuple[float, ...]]:
+        top = start + thickness
+        spans = [(b.x0, b.x1, w) for b, w in boxes if b.y0 < top - _EPS and b.y1 > start + _EPS]
+        starts, cut = _cover(spans, length, within.x1)
+        cut += sum(1 for b, w in boxes if w and b.y0 < top - _EPS and b.y1 > top + _EPS)
+        over = sum(_overhang(x, x + length, lengthwise) for x in starts)
+        over += len(starts) * _overhang(start, top, crosswise)
+        return cut, over, starts
+
+    @cache
+    def best(y: float) -> _Option:
+        rest = [b for b, _ in boxes if b.y1 > y + _EPS]
+        if not rest:
+            return (0, 0, 0.0, ())
+        low = max(y, min(b.y0 for b in rest))
+        found: _Option | None = None
+        for thickness, length, landscape in sizes:
+            lowest = max(y, low - thickness)
+            starts = {low, lowest, within.y0, within.y1 - thickness}
+            starts |= {e - thickness for e in edges} | set(edges)
+            for s in sorted(v for v in starts if lowest - _EPS <= v <= low + _EPS):
+                cut, over, tiles = strip(round(s, 6), thickness, length)
+                more_cut, more, more_over, strips = best(round(s + thickness, 6))
+                option = (
+                    cut + more_cut,
+                    len(tiles) + more,
+                    over + more_over,
+                    (_Strip(s, thickness, length, landscape, tiles), *strips),
+                )
+                if found is None or option[:3] < found[:3]:
+                    found = option
+        assert found is not None
+        return found
+
+    return best(-math.inf)
+
+
+def _shared(a: Rect, b: Rect) -> float:
+    """How long a stretch of cut line two tiles share, mm (0: they do not join)."""
+    if abs(a.x1 - b.x0) < _EPS or abs(b.x1 - a.x0) < _EPS:
+        return max(min(a.y1, b.y1) - max(a.y0, b.y0), 0.0)
+    if abs(a.y1 - b.y0) < _EPS or abs(b.y1 - a.y0) < _EPS:
+        return max(min(a.x1, b.x1) - max(a.x0, b.x0), 0.0)
+    return 0.0
+
+
+#: A tile slid back onto the table keeps this much of a cut line it shares, mm (room for
+#: two registration marks).
+KEEP_JOIN = 20.0
+
+
+def _onto(
+    tiles: list[tuple[Rect, bool]], contents: Sequence[Content], within: Rect
+) -> list[tuple[Rect, bool]]:
+    """``tiles`` with each that reaches past ``within`` (the table) slid back towards it,
+    one side after the other, as far as it goes without leaving uncovered what it holds,
+    cutting a whole item, running into another tile or losing a join with one."""
+    out = [r for r, _ in tiles]
+    for i in range(len(out)):
+        for axis, sign in ((0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0)):
+            t = out[i]
+            lo, hi = (t.x0, t.x1) if axis == 0 else (t.y0, t.y1)
+            w_lo, w_hi = (within.x0, within.x1) if axis == 0 else (within.y0, within.y1)
+            want = hi - w_hi if sign < 0 else w_lo - lo  # how far past the table's edge
+            if want <= _EPS:
+                continue
+            others = [o for j, o in enumerate(out) if j != i]
+
+            def moved(by: float, t: Rect = t, axis: int = axis, sign: float = sign) -> Rect:
+                d = sign * by
+                if axis == 0:
+                    return Rect(t.x0 + d, t.y0, t.x1 + d, t.y1)
+                return Rect(t.x0, t.y0 + d, t.x1, t.y1 + d)
+
+            def fine(r: Rect, t: Rect = t, others: list[Rect] = others) -> bool:
+                if any(r.grown(-_EPS).overlaps(o) for o in others):
+                    return False
+                for c in contents:
+                    held = t.grown(-_EPS).overlaps(c.box)
+                    if held and not _covered_by([r, *others], c.box):
+                        return False
+                    if c.whole and t.holds(c.box) and not r.holds(c.box):
+                        return False
+                return all(_shared(r, o) >= KEEP_JOIN for o in others if _shared(t, o) > _EPS)
+
+            # the farthest of a few steps that is fine (what is fine is not monotone in
+            # general: a step at a time, from the whole way back)
+            for by in (want, *(want * k / 8 for k in range(7, 0, -1))):
+                if fine(moved(by)):
+                    out[i] = moved(by)
+                    break
+    return [(r, land) for r, (_, land) in zip(out, tiles, strict=True)]
+
+
+def _covered_by(tiles: Sequence[Rect], box: Rect) -> bool:
+    """Whether ``tiles`` cover ``box``: every corner of the pieces they cut it into lies on
+    a tile (exact for axis-aligned tiles: the pieces are the cells of their edges)."""
+    xs = sorted({box.x0, box.x1, *(v for t in tiles for v in (t.x0, t.x1) if box.x0 < v < box.x1)})
+    ys = sorted({box.y0, box.y1, *(v for t in tiles for v in (t.y0, t.y1) if box.y0 < v < box.y1)})
+    grown = [t.grown(_EPS) for t in tiles]
+    for x0, x1 in pairwise(xs):
+        for y0, y1 in pairwise(ys):
+            if not any(g.holds(Rect(x0, y0, x1, y1)) for g in grown):
+                return False
+    return True
+
+
+#: The ways the strips are laid: ``(columns, from the right, from the top)``.
+_View = tuple[bool, bool, bool]
+_VIEWS: tuple[_View, ...] = tuple(
+    (c, fx, fy) for c in (False, True) for fx in (False, True) for fy in (False, True)
+)
+
+
+def _view(r: Rect, view: _View) -> Rect:
+    """``r`` as the strips see it: mirrored (x, y), then turned (columns become rows)."""
+    columns, fx, fy = view
+    if fx:
+        r = Rect(-r.x1, r.y0, -r.x0, r.y1)
+    if fy:
+        r = Rect(r.x0, -r.y1, r.x1, -r.y0)
+    return Rect(r.y0, r.x0, r.y1, r.x1) if columns else r
+
+
+def _unview(r: Rect, view: _View) -> Rect:
+    """The sheet's rectangle ``r`` seen in ``view`` is."""
+    columns, fx, fy = view
+    if columns:
+        r = Rect(r.y0, r.x0, r.y1, r.x1)
+    if fy:
+        r = Rect(r.x0, -r.y1, r.x1, -r.y0)
+    if fx:
+        r = Rect(-r.x1, r.y0, -r.x0, r.y1)
+    return r
+
+
+def tile(
+    paper: str, contents: Sequence[Content], within: Rect | None = None, full: int = 0
+) -> Tiling:
+    """The fewest pages of ``paper`` whose tiles cover ``contents``, no whole item cut
+    when that can be helped.
+
+    Tried: strips of rows and of columns, laid from either side; all portrait pages, all
+    landscape, or either per strip. Among tilings cutting as few whole items and needing
+    as few pages, one orientation is preferred over a mix, then tiles that reach least out
+    of ``within`` (the table: paper hanging over its edge does not lie flat), then the
+    fewest objects cut by a cut line. ``full``: what a grid over the whole table needs
+    (reported by :attr:`Tiling.full`).
+    """
+    if not contents:
+        raise ValueError("a mat carries at least one object")
+    if within is None:
+        within = contents[0].box
+        for c in contents[1:]:
+            within = within.union(c.box)
+    portrait, landscape = tile_size(paper, False), tile_size(paper, True)
+    best: tuple[tuple[int, int, int, int, int], list[tuple[Rect, bool]]] | None = None
+    for view in _VIEWS:
+        items = [Content(_view(c.box, view), c.whole) for c in contents]
+        columns = view[0]
+        options = {
+            False: (portrait[0], portrait[1], False),
+            True: (landscape[0], landscape[1], True),
+        }
+        for kinds in ((False,), (True,), (False, True)):
+            # a strip's thickness is the tile's height (rows) or width (columns)
+            sizes = [
+                (h, w, land) if not columns else (w, h, land)
+                for w, h, land in (options[k] for k in kinds)
+            ]
+            cut, _, over, strips = _strips(items, sizes, _view(within, view))
+            tiles = [
+                (_unview(Rect(x, s.start, x + s.length, s.start + s.thickness), view), s.landscape)
+                for s in strips
+                for x in s.starts
+            ]
+            split = sum(
+                sum(r.grown(-_EPS).overlaps(c.box) for r, _ in tiles) - 1
+                for c in contents
+                if not c.whole
             )
-            pages.append(Page(row, column, len(pages) + 1, tile, window, sheet))
-    return Tiling(paper, landscape, rows, columns, pitch, tuple(pages))
-
-
-def tile(paper: str, width: float, height: float) -> Tiling:
-    """Pages of ``paper`` covering a sheet of ``width`` x ``height`` mm: portrait or
-    landscape, whichever needs fewer pages (portrait on a tie)."""
-    portrait = _grid(paper, False, width, height)
-    landscape = _grid(paper, True, width, height)
-    return landscape if len(landscape.pages) < len(portrait.pages) else portrait
+            mixed = len({land for _, land in tiles}) > 1
+            key = (cut, len(tiles), int(mixed), round(over / 10.0), split)
+            if best is None or key < best[0]:
+                best = (key, tiles)
+    assert best is not None
+    tiles = _onto(best[1], contents, within)
+    ordered = sorted(tiles, key=lambda t: (-round(t[0].y1, 6), round(t[0].x0, 6)))
+    pages = tuple(make_page(i, r, paper, land) for i, (r, land) in enumerate(ordered, 1))
+    return Tiling(paper, pages, full)
 
 
 # --- what is drawn ------------------------------------------------------------------------
@@ -224,6 +609,15 @@ class Arrow:
 
     start: Point
     end: Point
+
+    def bounds(self, head: float = 0.0) -> Rect:
+        """Its bounding box, ``head`` (half the head's width, mm) around."""
+        return Rect.around([self.start, self.end]).grown(head)
+
+
+#: Half the widths of the heads of the orientation and grasp arrows, mm (as drawn).
+ORIENTATION_HEAD = 1.0
+GRASP_HEAD = 1.75
 
 
 @dataclass(frozen=True, slots=True)
@@ -242,7 +636,6 @@ class Footprint:
         orientation: its x axis, from the centre.
         grasp: where the gripper comes from: a side grasp's approach onto its face, a top
             grasp's two fingers closing (none when any turn of it is the same grasp).
-        text_at: where its label goes (under the outline), sheet mm.
     """
 
     name: str
@@ -256,7 +649,6 @@ class Footprint:
     marker: int | None
     orientation: Arrow
     grasp: tuple[Arrow, ...]
-    text_at: Point
 
     def bounds(self) -> Rect:
         """The outline's bounding box, sheet mm."""
@@ -265,6 +657,44 @@ class Footprint:
             return Rect(x - r, y - r, x + r, y + r)
         lo, hi = self.polygon.min(axis=0), self.polygon.max(axis=0)
         return Rect(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+    def drawing(self) -> Rect:
+        """What is drawn of it (the outline and its grasp arrows), sheet mm."""
+        out = self.bounds()
+        for a in self.grasp:
+            out = out.union(a.bounds(GRASP_HEAD))
+        return out
+
+    def text(self) -> tuple[str, ...]:
+        """The lines of its label: its name (and that it is fixed), its marker."""
+        lines = [self.label + (" (fixed)" if self.role == "fixed" else "")]
+        if self.marker is not None:
+            lines.append(f"marker {self.marker}")
+        return tuple(lines)
+
+    def edge_towards(self, x: float, y: float) -> Point:
+        """Where the outline crosses the ray from its centre towards ``(x, y)``."""
+        cx, cy = self.center
+        d = np.array([x - cx, y - cy])
+        n = float(np.linalg.norm(d))
+        if n < _EPS:
+            return self.center
+        d /= n
+        if self.shape == "circle":
+            return (cx + d[0] * self.radius, cy + d[1] * self.radius)
+        reach = math.inf
+        for a, b in zip(self.polygon, np.roll(self.polygon, -1, axis=0), strict=True):
+            e = b - a
+            det = d[0] * -e[1] + e[0] * d[1]
+            if abs(det) < _EPS:
+                continue
+            rel = a - np.array(self.center)
+            t = (rel[0] * -e[1] + e[0] * rel[1]) / det
+            u = (d[0] * rel[1] - d[1] * rel[0]) / det
+            if t >= 0 and -_EPS <= u <= 1 + _EPS:
+                reach = min(reach, t)
+        reach = 0.0 if reach == math.inf else reach
+        return (cx + d[0] * reach, cy + d[1] * reach)
 
 
 @dataclass(frozen=True, slots=True)
@@ -316,6 +746,9 @@ class PrintedMarker:
         q = self.quiet_zone()
         lo, hi = q.min(axis=0), q.max(axis=0)
         return Rect(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+    def caption(self) -> str:
+        return f"table marker {self.id} ({self.size:g} mm)"
 
 
 def marker_cells(dictionary: str, marker_id: int) -> np.ndarray:
@@ -369,6 +802,168 @@ class BaseMark:
     inside: bool
     text: str
 
+    def drawing(self) -> Rect:
+        """What is drawn of it (a cross in a circle, or an arrow up to the near edge), mm."""
+        x, y = self.at
+        return Rect(x - 8, y - 8, x + 8, y + 8) if self.inside else Rect(x - 2, y, x + 2, y + 22)
+
+
+# --- labels -------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=4096)
+def text_width(text: str, size: float, bold: bool = False) -> float:
+    """The advance width of one line of ``text`` at ``size`` pt in :data:`FONT`, mm."""
+    from matplotlib.font_manager import FontProperties, findfont, get_font
+    from matplotlib.ft2font import LoadFlags
+
+    prop = FontProperties(family=FONT, weight="bold" if bold else "normal")
+    font = get_font(findfont(prop))
+    font.set_size(size, 72)
+    width = 0.0
+    for ch in text:
+        glyph = font.load_char(ord(ch), flags=LoadFlags.NO_HINTING)
+        width += glyph.linearHoriAdvance / 65536
+    return width * MM_PER_POINT
+
+
+def text_size(lines: Sequence[str], size: float, bold: bool = False) -> Point:
+    """``(width, height)`` of the box of ``lines`` at ``size`` pt, mm: the widest line, and
+    every line's character boxes (:data:`ASCENT` above to :data:`DESCENT` below its
+    baseline, lines :data:`LINE_PITCH` apart)."""
+    width = max(text_width(line, size, bold) for line in lines)
+    height = size * (1 + LINE_PITCH * (len(lines) - 1)) * MM_PER_POINT
+    return width, height
+
+
+@dataclass(frozen=True, slots=True)
+class Label:
+    """A text of the mat, placed.
+
+    Attributes:
+        lines: top to bottom.
+        size: pt.
+        box: what its characters cover, sheet mm (the drawing centres each line in it).
+        rotation: 0; 90 (reads upwards) or -90 (downwards): one line along a side.
+        bold, color: how it is drawn.
+        leader: a line from the label to what it names, when it is not next to it.
+        page: the page whose tile holds it (0: not on a page, as on the preview).
+    """
+
+    lines: tuple[str, ...]
+    size: float
+    box: Rect
+    rotation: int = 0
+    bold: bool = False
+    color: str = "black"
+    leader: tuple[Point, Point] | None = None
+    page: int = 0
+
+    def baselines(self) -> list[tuple[float, float]]:
+        """The anchor of each line (its baseline's centre), sheet mm."""
+        s = self.size * MM_PER_POINT
+        (cx, cy), b = self.box.center, self.box
+        if self.rotation == 90:
+            return [(b.x0 + ASCENT * s, cy)]
+        if self.rotation == -90:
+            return [(b.x0 + DESCENT * s, cy)]
+        return [(cx, b.y1 - ASCENT * s - i * LINE_PITCH * s) for i in range(len(self.lines))]
+
+
+@dataclass
+class Placer:
+    """Places labels one by one: each in one of ``regions``, clear (by ``gap``) of what is
+    ``blocked`` and of the labels placed before it."""
+
+    regions: Sequence[Rect]
+    blocked: list[Rect] = field(default_factory=list)
+    gap: float = LABEL_GAP
+
+    def region_of(self, box: Rect) -> int | None:
+        """The index of a region holding ``box`` with nothing in the way, if any."""
+        if any(box.overlaps(b.grown(self.gap)) for b in self.blocked):
+            return None
+        for i, r in enumerate(self.regions):
+            if r.holds(box):
+                return i
+        return None
+
+    def first(self, boxes: Iterable[Rect]) -> tuple[Rect, int] | None:
+        """The first of ``boxes`` that is free (and its region), taken; ``None``: none."""
+        for box in boxes:
+            i = self.region_of(box)
+            if i is not None:
+                self.blocked.append(box)
+                return box, i
+        return None
+
+
+#: How far from what it names a label is tried, mm (the first gaps keep it next to it).
+RINGS = (1.5, 3.0, 5.0, 8.0, 12.0, 17.0, 23.0, 30.0, 40.0, 52.0, 66.0)
+
+
+def around(
+    near: Rect, width: float, height: float, rings: Sequence[float] = RINGS
+) -> Iterator[Rect]:
+    """Boxes of ``width`` x ``height`` around ``near``, nearest first: under it, over
+    it, right and left of it, then slid along each side."""
+    cx, cy = near.center
+    for g in rings:
+        below = Rect(cx - width / 2, near.y0 - g - height, cx + width / 2, near.y0 - g)
+        above = Rect(cx - width / 2, near.y1 + g, cx + width / 2, near.y1 + g + height)
+        right = Rect(near.x1 + g, cy - height / 2, near.x1 + g + width, cy + height / 2)
+        left = Rect(near.x0 - g - width, cy - height / 2, near.x0 - g, cy + height / 2)
+        yield from (below, above, right, left)
+        for k in (1, 2, 3, 4):
+            dx = k * width / 4
+            dy = k * max(height, near.height / 2) / 2
+            for box, sx, sy in (
+                (below, dx, 0.0),
+                (below, -dx, 0.0),
+                (above, dx, 0.0),
+                (above, -dx, 0.0),
+                (right, 0.0, dy),
+                (right, 0.0, -dy),
+                (left, 0.0, dy),
+                (left, 0.0, -dy),
+            ):
+                yield Rect(box.x0 + sx, box.y0 + sy, box.x1 + sx, box.y1 + sy)
+
+
+def along(
+    fixed: float, lo: float, hi: float, length: float, thickness: float, vertical: bool
+) -> Iterator[Rect]:
+    """Boxes along a line from ``lo`` to ``hi``: ``length`` along it, ``thickness`` across
+    from ``fixed`` (positive: above or right of it, negative: below or left), every 4 mm
+    from ``lo``."""
+    a, b = (fixed, fixed + thickness) if thickness > 0 else (fixed + thickness, fixed)
+    start = lo
+    while start + length <= hi + _EPS:
+        if vertical:
+            yield Rect(a, start, b, start + length)
+        else:
+            yield Rect(start, a, start + length, b)
+        start += 4.0
+
+
+def leader(f: Footprint, box: Rect) -> tuple[Point, Point] | None:
+    """A line from ``box`` to ``f``'s outline when the label is not right next to it."""
+    if box.distance(f.drawing()) <= LEADER:
+        return None
+    start = box.nearest(*f.center)
+    return (start, f.edge_towards(*start))
+
+
+@dataclass(frozen=True, slots=True)
+class Drawing:
+    """What a mat draws, before its pages and labels (sheet mm)."""
+
+    table: Rect
+    center_line: tuple[Point, Point] | None
+    base: BaseMark
+    footprints: tuple[Footprint, ...]
+    markers: tuple[PrintedMarker, ...]
+
 
 @dataclass(frozen=True)
 class Mat:
@@ -378,11 +973,12 @@ class Mat:
         header: what it is of.
         frame: base frame to sheet.
         tiling: the pages.
-        table: the table's outline on the sheet.
+        table: the table's outline on the sheet (its left near corner at the origin).
         center_line: the robot's y = 0 across the table (``None`` when off the table).
         base: the robot base's mark.
         footprints: one per object.
         markers: the table's fiducial markers.
+        labels: every text on the tiles (names, marker ids, edges), placed.
     """
 
     header: Header
@@ -393,6 +989,11 @@ class Mat:
     base: BaseMark
     footprints: tuple[Footprint, ...]
     markers: tuple[PrintedMarker, ...]
+    labels: tuple[Label, ...] = ()
+
+    def drawing(self) -> Drawing:
+        """What it draws, without its pages and labels."""
+        return Drawing(self.table, self.center_line, self.base, self.footprints, self.markers)
 
     def split_markers(self) -> list[tuple[PrintedMarker, list[Page]]]:
         """The table markers (with their white margin) crossed by a cut between pages, and
@@ -400,7 +1001,7 @@ class Mat:
         out = []
         for m in self.markers:
             b = m.bounds()
-            pages = [p for p in self.tiling.pages if p.tile.overlaps(b)]
+            pages = [p for p in self.tiling.pages if p.tile.grown(-_EPS).overlaps(b)]
             if len(pages) > 1:
                 out.append((m, pages))
         return out
@@ -443,7 +1044,7 @@ def _grasp_arrows(
 def footprint(
     scene: Scene, name: str, pose: ObjectPose, frame: SheetFrame, role: Role
 ) -> Footprint:
-    """The outline, arrows and label of object ``name`` at ``pose``."""
+    """The outline and arrows of object ``name`` at ``pose``."""
     spec = scene.object(name)
     sx, sy, _ = extents(spec.shape, tuple(spec.size))
     shape: Literal["box", "circle"] = "box" if spec.shape == "box" else "circle"
@@ -456,9 +1057,6 @@ def footprint(
         world = local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
         polygon = frame.points(world)
     radius = size[0] / 2 if shape == "circle" else 0.0
-    grasp = _grasp_arrows(scene, name, pose, frame, shape, size)
-    below = center[1] - radius if shape == "circle" else float(polygon[:, 1].min())
-    below = min([below] + [p[1] for a in grasp for p in (a.start, a.end)])  # under the arrows
     half_x = min(0.8 * sx / 2, 0.025)
     orientation = Arrow(center, frame.to_sheet(pose.x + c * half_x, pose.y + s * half_x))
     return Footprint(
@@ -472,8 +1070,7 @@ def footprint(
         color=spec.color,
         marker=spec.marker.id if spec.marker is not None else None,
         orientation=orientation,
-        grasp=grasp,
-        text_at=(center[0], below - 2.0),
+        grasp=_grasp_arrows(scene, name, pose, frame, shape, size),
     )
 
 
@@ -509,6 +1106,105 @@ def _base_mark(frame: SheetFrame, table: Rect) -> BaseMark:
     )
 
 
+#: The table's edges as the pages name them.
+NEAR_EDGE = "table edge, robot side (near)"
+FAR_EDGE = "table edge, far side"
+LEFT_EDGE = "robot's left (+y)"
+RIGHT_EDGE = "robot's right (−y)"
+CENTER_LINE = "robot y = 0"
+_ROLES: dict[Role, int] = {"candidate": 0, "movable": 1, "fixed": 2}
+
+
+def obstacles(drawn: Drawing, corners: Iterable[Point]) -> list[Rect]:
+    """What a label must not cover: outlines, arrows, markers, the base mark, the table's
+    edges and centre line, and the registration marks at ``corners``."""
+    out: list[Rect] = []
+    for f in drawn.footprints:
+        out.append(f.bounds())
+        out.extend(a.bounds(GRASP_HEAD) for a in f.grasp)
+    out.extend(m.bounds() for m in drawn.markers)
+    out.append(drawn.base.drawing())
+    t, w = drawn.table, 0.5
+    out += [
+        Rect(t.x0, t.y0 - w, t.x1, t.y0 + w),
+        Rect(t.x0, t.y1 - w, t.x1, t.y1 + w),
+        Rect(t.x0 - w, t.y0, t.x0 + w, t.y1),
+        Rect(t.x1 - w, t.y0, t.x1 + w, t.y1),
+    ]
+    if drawn.center_line is not None:
+        (x, y0), (_, y1) = drawn.center_line
+        out.append(Rect(x - 0.3, y0, x + 0.3, y1))
+    reach = MARK_ARM + 0.3
+    out += [Rect(x - reach, y - reach, x + reach, y + reach) for x, y in corners]
+    return out
+
+
+def _labels(drawn: Drawing, tiling: Tiling) -> tuple[list[Label], list[Rect]]:
+    """The labels of a mat placed on its tiles, and where each object's or marker's label
+    that found no room would go (right under it)."""
+    pages = tiling.pages
+    regions = [p.tile.grown(-LABEL_INSET) for p in pages]
+    placer = Placer(regions, obstacles(drawn, tiling.corners()))
+    labels: list[Label] = []
+    missing: list[Rect] = []
+    for f in sorted(drawn.footprints, key=lambda f: _ROLES[f.role]):
+        lines, bold = f.text(), f.role == "candidate"
+        w, h = text_size(lines, SMALL, bold)
+        got = placer.first(around(f.drawing(), w, h))
+        if got is None:
+            missing.append(next(around(f.drawing(), w, h)))
+            continue
+        box, i = got
+        labels.append(Label(lines, SMALL, box, bold=bold, leader=leader(f, box), page=i + 1))
+    for m in drawn.markers:
+        w, h = text_size([m.caption()], SMALL)
+        got = placer.first(around(m.bounds(), w, h))
+        if got is None:
+            missing.append(next(around(m.bounds(), w, h)))
+            continue
+        box, i = got
+        labels.append(Label((m.caption(),), SMALL, box, page=i + 1))
+    for i, region in enumerate(regions):
+        labels += _table_labels(drawn, placer, region, i + 1)
+    return labels, missing
+
+
+def _table_labels(drawn: Drawing, placer: Placer, region: Rect, page: int) -> list[Label]:
+    """The table's edges, centre line and base named on one tile, where there is room."""
+    t, r, out = drawn.table, region, []
+    grey = "0.25"
+    lo_x, hi_x = max(r.x0, t.x0 + 2.0), min(r.x1, t.x1 - 2.0)
+    lo_y, hi_y = max(r.y0, t.y0 + 2.0), min(r.y1, t.y1 - 2.0)
+
+    def put(text: str, boxes: Iterable[Rect], rotation: int = 0, size: float = SMALL) -> None:
+        got = placer.first(b for b in boxes if r.holds(b))
+        if got is not None:
+            out.append(Label((text,), size, got[0], rotation=rotation, color=grey, page=page))
+
+    h = text_size(["x"], SMALL)[1]
+    if r.y0 <= t.y0 <= r.y1:
+        put(NEAR_EDGE, along(t.y0 + 1.6, lo_x, hi_x, text_width(NEAR_EDGE, SMALL), h, False))
+    if r.y0 <= t.y1 <= r.y1:
+        put(FAR_EDGE, along(t.y1 - 1.6, lo_x, hi_x, text_width(FAR_EDGE, SMALL), -h, False))
+    if r.x0 <= t.x0 <= r.x1:
+        w = text_width(LEFT_EDGE, SMALL)
+        put(LEFT_EDGE, along(t.x0 + 1.6, lo_y, hi_y, w, h, True), rotation=90)
+    if r.x0 <= t.x1 <= r.x1:
+        w = text_width(RIGHT_EDGE, SMALL)
+        put(RIGHT_EDGE, along(t.x1 - 1.6, lo_y, hi_y, w, -h, True), rotation=-90)
+    if drawn.center_line is not None:
+        (x, _), _ = drawn.center_line
+        if r.x0 <= x <= r.x1:
+            w = text_width(CENTER_LINE, SMALL)
+            tops = np.arange(hi_y, lo_y + h, -4.0)
+            put(CENTER_LINE, (Rect(x + 1.6, y - h, x + 1.6 + w, y) for y in tops))
+    base = drawn.base
+    if r.overlaps(base.drawing()):
+        w, hb = text_size([base.text], NORMAL)
+        put(base.text, around(base.drawing(), w, hb, RINGS[:6]), size=NORMAL)
+    return out
+
+
 def build_mat(
     scene: Scene,
     poses: Mapping[str, ObjectPose],
@@ -519,32 +1215,73 @@ def build_mat(
     """The mat of ``scene`` with its objects at ``poses`` (every object, by name), the
     ``candidates`` highlighted, on pages of ``paper``.
 
-    The table (``workspace.table_center``, ``table_size``) is centred on the page grid.
+    The pages carry every object's outline and arrows and every table marker (see
+    :func:`tile`); when a label finds no room on them, the room right under its object is
+    carried too and the pages are tiled again.
     """
     ws = scene.workspace
     (cx, cy), (tx, ty) = ws.table_center, ws.table_size
     width, height = ty * 1000.0, tx * 1000.0
-    tiling = tile(paper, width, height)
-    gw, gh = tiling.size
-    pad_x, pad_y = (gw - width) / 2, (gh - height) / 2
-    frame = SheetFrame(cx - tx / 2 - pad_y / 1000.0, cy + ty / 2 + pad_x / 1000.0)
-    table = Rect(pad_x, pad_y, pad_x + width, pad_y + height)
+    frame = SheetFrame(cx - tx / 2, cy + ty / 2)
+    table = Rect(0.0, 0.0, width, height)
     center_line = None
     if cy - ty / 2 < 0 < cy + ty / 2:
         center_line = (frame.to_sheet(cx - tx / 2, 0.0), frame.to_sheet(cx + tx / 2, 0.0))
     prints = tuple(
         footprint(scene, n, p, frame, _role(scene, n, candidates)) for n, p in poses.items()
     )
+    drawn = Drawing(
+        table, center_line, _base_mark(frame, table), prints, table_markers(scene, frame)
+    )
+    contents = [Content(f.drawing()) for f in prints]
+    contents += [Content(m.bounds(), whole=True) for m in drawn.markers]
+    full = full_grid(paper, width, height)
+    tiling = tile(paper, contents, table, full)
+    labels, missing = _labels(drawn, tiling)
+    for _ in range(3):
+        if not missing:
+            break
+        contents += [Content(box, whole=True) for box in missing]
+        tiling = tile(paper, contents, table, full)
+        labels, missing = _labels(drawn, tiling)
+    if missing:  # still no room: the labels go where a tile holds them, over what is there
+        labels = _forced(drawn, tiling, labels)
     return Mat(
         header,
         frame,
         tiling,
         table,
         center_line,
-        _base_mark(frame, table),
+        drawn.base,
         prints,
-        table_markers(scene, frame),
+        drawn.markers,
+        tuple(labels),
     )
+
+
+def _forced(drawn: Drawing, tiling: Tiling, placed: list[Label]) -> list[Label]:
+    """``placed`` and the object and marker labels it lacks, each on the first tile that
+    holds it, whatever it covers."""
+    have = {label.lines for label in placed}
+    placer = Placer([p.tile.grown(-LABEL_INSET) for p in tiling.pages], [], 0.0)
+    out = list(placed)
+    for f in drawn.footprints:
+        if f.text() not in have:
+            w, h = text_size(f.text(), SMALL, f.role == "candidate")
+            got = placer.first(around(f.drawing(), w, h))
+            if got is not None:
+                box, i = got
+                bold = f.role == "candidate"
+                out.append(
+                    Label(f.text(), SMALL, box, bold=bold, leader=leader(f, box), page=i + 1)
+                )
+    for m in drawn.markers:
+        if (m.caption(),) not in have:
+            w, h = text_size([m.caption()], SMALL)
+            got = placer.first(around(m.bounds(), w, h))
+            if got is not None:
+                out.append(Label((m.caption(),), SMALL, got[0], page=got[1] + 1))
+    return out
 
 
 def _role(scene: Scene, name: str, candidates: Sequence[str]) -> Role:
@@ -554,8 +1291,47 @@ def _role(scene: Scene, name: str, candidates: Sequence[str]) -> Role:
 
 
 def page_label(mat: Mat, page: Page) -> str:
-    """``row r, column c (page k of N)``: where the page goes (row 1 is the far edge)."""
-    return f"row {page.row}, column {page.column} (page {page.number} of {len(mat.tiling.pages)})"
+    """``page k of N``."""
+    return f"page {page.number} of {len(mat.tiling.pages)}"
+
+
+def table_edges(mat: Mat, page: Page) -> list[str]:
+    """The table's edges that cross the page's tile: ``near``, ``far``, ``left``, ``right``."""
+    t, tile = mat.table, page.tile
+    across_x = tile.x0 < t.x1 and t.x0 < tile.x1
+    across_y = tile.y0 < t.y1 and t.y0 < tile.y1
+    edges = [
+        ("near", across_x and tile.y0 <= t.y0 <= tile.y1),
+        ("far", across_x and tile.y0 <= t.y1 <= tile.y1),
+        ("left", across_y and tile.x0 <= t.x0 <= tile.x1),
+        ("right", across_y and tile.x0 <= t.x1 <= tile.x1),
+    ]
+    return [name for name, crossing in edges if crossing]
+
+
+def page_joins(mat: Mat, page: Page) -> str:
+    """Which pages are taped to this one, and on which side; for a page that joins none,
+    how to lay it."""
+    joins = mat.tiling.neighbours(page)
+    if joins:
+        return "joins " + ", ".join(f"page {p.number} {side}" for side, p in joins)
+    edges = table_edges(mat, page)
+    if edges:
+        return f"joins no other page: lay it on the table's {' and '.join(edges)} edge"
+    return "joins no other page: lay it by the distances below"
+
+
+def page_position(mat: Mat, page: Page) -> str:
+    """Where the page's tile lies on the table: its cut line's lower-left corner from the
+    table's left and near edges (to lay a page that joins no other)."""
+
+    def off(d: float, edge: str) -> str:
+        if d >= -0.5:
+            return f"{d:.0f} mm from the table's {edge} edge"
+        return f"{-d:.0f} mm outside its {edge} edge"
+
+    dx, dy = page.tile.x0 - mat.table.x0, page.tile.y0 - mat.table.y0
+    return f"cut line's lower-left corner: {off(dx, 'left')}, {off(dy, 'near')}"
 
 
 # --- the mats of a plan's decisions and of one layout ---------------------------------------

@@ -4,11 +4,15 @@ A page is a matplotlib figure of the paper's size in inches whose one axes fills
 limits in sheet millimetres (:mod:`legws_daemon.placement.mat`), so one millimetre of the
 table is one millimetre of paper: the PDF's geometry is the table's, within the precision
 the PDF writes coordinates with. Printed at 100 % ("actual size", no "fit to page"), the
-100 mm scale bar on every page measures 100 mm.
+100 mm scale bar on every page measures 100 mm. The shapes are clipped to the page's
+printed part; a label is drawn only on the pages that show it whole (it lies inside one
+tile: :class:`~legws_daemon.placement.mat.Label`).
 
-The preview draws the same shapes over the whole sheet at a reduced scale, with the page
-grid. The marker sheet (``markers.pdf``) holds each object's fiducial marker at true size
-with its name, to cut out and stick centred on the object's top face.
+The preview draws the same shapes over the table at a reduced scale, with the printed
+pages and their numbers; its text is sized in the PNG's pixels (:data:`PREVIEW_TEXT_PX`)
+and its labels are placed again at that size, clear of each other and of the outlines
+(:func:`preview_labels`). The marker sheet (``markers.pdf``) holds each object's fiducial
+marker at true size with its name, to cut out and stick centred on the object's top face.
 
 Only matplotlib's Agg and PDF back ends are used (no GUI); files are written through
 :func:`~legws_daemon.formats.files.write_atomic`.
@@ -31,51 +35,74 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, FancyArrow, PathPatch, Polygon, Rectangle
 from matplotlib.path import Path as MplPath
+from matplotlib.text import Text
 
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.placement.mat import (
+    FONT,
+    GRASP_HEAD,
     MARGIN,
     MARK_ARM,
     MARK_RADIUS,
-    OVERLAP,
+    NORMAL,
+    ORIENTATION_HEAD,
     SCALE_BAR,
+    SMALL,
     Arrow,
     Footprint,
+    Label,
     Mat,
     Page,
+    Placer,
     PrintedMarker,
     Rect,
+    around,
+    leader,
     marker_cells,
+    obstacles,
+    page_joins,
     page_label,
+    page_position,
     paper_size,
+    text_size,
+    text_width,
 )
 from legws_daemon.scene.scene import Scene
 from legws_daemon.tracking.markers import scene_markers
 
 MM_PER_INCH = 25.4
-#: Text sizes, points (6 pt is 2.1 mm: legible, small enough for a 55 mm tea bag).
-SMALL = 6.0
-NORMAL = 7.5
 #: Line widths, points.
 THIN = 0.4
 OUTLINE = {"candidate": 1.3, "movable": 0.8, "fixed": 0.8}
-#: How far a label or an arrow may reach beyond an outline, mm (for which page draws it).
-REACH = 60.0
 #: Width of the preview picture, pixels.
 PREVIEW_WIDTH = 1600
+#: Text sizes of the preview, pixels of the PNG: 13 px is a 10 pt font on a 96 dpi screen
+#: (its capitals 9.5 px tall); the page numbers and the title are larger.
+PREVIEW_TEXT_PX = 13.0
+PREVIEW_TITLE_PX = 17.0
+#: Room around the table and the pages on the preview, mm of the sheet.
+PREVIEW_BORDER = 15.0
 #: What the shapes of a mat mean, on every page.
 LEGEND = (
     "bold: candidate · thin: other object · dashed: fixed · magenta: grasp (side: "
     "approach, top: fingers closing) · grey arrow: object x axis"
 )
+#: Text drawn letter by letter, no ligatures (a PDF's "fi" glyph would not read back as
+#: "f", "i": not searchable).
+_PLAIN: Any = {"fontfeatures": ("-liga",)}
 #: Fonts embedded as TrueType (42), so the text of the PDF can be read back and searched.
-_RC: Any = {"pdf.fonttype": 42, "font.family": "DejaVu Sans", "path.simplify": False}
+_RC: Any = {"pdf.fonttype": 42, "font.family": FONT, "path.simplify": False}
 
 
 @contextmanager
 def _style() -> Iterator[None]:
     with mpl.rc_context(_RC):
         yield
+
+
+def _text(ax: Axes, x: float, y: float, s: str, **style: Any) -> Text:
+    """A text of the axes, drawn without ligatures (:data:`_PLAIN`)."""
+    return ax.text(x, y, s, **_PLAIN, **style)
 
 
 def _figure(width_mm: float, height_mm: float, view: Rect) -> tuple[Figure, Axes]:
@@ -106,8 +133,7 @@ class _Canvas:
         """Whether something within ``bounds`` (and ``reach`` around) is on this canvas."""
         if self.window is None:
             return True
-        grown = Rect(bounds.x0 - reach, bounds.y0 - reach, bounds.x1 + reach, bounds.y1 + reach)
-        return grown.overlaps(self.window)
+        return bounds.grown(reach).overlaps(self.window)
 
     def add(self, artist: Any) -> None:
         if isinstance(artist, PathPatch | Polygon | Circle | Rectangle | FancyArrow):
@@ -123,13 +149,38 @@ class _Canvas:
         if self._clip is not None:
             artist.set_clip_path(self._clip)
 
-    def text(self, x: float, y: float, s: str, **style: Any) -> None:
-        """Text anchored at ``(x, y)``, left out when it cannot reach the window."""
-        if not self.shows(Rect(x, y, x, y), REACH):
-            return
-        artist = self.ax.text(x, y, s, **style)
-        if self._clip is not None:
-            artist.set_clip_path(self._clip)
+    def label(self, label: Label, background: bool = False) -> list[Text]:
+        """Draw ``label`` when the canvas shows it whole (never cut by its edge); with
+        ``background``, on a white box."""
+        if self.window is not None and not self.window.holds(label.box):
+            return []
+        if label.leader is not None:
+            self.line(label.leader, color="0.35", linewidth=THIN)
+        if background:
+            b = label.box.grown(0.6)
+            self.add(
+                Rectangle(
+                    (b.x0, b.y0), b.width, b.height, facecolor="white", edgecolor="none", alpha=0.85
+                )
+            )
+        out = []
+        for text, (x, y) in zip(label.lines, label.baselines(), strict=True):
+            out.append(
+                _text(
+                    self.ax,
+                    x,
+                    y,
+                    text,
+                    fontsize=label.size,
+                    fontweight="bold" if label.bold else "normal",
+                    color=label.color,
+                    ha="center",
+                    va="baseline",
+                    rotation=label.rotation,
+                    rotation_mode="anchor",
+                )
+            )
+        return out
 
     def arrow(self, a: Arrow, width: float = 0.5, head: float = 2.5, color: str = "black") -> None:
         (x0, y0), (x1, y1) = a.start, a.end
@@ -155,35 +206,8 @@ class _Canvas:
 def _draw_table(c: _Canvas, mat: Mat) -> None:
     t = mat.table
     c.add(Rectangle((t.x0, t.y0), t.width, t.height, fill=False, linewidth=1.6, color="black"))
-    style = {"fontsize": SMALL, "color": "0.25"}
-    c.text(t.x0 + 4, t.y0 + 2, "table edge, robot side (near)", va="bottom", **style)
-    c.text(t.x0 + 4, t.y1 - 2, "table edge, far side", va="top", **style)
-    c.text(
-        t.x0 + 2,
-        t.y0 + t.height / 2,
-        "robot's left (+y)",
-        rotation=90,
-        va="center",
-        ha="left",
-        **style,
-    )
-    c.text(
-        t.x1 - 2,
-        t.y0 + t.height / 2,
-        "robot's right (−y)",
-        rotation=-90,
-        va="center",
-        ha="right",
-        **style,
-    )
     if mat.center_line is not None:
         c.line(mat.center_line, color="0.45", linewidth=THIN, linestyle="-.")
-        (x, _), (_, y1) = mat.center_line
-        c.text(x + 1.5, y1 - 2, "robot y = 0", va="top", **style)
-    _draw_base(c, mat)
-
-
-def _draw_base(c: _Canvas, mat: Mat) -> None:
     x, y = mat.base.at
     if mat.base.inside:
         c.line([(x - 8, y), (x + 8, y)], color="black", linewidth=0.8)
@@ -191,7 +215,6 @@ def _draw_base(c: _Canvas, mat: Mat) -> None:
         c.add(Circle((x, y), 5, fill=False, linewidth=0.8, color="black"))
     else:
         c.arrow(Arrow((x, y + 22), (x, y + 0.5)), width=0.6, head=3)
-    c.text(x + 2, y + 8, mat.base.text, fontsize=NORMAL, va="bottom")
 
 
 def _draw_footprint(c: _Canvas, f: Footprint) -> None:
@@ -207,14 +230,9 @@ def _draw_footprint(c: _Canvas, f: Footprint) -> None:
         c.add(Circle(f.center, f.radius, **style))
     else:
         c.add(Polygon(f.polygon, closed=True, **style))
-    c.arrow(f.orientation, width=0.35, head=2.0, color="0.2")
+    c.arrow(f.orientation, width=0.35, head=2 * ORIENTATION_HEAD, color="0.2")
     for a in f.grasp:
-        c.arrow(a, width=0.9, head=3.5, color="#c0007a")
-    lines = [f.label + (" (fixed)" if f.role == "fixed" else "")]
-    if f.marker is not None:
-        lines.append(f"marker {f.marker}")
-    weight = "bold" if f.role == "candidate" else "normal"
-    c.text(*f.text_at, "\n".join(lines), fontsize=SMALL, ha="center", va="top", fontweight=weight)
+        c.arrow(a, width=0.9, head=2 * GRASP_HEAD, color="#c0007a")
 
 
 def marker_patches(m: PrintedMarker) -> tuple[Polygon, PathPatch]:
@@ -232,15 +250,6 @@ def _draw_marker(c: _Canvas, m: PrintedMarker) -> None:
     quiet, cells = marker_patches(m)
     c.add(quiet)
     c.add(cells)
-    b = m.bounds()
-    c.text(
-        (b.x0 + b.x1) / 2,
-        b.y0 - 1,
-        f"table marker {m.id} ({m.size:g} mm)",
-        fontsize=SMALL,
-        ha="center",
-        va="top",
-    )
 
 
 def _registration_mark(c: _Canvas, x: float, y: float) -> None:
@@ -249,15 +258,15 @@ def _registration_mark(c: _Canvas, x: float, y: float) -> None:
     c.line([(x, y - MARK_ARM), (x, y + MARK_ARM)], color="black", linewidth=THIN)
 
 
-def _draw_sheet(c: _Canvas, mat: Mat) -> None:
-    """What the mat shows, on the part of the sheet the canvas shows."""
-    if c.shows(mat.table, REACH):
+def _draw_shapes(c: _Canvas, mat: Mat) -> None:
+    """The table, markers and objects, on the part of the sheet the canvas shows."""
+    if c.shows(mat.table, 30.0):
         _draw_table(c, mat)
     for m in mat.markers:
-        if c.shows(m.bounds(), 10.0):
+        if c.shows(m.bounds()):
             _draw_marker(c, m)
     for f in mat.footprints:
-        if c.shows(f.bounds(), REACH):
+        if c.shows(f.drawing()):
             _draw_footprint(c, f)
 
 
@@ -271,7 +280,8 @@ def _scale_bar(ax: Axes, x0: float, y: float) -> None:
     ys = np.tile([y, y + 0.8, np.nan], 11)
     ys[1::15] = y + 1.6  # longer ticks at 0, 50 and 100 mm
     ax.plot(xs, ys, color="black", linewidth=THIN)
-    ax.text(
+    _text(
+        ax,
         x0 + SCALE_BAR / 2,
         y + 2.0,
         "100 mm when printed at 100 % (actual size)",
@@ -281,16 +291,52 @@ def _scale_bar(ax: Axes, x0: float, y: float) -> None:
     )
 
 
+def _fitting(text: str, size: float, room: float, bold: bool = False) -> float:
+    """``size``, or smaller (not under 4 pt) so that ``text`` fits in ``room`` mm."""
+    width = text_width(text, size, bold)
+    return size if width <= room else max(4.0, size * room / width)
+
+
 def _draw_furniture(ax: Axes, mat: Mat, page: Page) -> None:
-    """Header, page label, scale bar (in the margin), cut lines and registration marks."""
+    """Header, page label and position, scale bar (in the margin), cut line and the
+    registration marks on the tile's corners."""
     p, w = page.paper, page.window
     first, second = mat.header.lines()
-    ax.text(w.x0, p.y1 - 3.5, first, fontsize=NORMAL, va="top", fontweight="bold")
-    ax.text(w.x0, p.y1 - 6.6, second, fontsize=SMALL, va="top")
-    ax.text(w.x0, p.y1 - 9.2, LEGEND, fontsize=SMALL - 1, va="top", color="0.3")
-    ax.text(
-        w.x0, p.y0 + 6.5, page_label(mat, page), fontsize=NORMAL, va="center", fontweight="bold"
+    room = w.width
+    _text(
+        ax,
+        w.x0,
+        p.y1 - 4.3,
+        first,
+        fontsize=_fitting(first, NORMAL, room, True),
+        va="top",
+        fontweight="bold",
     )
+    _text(ax, w.x0, p.y1 - 7.3, second, fontsize=_fitting(second, SMALL, room), va="top")
+    _text(
+        ax,
+        w.x0,
+        p.y1 - 9.8,
+        LEGEND,
+        fontsize=_fitting(LEGEND, SMALL - 1, room),
+        va="top",
+        color="0.3",
+    )
+    room = w.width - SCALE_BAR - 4.0  # left of the scale bar
+    label = page_label(mat, page)
+    _text(ax, w.x0, p.y0 + 9.0, label, fontsize=NORMAL, va="center", fontweight="bold")
+    rest = room - text_width(label, NORMAL, True) - 2.0
+    joins = page_joins(mat, page)
+    _text(
+        ax,
+        w.x0 + room - rest,
+        p.y0 + 9.0,
+        joins,
+        fontsize=_fitting(joins, SMALL, rest),
+        va="center",
+    )
+    where = page_position(mat, page)
+    _text(ax, w.x0, p.y0 + 5.6, where, fontsize=_fitting(where, SMALL, room), va="center")
     _scale_bar(ax, w.x1 - SCALE_BAR, p.y0 + 5.5)
     t = page.tile
     cut = Rectangle(
@@ -305,14 +351,17 @@ def _draw_furniture(ax: Axes, mat: Mat, page: Page) -> None:
     ax.add_patch(cut)
     c = _Canvas(ax, w)
     for x, y in mat.tiling.corners():
-        if w.contains(x, y):
+        if t.contains(x, y):
             _registration_mark(c, x, y)
 
 
 def _page_figure(mat: Mat, page: Page) -> Figure:
-    pw, ph = paper_size(mat.tiling.paper, mat.tiling.landscape)
+    pw, ph = paper_size(mat.tiling.paper, page.landscape)
     fig, ax = _figure(pw, ph, page.paper)
-    _draw_sheet(_Canvas(ax, page.window), mat)
+    c = _Canvas(ax, page.window)
+    _draw_shapes(c, mat)
+    for label in mat.labels:
+        c.label(label)
     _draw_furniture(ax, mat, page)
     return fig
 
@@ -326,35 +375,148 @@ def mat_pdf(mat: Mat) -> bytes:
     return buffer.getvalue()
 
 
-def mat_png(mat: Mat, width: int = PREVIEW_WIDTH) -> bytes:
-    """The whole mat at a reduced scale with its page grid, as a PNG."""
-    gw, gh = mat.tiling.size
-    view = Rect(-OVERLAP, -OVERLAP, gw + OVERLAP, gh + OVERLAP + 30)
+# --- the preview --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PreviewLabel:
+    """A text of the preview as drawn: its lines, font size and box in the PNG's pixels.
+
+    Attributes:
+        text: its lines, joined by newlines.
+        px: font size, pixels.
+        box: ``(left, top, right, bottom)`` pixels of the PNG (top row 0): where its
+            characters are drawn (as the renderer lays them out).
+    """
+
+    text: str
+    px: float
+    box: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class _Preview:
+    figure: Figure
+    dpi: float
+    texts: list[tuple[list[Text], float]]
+
+
+def _preview(mat: Mat, width: int) -> _Preview:
+    """The preview's figure: the table, the printed pages (numbered), the objects and
+    markers, every label at :data:`PREVIEW_TEXT_PX` and placed for that size."""
+    content = mat.table.union(mat.tiling.bounds()).grown(PREVIEW_BORDER)
+    scale = width / content.width  # pixels per mm
+    pt = 72.0 / MM_PER_INCH / scale  # points per pixel: mm per pixel in points
+    header = (PREVIEW_TITLE_PX * 1.3 + PREVIEW_TEXT_PX * 1.3 * 2 + 14) / scale
+    view = Rect(content.x0, content.y0, content.x1, content.y1 + header)
+    dpi = scale * MM_PER_INCH
+    fig, ax = _figure(view.width, view.height, view)
+    fig.set_dpi(dpi)
+    c = _Canvas(ax, None)
+    texts: list[tuple[list[Text], float]] = []
+    # the printed pages, their numbers in their top-left corners
+    numbers: list[Label] = []
+    for page in mat.tiling.pages:
+        t = page.tile
+        ax.add_patch(
+            Rectangle(
+                (t.x0, t.y0), t.width, t.height, facecolor="#2060c0", alpha=0.06, edgecolor="none"
+            )
+        )
+        ax.add_patch(
+            Rectangle(
+                (t.x0, t.y0), t.width, t.height, fill=False, linewidth=1.0, edgecolor="#2060c0"
+            )
+        )
+        w, h = text_size([str(page.number)], PREVIEW_TITLE_PX * pt, True)
+        box = Rect(t.x0 + 4 / scale, t.y1 - 4 / scale - h, t.x0 + 4 / scale + w, t.y1 - 4 / scale)
+        numbers.append(
+            Label((str(page.number),), PREVIEW_TITLE_PX * pt, box, bold=True, color="#2060c0")
+        )
+    _draw_shapes(c, mat)
+    for label in numbers:
+        texts.append((c.label(label, background=True), PREVIEW_TITLE_PX))
+    for label in _preview_placed(mat, content, numbers, PREVIEW_TEXT_PX * pt, scale):
+        texts.append((c.label(label, background=True), PREVIEW_TEXT_PX))
+    first, second = mat.header.lines()
+    n = len(mat.tiling.pages)
+    legend = (
+        f"blue: the {n} printed {mat.tiling.paper.upper()} pages, numbered as printed "
+        f"(a full grid over the table: {mat.tiling.full}) · robot at the bottom · bold: "
+        "candidate · dashed: fixed · magenta: grasp"
+    )
+    top = view.y1 - 6 / scale
+    for text, px, bold in (
+        (first, PREVIEW_TITLE_PX, True),
+        (second, PREVIEW_TEXT_PX, False),
+        (legend, PREVIEW_TEXT_PX, False),
+    ):
+        artist = _text(
+            ax,
+            content.x0 + 6 / scale,
+            top,
+            text,
+            fontsize=px * pt,
+            va="top",
+            fontweight="bold" if bold else "normal",
+        )
+        texts.append(([artist], px))
+        top -= px * 1.3 / scale
+    return _Preview(fig, dpi, texts)
+
+
+def _preview_placed(
+    mat: Mat, content: Rect, numbers: list[Label], size: float, scale: float
+) -> list[Label]:
+    """The preview's labels: each object's and table marker's, the base's, at ``size`` pt
+    (sheet mm at the preview's scale), clear of each other and of what is drawn."""
+    blocked = obstacles(mat.drawing(), []) + [n.box.grown(2 / scale) for n in numbers]
+    placer = Placer([content.grown(-4 / scale)], blocked, gap=3 / scale)
+    rings = tuple(g / scale for g in (2, 5, 9, 14, 20, 28, 38, 50, 64, 80, 100, 125))
+    out: list[Label] = []
+    order = {"candidate": 0, "movable": 1, "fixed": 2}
+    for f in sorted(mat.footprints, key=lambda f: order[f.role]):
+        lines, bold = f.text(), f.role == "candidate"
+        w, h = text_size(lines, size, bold)
+        got = placer.first(around(f.drawing(), w, h, rings))
+        if got is not None:
+            out.append(Label(lines, size, got[0], bold=bold, leader=leader(f, got[0])))
+    for m in mat.markers:
+        text = f"table marker {m.id}"
+        w, h = text_size([text], size)
+        got = placer.first(around(m.bounds(), w, h, rings))
+        if got is not None:
+            out.append(Label((text,), size, got[0]))
+    w, h = text_size([mat.base.text], size)
+    got = placer.first(around(mat.base.drawing(), w, h, rings))
+    if got is not None:
+        out.append(Label((mat.base.text,), size, got[0], color="0.25"))
+    return out
+
+
+def preview_labels(mat: Mat, width: int = PREVIEW_WIDTH) -> list[PreviewLabel]:
+    """Every text of the preview (:func:`mat_png`) as the renderer lays it out."""
     with _style():
-        fig, ax = _figure(view.width, view.height, view)
-        _draw_sheet(_Canvas(ax, None), mat)
-        for page in mat.tiling.pages:
-            t = page.tile
-            ax.add_patch(
-                Rectangle(
-                    (t.x0, t.y0), t.width, t.height, fill=False, linewidth=0.6, edgecolor="#2060c0"
-                )
-            )
-            ax.text(
-                t.x0 + 3,
-                t.y1 - 3,
-                str(page.number),
-                fontsize=14,
-                color="#2060c0",
-                va="top",
-                alpha=0.7,
-            )
-        first, second = mat.header.lines()
-        ax.text(0, gh + OVERLAP + 26, first, fontsize=20, va="top", fontweight="bold")
-        ax.text(0, gh + OVERLAP + 12, second, fontsize=16, va="top")
-        FigureCanvasAgg(fig)
+        preview = _preview(mat, width)
+        FigureCanvasAgg(preview.figure)  # the extents as the Agg renderer lays them out
+        height = preview.figure.bbox.height
+        out = []
+        for artists, px in preview.texts:
+            boxes = [a.get_window_extent() for a in artists]
+            left, right = min(b.x0 for b in boxes), max(b.x1 for b in boxes)
+            low, high = min(b.y0 for b in boxes), max(b.y1 for b in boxes)
+            text = "\n".join(a.get_text() for a in artists)
+            out.append(PreviewLabel(text, px, (left, height - high, right, height - low)))
+    return out
+
+
+def mat_png(mat: Mat, width: int = PREVIEW_WIDTH) -> bytes:
+    """The table at a reduced scale with the printed pages, as a PNG ``width`` wide."""
+    with _style():
+        preview = _preview(mat, width)
+        FigureCanvasAgg(preview.figure)
         buffer = io.BytesIO()
-        fig.savefig(buffer, format="png", dpi=width / (view.width / MM_PER_INCH), facecolor="white")
+        preview.figure.savefig(buffer, format="png", dpi=preview.dpi, facecolor="white")
     return buffer.getvalue()
 
 
@@ -423,13 +585,14 @@ def _draw_marker_label(ax: Axes, item: MarkerLabel) -> None:
         Polygon(q, closed=True, fill=False, linewidth=THIN, linestyle=(0, (3, 2)), edgecolor="0.4")
     )
     x, bottom = item.marker.center[0], float(q[:, 1].min())
-    ax.text(x, bottom - 1.5, "\n".join(item.lines), fontsize=SMALL, ha="center", va="top")
+    _text(ax, x, bottom - 1.5, "\n".join(item.lines), fontsize=SMALL, ha="center", va="top")
 
 
 def _marker_page(scene: Scene, items: list[MarkerLabel], paper: str) -> Figure:
     pw, ph = paper_size(paper, False)
     fig, ax = _figure(pw, ph, Rect(0.0, 0.0, pw, ph))
-    ax.text(
+    _text(
+        ax,
         MARGIN,
         ph - MARGIN,
         f"legws object markers · scene {scene.name}",
@@ -437,7 +600,8 @@ def _marker_page(scene: Scene, items: list[MarkerLabel], paper: str) -> Figure:
         va="top",
         fontweight="bold",
     )
-    ax.text(
+    _text(
+        ax,
         MARGIN,
         ph - MARGIN - 4.5,
         "Print at 100 %. Cut along the dashed squares; stick each marker centred on its "
