@@ -36,9 +36,9 @@ def _load_plan(
     """``auto``: the cached plan of the graph (for ``operator`` when given), planned now if
     there is none or the cached one does not validate (a warning, then it is replaced) —
     before the control loop starts, with progress; else a folder (or its ``plan.json``)
-    written by ``legws plan``, refused with one line naming the file, the stage and the
-    failed check unless every stage layout passes the checks of a ``--layout`` file and
-    records the certificates it gives (``check_plan``)."""
+    written by ``legws plan``, refused with one line naming the file, its line, the stage
+    and the failed check unless every stage layout passes the checks of a ``--layout``
+    file and records the certificates it gives (``check_plan``)."""
     if arg == "auto":
         from legws_daemon.design.stage_plan import cached_plan, plan_taskgraph
 
@@ -65,16 +65,16 @@ def _load_plan(
         click.echo(f"legws daemon: planned {graph.name} in {time.monotonic() - started:.0f} s",
                    err=True)  # fmt: skip
         return plan
-    from legws_daemon.task.plan_file import check_plan, load_plan
+    from legws_daemon.task.plan_file import check_plan, load_plan_with_lines
 
     path = Path(arg)
     plan_json = path / "plan.json" if path.is_dir() else path
-    plan = load_plan(plan_json, scene)
+    plan, lines = load_plan_with_lines(plan_json, scene)
     if plan.taskgraph != graph.name:
         raise InputError(
             f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'", field="--plan"
         )
-    return check_plan(plan, graph, scene, str(plan_json))
+    return check_plan(plan, graph, scene, str(plan_json), lines)
 
 
 def cached_catalog_plan(graph: TaskGraph, scene: Scene) -> Plan:

@@ -9,8 +9,8 @@
 (norm at most 1); ``goal``: the goal's position, the same on every line of a segment. Extra
 fields are kept out of the way (allowed, not read). Lines are read one at a time (a large
 trace never sits in memory as text); every error is one line naming the file, the line and
-the field. Written by ``legws operator trace`` (from a recording) and ``legws operator
-calibrate``, read by ``legws operator fit``.
+the field (``trace.jsonl:2: u: ...``). Written by ``legws operator trace`` (from a
+recording) and ``legws operator calibrate``, read by ``legws operator fit``.
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def _short(value: Any) -> str:
 
 
 def parse_tick(text: str, where: str) -> tuple[int, list[float], list[float], list[float]]:
-    """``(segment, ee, u, goal)`` of one line; ``where`` is ``FILE: line N``."""
+    """``(segment, ee, u, goal)`` of one line; ``where`` is ``FILE:LINE``."""
     try:
         data = json.loads(text, object_pairs_hook=unique_keys)
     except DuplicateKeyError as dup:
@@ -139,7 +139,7 @@ def _segments(path: Path, lines: Iterable[tuple[int, str]]) -> Iterator[Segment]
     for number, text in lines:
         if not text.strip():
             continue
-        where = f"{path}: line {number}"
+        where = f"{path}:{number}"
         segment, e, d, goal = parse_tick(text, where)
         ticks += 1
         if ticks > MAX_TICKS:

@@ -132,16 +132,21 @@ def combine(errors: Sequence[InputError]) -> InputError:
 
 def within(err: InputError, source: str, field: str) -> InputError:
     """``err`` (of a file another one names) as an error of ``source``'s ``field``: each of
-    its errors prefixed ``source: field:``, every one of them kept."""
-    return combine([InputError(line, source=source, field=field) for line in error_lines(err)])
+    its errors prefixed ``source: field:``, every one of them kept (an error that names the
+    same field alone, as an unknown name does, once)."""
+    lines = [line.removeprefix(f"{field}: ") for line in error_lines(err)]
+    return combine([InputError(line, source=source, field=field) for line in lines])
 
 
 def located(err: InputError, where: SourceText | None) -> InputError:
     """``err`` with the line of its field in its source (when ``where`` finds it).
 
     For errors raised after validation that name a field (``name``, ``goals[1]``): the
-    field path is read back into keys and indices.
+    field path is read back into keys and indices. Each error of a
+    :class:`ManyInputsError` is placed at its own line.
     """
+    if isinstance(err, ManyInputsError):
+        return combine([located(e, where) for e in err.errors])
     if where is None or err.source is None or err.field is None or _LINE.search(err.source):
         return err
     loc = parse_field_path(err.field)
@@ -150,6 +155,35 @@ def located(err: InputError, where: SourceText | None) -> InputError:
         return err
     message = str(err).removeprefix(f"{err.source}: {err.field}: ")
     return InputError(message, source=f"{err.source}:{line}", field=err.field)
+
+
+def nested(err: InputError, source: str, at: Loc, where: SourceText | None = None) -> InputError:
+    """``err``, the errors of a part of a file validated on its own (the value at ``at``: an
+    elites entry's layout), as errors of the file: each field below ``at``, at its line in
+    ``where``, named ``source:LINE: at.field: ...``; every one kept."""
+    out = []
+    for e in err.errors if isinstance(err, ManyInputsError) else (err,):
+        prefix = ": ".join(p for p in (e.source, e.field) if p)
+        message = str(e).removeprefix(f"{prefix}: ") if prefix else str(e)
+        below = parse_field_path(e.field) if e.field and e.field != field_path(()) else ()
+        loc = (*at, *below)
+        src = where.at(source, loc) if where is not None else source
+        out.append(InputError(message, source=src, field=field_path(loc)))
+    return combine(out)
+
+
+def in_line_order(errors: Sequence[InputError]) -> InputError:
+    """The errors of one file as one, every one kept (those of a :class:`ManyInputsError`
+    too), in the order of their lines (``FILE:LINE``; an error without a line first)."""
+    flat = [
+        e for err in errors for e in (err.errors if isinstance(err, ManyInputsError) else (err,))
+    ]
+
+    def line(e: InputError) -> int:
+        found = _LINE.search(e.source or "")
+        return int(found.group()[1:]) if found else 0
+
+    return combine(sorted(flat, key=line))
 
 
 _LINE = re.compile(r":[0-9]+$")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.scene_file import load_scene_spec
+from legws_daemon.formats.validation import did_you_mean
 from legws_daemon.scene.scene import Scene
 
 _REPO = Path(__file__).resolve().parents[2]
@@ -27,7 +28,10 @@ def scene_names(directory: Path | None = None) -> list[str]:
 
 
 def load_scene(name_or_path: str | Path, directory: Path | None = None) -> Scene:
-    """Load a scene by name (from the scenes folder) or from a ``.toml`` path."""
+    """Load a scene by name (from the scenes folder) or from a ``.toml`` path.
+
+    An unknown name lists the known ones, and says ``did you mean 'desk'?`` for a close
+    one."""
     text = str(name_or_path)
     if text.endswith(".toml") or os.sep in text:
         path = Path(text)
@@ -35,6 +39,9 @@ def load_scene(name_or_path: str | Path, directory: Path | None = None) -> Scene
         d = directory or scenes_dir()
         path = d / f"{text}.toml"
         if not path.is_file():
-            known = ", ".join(scene_names(d)) or "(none)"
-            raise InputError(f"unknown scene {text!r}; known: {known}", field="scene")
+            names = scene_names(d)
+            guess = did_you_mean(text, names)
+            hint = f"; did you mean '{guess}'?" if guess is not None else ";"
+            known = ", ".join(names) or "(none)"
+            raise InputError(f"unknown scene {text!r}{hint} known: {known}", field="scene")
     return Scene(load_scene_spec(path), str(path))

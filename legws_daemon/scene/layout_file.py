@@ -1,7 +1,9 @@
 """Layout files: JSON ``{object name: {"x": m, "y": m, "yaw": rad}}`` (interfaces.md).
 
 A layout names some or all of a scene's movable objects; the others keep the scene
-file's poses. Fixed objects and unknown names are rejected.
+file's poses. Fixed objects and unknown names are rejected. Every error of a file is
+reported, each at its line (``layout.json:3: white_mug.yw: Extra inputs are not permitted;
+did you mean 'yaw'?``); an unknown object close to a movable one says ``did you mean``.
 """
 
 from __future__ import annotations
@@ -13,7 +15,17 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, RootModel
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Angle, Coordinate, printable, read_json, validate
+from legws_daemon.formats.positions import SourceText
+from legws_daemon.formats.validation import (
+    Angle,
+    Coordinate,
+    did_you_mean,
+    field_path,
+    in_line_order,
+    printable,
+    read_json_with_lines,
+    validate,
+)
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 
 
@@ -29,18 +41,55 @@ class _LayoutFile(RootModel[dict[str, _PoseEntry]]):
     pass
 
 
-def layout_from_data(data: Any, scene: Scene, source: str) -> Layout:
-    doc = validate(_LayoutFile, data, source)
+def layout_from_data(
+    data: Any, scene: Scene, source: str, where: SourceText | None = None
+) -> Layout:
+    """Validate the parsed JSON of a layout for ``scene`` (``where``: its text, for the line
+    of each error). Every error is reported: the fields that do not validate and the names
+    that are not movable objects of the scene, in the order of their lines."""
+    names = [n for n in data if isinstance(n, str)] if isinstance(data, dict) else []
+    errors = _name_errors(names, scene, source, where)
     try:
-        scene.check_names(list(doc.root))
+        doc = validate(_LayoutFile, data, source, where)
     except InputError as err:
-        raise InputError(printable(str(err)), source=source) from None
+        raise in_line_order([err, *errors]) from None
+    if errors:
+        raise in_line_order(errors)
     return {n: ObjectPose(e.x, e.y, e.yaw) for n, e in doc.root.items()}
 
 
+def _name_errors(
+    names: list[str], scene: Scene, source: str, where: SourceText | None
+) -> list[InputError]:
+    """An error for each name that is not a movable object of ``scene``, at its line; an
+    unknown one close to a movable object the layout does not name says ``did you mean``."""
+    out = []
+    free = [m for m in scene.movable if m not in names]
+    for n in names:
+        if n not in scene.objects:
+            guess = did_you_mean(n, free)
+            hint = f"; did you mean '{guess}'?" if guess is not None else ";"
+            message = (
+                f"unknown object '{printable(n)}' in layout{hint} scene '{scene.name}' has: "
+                f"{', '.join(scene.objects)}"
+            )
+        elif n not in scene.movable:
+            message = (
+                f"object '{n}' is fixed in scene '{scene.name}'; movable: "
+                f"{', '.join(scene.movable)}"
+            )
+        else:
+            continue
+        src = where.at(source, (n,)) if where is not None else source
+        out.append(InputError(message, source=src, field=field_path((n,))))
+    return out
+
+
 def load_layout(path: Path, scene: Scene) -> Layout:
-    """Read a layout file for ``scene``; errors name the file, the object and the field."""
-    return layout_from_data(read_json(path, "layout"), scene, str(path))
+    """Read a layout file for ``scene``; errors name the file, the line, the object and the
+    field (every one of them)."""
+    data, where = read_json_with_lines(path, "layout")
+    return layout_from_data(data, scene, str(path), where)
 
 
 def layout_to_data(layout: Layout) -> dict[str, dict[str, float]]:

@@ -24,7 +24,13 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
-from legws_daemon.formats.validation import Finite, read_json, validate
+from legws_daemon.formats.validation import (
+    Finite,
+    nested,
+    read_json,
+    read_json_with_lines,
+    validate,
+)
 from legws_daemon.robot.assets import sawyer_dir
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints, require_feasible
@@ -121,14 +127,15 @@ def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite
     Reads ``RUN_DIR/elites.json`` (a list, best first, of ``{"rank", "layout",
     "objective", "verified"}``); without it, ``k = 1`` takes ``best_layout.json`` (the run's
     best verified elite). Every layout must satisfy the scene's constraints. Errors
-    (missing files, fewer than ``k`` verified elites, a bad layout) are one-line
-    :class:`InputError` naming the file.
+    (missing files, fewer than ``k`` verified elites, a bad layout) are
+    :class:`InputError` naming the file, and the line and field of each error of it.
     """
     if k < 1:
         raise InputError(f"expected K >= 1, got {k}", field="--top-k")
     path = run_dir / "elites.json"
     if os.path.lexists(path):  # a device or FIFO in its place is refused by the reader
-        entries = validate(_ElitesFile, read_json(path, "elites"), str(path)).root
+        data, where = read_json_with_lines(path, "elites")
+        entries = validate(_ElitesFile, data, str(path), where).root
         verified = [(i, e) for i, e in enumerate(entries) if e.verified]
         if len(verified) < k:
             raise InputError(
@@ -136,8 +143,12 @@ def load_elites(run_dir: Path, scene: Scene, k: int) -> list[tuple[Layout, Elite
             )
         out = []
         for position, (i, e) in enumerate(verified[:k], start=1):
-            source = f"{path}: [{i}].layout"
-            layout = require_feasible(scene, layout_from_data(e.layout, scene, source), source)
+            try:
+                layout = layout_from_data(e.layout, scene, str(path))
+            except InputError as err:  # each error at its line in the entry's layout
+                raise nested(err, str(path), (i, "layout"), where) from None
+            source = f"{where.at(str(path), (i, 'layout'))}: [{i}].layout"
+            layout = require_feasible(scene, layout, source)
             out.append((layout, Elite(str(run_dir), e.rank, position, e.objective)))
         return out
     best = run_dir / "best_layout.json"

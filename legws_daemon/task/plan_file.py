@@ -26,7 +26,8 @@ inference; ``settings.objective`` says what the search maximised (``slack``: J,
 each ``{"name", "model"}`` (the ``certify_with`` model of their operator file), and
 ``settings.design_for`` says so in words (``"alice"``, ``"worst of alice, bob"``); absent
 means section 2's user. The certificates a plan records are section 2's user's either way.
-Errors name the file and the field, e.g. ``plan.json: decisions[1].layout.grape.x: ...``.
+Errors name the file, the line and the field, every one of them, e.g.
+``plan.json:41: decisions[1].layout.grape.x: ...``.
 
 :func:`load_plan` checks the file; :func:`check_plan` checks a plan against its task graph
 and scene before it is used (``--plan``, the plan cache): each stage layout as a
@@ -50,13 +51,15 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.goalset import ParamsSchema
 from legws_daemon.formats.operator_file import ModelSchema, OperatorName
+from legws_daemon.formats.positions import SourceText
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
     Finite,
     Name,
     field_error,
-    read_json,
+    located,
+    read_json_with_lines,
     validate,
 )
 from legws_daemon.scene.constraints import LayoutConstraints
@@ -184,11 +187,17 @@ def dump_plan(plan: Plan) -> bytes:
     return dump_json(plan_to_data(plan)).encode()
 
 
-def plan_from_data(data: Any, source: str, scene: Scene | None = None) -> Plan:
-    """Validate parsed JSON of a plan file; with ``scene``, its layouts must fit it."""
-    doc = validate(PlanSchema, data, source)
+def plan_from_data(
+    data: Any, source: str, scene: Scene | None = None, where: SourceText | None = None
+) -> Plan:
+    """Validate parsed JSON of a plan file; with ``scene``, its layouts must fit it
+    (``where``: the file's text, for the line of each error)."""
+    doc = validate(PlanSchema, data, source, where)
     if scene is not None:
-        _check_scene(doc, scene, source)
+        try:
+            _check_scene(doc, scene, source)
+        except InputError as err:
+            raise located(err, where) from None
     decisions = tuple(
         PlannedDecision(
             label=d.label,
@@ -230,7 +239,15 @@ def _check_scene(doc: PlanSchema, scene: Scene, source: str) -> None:
 
 def load_plan(path: Path, scene: Scene | None = None) -> Plan:
     """Read and validate ``plan.json``; its folder becomes :attr:`Plan.directory`."""
-    return replace(plan_from_data(read_json(path, "plan"), str(path), scene), directory=path.parent)
+    return load_plan_with_lines(path, scene)[0]
+
+
+def load_plan_with_lines(path: Path, scene: Scene | None = None) -> tuple[Plan, SourceText]:
+    """:func:`load_plan`, and the file's text: :func:`check_plan` names the line of its
+    error in it."""
+    data, where = read_json_with_lines(path, "plan")
+    plan = plan_from_data(data, str(path), scene, where)
+    return replace(plan, directory=path.parent), where
 
 
 # --- validation against the task graph and the scene ------------------------------------------
@@ -271,10 +288,13 @@ class _SettingsOf(BaseModel):
     settings: _Settings
 
 
-def plan_operators(plan: Plan, source: str) -> list[tuple[str, OperatorModel]]:
+def plan_operators(
+    plan: Plan, source: str, where: SourceText | None = None
+) -> list[tuple[str, OperatorModel]]:
     """The people the plan was designed for (``settings.operators``: name and model; empty:
-    section 2's user), each model checked as an operator file's."""
-    doc = validate(_SettingsOf, {"settings": plan.settings}, source)
+    section 2's user), each model checked as an operator file's (``where``: the plan
+    file's text, for the line of each error)."""
+    doc = validate(_SettingsOf, {"settings": plan.settings}, source, where)
     out = []
     for i, o in enumerate(doc.settings.operators or []):
         m = o.model
@@ -288,10 +308,11 @@ def plan_operators(plan: Plan, source: str) -> list[tuple[str, OperatorModel]]:
     return out
 
 
-def plan_params(plan: Plan, source: str) -> Params:
+def plan_params(plan: Plan, source: str, where: SourceText | None = None) -> Params:
     """The model parameters the plan's certificates were computed with (``settings.params``;
-    absent: the method's defaults)."""
-    doc = validate(_SettingsOf, {"settings": plan.settings}, source)
+    absent: the method's defaults; ``where``: the plan file's text, for the line of each
+    error)."""
+    doc = validate(_SettingsOf, {"settings": plan.settings}, source, where)
     values = {k: v for k, v in doc.settings.params.model_dump().items() if v is not None}
     try:
         return Params(**values)
@@ -308,9 +329,12 @@ def decision_goals(scene: Scene, point: DecisionPoint, layout: Layout) -> GoalSe
     return goal_set(targets, scene.home)
 
 
-def check_plan(plan: Plan, graph: TaskGraph, scene: Scene, source: str) -> Plan:
+def check_plan(
+    plan: Plan, graph: TaskGraph, scene: Scene, source: str, where: SourceText | None = None
+) -> Plan:
     """``plan`` when it is a plan of ``graph`` that the daemon may use, else an
-    :class:`InputError` naming ``source``, the decision's field, the stage and the first
+    :class:`InputError` naming ``source`` (and the line, from ``where``: the text of the
+    plan file, :func:`load_plan_with_lines`), the decision's field, the stage and the first
     failing check.
 
     Every stage layout is held to the rule of ``--layout`` (:func:`require_feasible
@@ -330,6 +354,15 @@ def check_plan(plan: Plan, graph: TaskGraph, scene: Scene, source: str) -> Plan:
     A certificate is not required to be positive: ``--layout`` takes a feasible layout
     whatever its certificate (``legws plan`` records what it could reach).
     """
+    try:
+        return _check_plan(plan, graph, scene, source, where)
+    except InputError as err:
+        raise located(err, where) from None
+
+
+def _check_plan(
+    plan: Plan, graph: TaskGraph, scene: Scene, source: str, text: SourceText | None
+) -> Plan:
     if plan.taskgraph != graph.name:
         raise InputError(
             f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'",
@@ -340,8 +373,8 @@ def check_plan(plan: Plan, graph: TaskGraph, scene: Scene, source: str) -> Plan:
         raise InputError(
             f"expected scene '{scene.name}', got '{plan.scene}'", source=source, field="scene"
         )
-    params = plan_params(plan, source)
-    plan_operators(plan, source)  # for whom it was designed: valid models (or none)
+    params = plan_params(plan, source, text)
+    plan_operators(plan, source, text)  # for whom it was designed: valid models (or none)
     points = decision_points(graph)
     index = _match(plan, points, graph, source)
     constraints = LayoutConstraints.of(scene)

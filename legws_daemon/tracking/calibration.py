@@ -35,8 +35,15 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path, write_atomic
+from legws_daemon.formats.positions import SourceText
 from legws_daemon.formats.scene_file import MARKER_DICTIONARIES
-from legws_daemon.formats.validation import Finite, field_error, read_json, validate
+from legws_daemon.formats.validation import (
+    Finite,
+    did_you_mean,
+    field_error,
+    read_json_with_lines,
+    validate,
+)
 from legws_daemon.tracking.camera import Intrinsics
 from legws_daemon.tracking.markers import dictionary
 
@@ -462,9 +469,11 @@ class _CalibrationModel(BaseModel):
             )
         b = self.board
         if b.dictionary not in MARKER_DICTIONARIES:
+            guess = did_you_mean(b.dictionary, MARKER_DICTIONARIES)
+            hint = f"; did you mean '{guess}'?" if guess is not None else ";"
             raise field_error(
                 ("board", "dictionary"),
-                f"unknown marker dictionary {b.dictionary!r}; known: "
+                f"unknown marker dictionary {b.dictionary!r}{hint} known: "
                 + ", ".join(MARKER_DICTIONARIES),
             )
         if b.marker_m >= b.square_m:
@@ -472,18 +481,21 @@ class _CalibrationModel(BaseModel):
         return self
 
 
-def calibration_from_data(data: Any, source: str) -> Calibration:
-    """A :class:`Calibration` from the parsed JSON of a calibration file.
+def calibration_from_data(data: Any, source: str, where: SourceText | None = None) -> Calibration:
+    """A :class:`Calibration` from the parsed JSON of a calibration file (``where``: its
+    text, for the line of each error).
 
     Raises:
-        InputError: one line naming ``source`` and the field that does not validate.
+        InputError: naming ``source``, the line (from ``where``) and the field of every
+            error of the file's fields, or of the first check across fields that fails.
     """
-    doc = validate(_CalibrationModel, data, source)
+    doc = validate(_CalibrationModel, data, source, where)
     b = doc.board
     try:
         board = BoardSpec(b.squares_x, b.squares_y, b.square_m, b.marker_m, b.dictionary)
     except InputError as err:
-        raise InputError(str(err), source=source, field="board") from None
+        at = where.at(source, ("board",)) if where is not None else source
+        raise InputError(str(err), source=at, field="board") from None
     intrinsics = Intrinsics(np.array(doc.matrix), np.array(doc.distortion), doc.width, doc.height)
     return Calibration(
         intrinsics,
@@ -520,8 +532,10 @@ def save_calibration(cal: Calibration, path: Path) -> Path:
 
 
 def load_calibration(path: Path) -> Calibration:
-    """Read a calibration file; any error is one line naming the file and the field."""
-    return calibration_from_data(read_json(path, "camera calibration"), str(path))
+    """Read a calibration file; each error is a line naming the file, the line and the
+    field (every error of the fields)."""
+    data, where = read_json_with_lines(path, "camera calibration")
+    return calibration_from_data(data, str(path), where)
 
 
 def scaled_intrinsics(

@@ -16,8 +16,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from legws_daemon.formats.scene_file import MARKER_DICTIONARIES
+from legws_daemon.scene.catalog import load_scene, scene_names
+from legws_daemon.task.plan_file import plan_to_data
+from legws_daemon.tracking.calibration import DEFAULT_BOARD, Calibration, calibration_to_data
+from legws_daemon.tracking.camera import Intrinsics
 from tests.cli.helpers import EXAMPLE_GOALSET, LEGWS, Result, run_script
 from tests.net import free_port
+from tests.task.test_plan_file import feeding_plan
 
 Cli = Callable[..., Result]
 REPO = Path(__file__).parents[2]
@@ -133,6 +139,85 @@ def test_a_profile_file_name_typo_says_did_you_mean(cli: Cli, tmp_path: Path) ->
     assert_errors(
         cli("bridge", "fake", "--profile", "sawyr"),
         "profile: unknown hardware profile 'sawyr'; did you mean 'sawyer'? known: sawyer, sim",
+    )
+
+
+def test_every_error_of_a_layout(cli: Cli, tmp_path: Path) -> None:
+    """An unknown key close to a known one, and an object name close to a movable one."""
+    doc = {
+        "white_mug": {"x": 0.45, "y": -0.35, "yw": 0.3},
+        "black_stapler": {"x": 0.7, "y": 0.0},
+        "maroon_pen_cp": {"x": 0.5, "y": 0.1},
+    }
+    text = json.dumps(doc, indent=2)
+    bad = tmp_path / "layout.json"
+    bad.write_text(text, encoding="utf-8")
+    objects = ", ".join(load_scene("desk").objects)
+    yw, name = _line(text, '"yw"'), _line(text, '"maroon_pen_cp"')
+    assert_errors(
+        cli("certify", "--scene", "desk", "--layout", bad, "--json"),
+        f"{bad}:{yw}: white_mug.yw: Extra inputs are not permitted; did you mean 'yaw'?",
+        f"{bad}:{name}: maroon_pen_cp: unknown object 'maroon_pen_cp' in layout; did you mean "
+        f"'maroon_pen_cup'? scene 'desk' has: {objects}",
+    )
+
+
+def test_every_error_of_a_plan(cli: Cli, tmp_path: Path) -> None:
+    """``legws daemon --taskgraph T --plan DIR``: the plan.json of the folder, line by line,
+    before anything starts."""
+    doc = plan_to_data(feeding_plan())
+    doc["decisions"][1]["layout"]["grape"]["x"] = "far"
+    doc["decisions"][2]["inferenc"] = doc["decisions"][2].pop("inference")
+    text = json.dumps(doc, indent=2)
+    folder = tmp_path / "plan"
+    folder.mkdir()
+    (folder / "plan.json").write_text(text, encoding="utf-8")
+    bad = folder / "plan.json"
+    third = _line(text, '"label": "feed"') - 1  # the "{" of decisions[2]
+    assert text.splitlines()[third - 1].strip() == "{"
+    typo, far = _line(text, '"inferenc"'), _line(text, '"far"')
+    assert_errors(
+        cli("daemon", "--taskgraph", "feeding", "--plan", folder, "--duration", "1"),
+        f"{bad}:{far}: decisions[1].layout.grape.x: Input should be a valid number (got 'far')",
+        f"{bad}:{third}: decisions[2].inference: Field required; is 'inferenc' on line {typo} a "
+        "misspelling of it?",
+        f"{bad}:{typo}: decisions[2].inferenc: Extra inputs are not permitted; did you mean "
+        "'inference'?",
+    )
+
+
+def test_every_error_of_a_camera_calibration(cli: Cli, tmp_path: Path) -> None:
+    cal = Calibration(
+        Intrinsics.pinhole(50.0, 640, 480), 0.2, 10, (0.2,) * 10, DEFAULT_BOARD,
+        "2026-12-02T12:00:00+00:00",
+    )  # fmt: skip
+    doc = calibration_to_data(cal)
+    doc["height"] = 480.0
+    doc["board"]["dictionary"] = "5X5_1OO"  # letters O for zeros
+    text = json.dumps(doc, indent=2)
+    bad = tmp_path / "calib.json"
+    bad.write_text(text, encoding="utf-8")
+    height = _line(text, '"height"')
+    assert_errors(  # the fields first; the checks across them once the fields are valid
+        cli("track", "--camera", "0", "--scene", "tea", "--calibration", bad),
+        f"{bad}:{height}: height: Input should be a valid integer (got 480.0)",
+    )
+    doc["height"] = 480
+    text = json.dumps(doc, indent=2)
+    bad.write_text(text, encoding="utf-8")
+    dictionary = _line(text, '"5X5_1OO"')
+    assert_errors(
+        cli("track", "--camera", "0", "--scene", "tea", "--calibration", bad),
+        f"{bad}:{dictionary}: board.dictionary: unknown marker dictionary '5X5_1OO'; "
+        f"did you mean '5X5_100'? known: {', '.join(MARKER_DICTIONARIES)}",
+    )
+
+
+def test_a_scene_name_typo_says_did_you_mean(tmp_path: Path) -> None:
+    known = ", ".join(scene_names())
+    assert_errors(
+        run_script("daemon", "--scene", "deks", "--duration", "1", cwd=tmp_path),
+        f"scene: unknown scene 'deks'; did you mean 'desk'? known: {known}",
     )
 
 

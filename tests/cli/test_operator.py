@@ -91,7 +91,7 @@ def test_bad_traces_and_operator_files_are_one_line_naming_file_line_and_field(
     good = '{"segment": 0, "ee": [0.55, 0.0, 0.3], "u": [0.1, 0.0, 0.0], "goal": [0.7, 0.0, 0.1]}'
     trace.write_text(good + "\n" + good.replace('"u": [0.1, 0.0, 0.0]', '"u": [2, 0, 0]') + "\n")
     line = _one_line(cli("operator", "fit", trace, "--out", tmp_path / "o.json"))
-    assert f"{trace}: line 2: u:" in line
+    assert f"{trace}:2: u:" in line
     few = tmp_path / "few.jsonl"
     few.write_text(good + "\n")
     assert "a fit needs at least 2 segments" in _one_line(

@@ -184,7 +184,7 @@ def test_explicit_plan_folder_is_refused(plans: dict[str, Plan], case: str, tmp_
     with pytest.raises(InputError) as info:
         daemon_cli._load_plan(str(tmp_path / "plan"), graph, sc)
     text = one_line(str(info.value))
-    assert text.startswith(f"{path}: {field}: stage '"), text
+    assert text.startswith(f"{path}:1: {field}: stage '"), text  # the line of the field
     assert words[0] in text and words[-1] in text
     good = write_plan(tmp_path / "good", plan_to_data(plans[name]))
     assert daemon_cli._load_plan(str(good), graph, sc) == plans[name]  # the file itself too
@@ -233,7 +233,7 @@ def test_cli_refuses_a_tampered_plan_folder_in_one_line(
     assert run(argv) == 2
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1, err
-    assert err.startswith(f"legws: error: {path}: decisions[0].layout: stage 'choose_tea': ")
+    assert err.startswith(f"legws: error: {path}:1: decisions[0].layout: stage 'choose_tea': ")
     assert words[-1] in err
     assert no_daemon == []  # refused before the daemon (and its session) started
     # the same plan untampered starts the daemon with it

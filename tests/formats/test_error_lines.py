@@ -1,9 +1,10 @@
 """Every error of a file, each with its line: ``FILE:LINE: field: what was expected``.
 
 The loaders (task graphs, scenes, hardware profiles, input mappings, goal sets, operator
-files) report every validation error of a file, not the first, each at the line of its
-field; an unknown key close to a known one says ``did you mean``, and a required key
-missing beside it names the misspelt one.
+files, layouts, plans, camera calibrations, optimiser elites) report every validation error
+of a file, not the first, each at the line of its field; an unknown key close to a known
+one says ``did you mean``, and a required key missing beside it names the misspelt one. An
+unknown scene or layout object name says ``did you mean`` too.
 """
 
 from __future__ import annotations
@@ -20,16 +21,27 @@ from legws_daemon.formats.input_mapping import load_mapping, load_mapping_named,
 from legws_daemon.formats.operator_file import load_operator
 from legws_daemon.formats.positions import SourceText, json_lines, toml_lines
 from legws_daemon.formats.profile import load_profile, load_profile_named, profiles_dir
-from legws_daemon.formats.scene_file import load_scene_spec
+from legws_daemon.formats.scene_file import MARKER_DICTIONARIES, load_scene_spec
 from legws_daemon.formats.validation import (
     ManyInputsError,
     error_lines,
     field_path,
     parse_field_path,
 )
-from legws_daemon.scene.catalog import scenes_dir
+from legws_daemon.scene.catalog import load_scene, scene_names, scenes_dir
+from legws_daemon.scene.layout_file import load_layout
+from legws_daemon.sim.evaluate import load_elites
+from legws_daemon.task.plan_file import check_plan, load_plan, load_plan_with_lines, plan_to_data
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph, taskgraphs_dir
+from legws_daemon.tracking.calibration import (
+    DEFAULT_BOARD,
+    Calibration,
+    calibration_to_data,
+    load_calibration,
+)
+from legws_daemon.tracking.camera import Intrinsics
 from tests.cli.helpers import EXAMPLE_GOALSET
+from tests.task.test_plan_file import feeding_plan
 
 TOML = """# a comment [[not]] a header
 a = \"\"\"several
@@ -109,6 +121,11 @@ def _line(text: str, needle: str, after: int = 0) -> int:
     """The 1-based line of the first ``needle`` at or after line ``after``."""
     lines = text.splitlines()
     return next(i + 1 for i in range(after, len(lines)) if needle in lines[i])
+
+
+def _quoted(text: str, word: str) -> int:
+    """The 1-based line of the first ``"word"`` (a JSON key or string)."""
+    return _line(text, f'"{word}"')
 
 
 def _errors(load: Callable[[Path], object], path: Path) -> list[str]:
@@ -329,6 +346,169 @@ def test_a_control_character_in_toml_names_its_line(tmp_path: Path) -> None:
     assert _errors(load_taskgraph, bad) == [
         f"{bad}:{_line(text, 'Which tea?')}: stages[0].prompt: holds the control character "
         "U+001B; text may not hold control or bidirectional characters"
+    ]
+
+
+def test_every_error_of_a_layout_with_its_line(tmp_path: Path) -> None:
+    desk = load_scene("desk")
+    assert desk.movable == ("white_mug", "black_stapler", "maroon_pen_cup")
+    doc = {
+        "white_mug": {"x": 0.45, "y": -0.35, "yw": 0.3},
+        "black_stapler": {"x": "0.7", "y": 0.0},
+        "maroon_pen_cp": {"x": 0.5, "y": 0.1},
+        "tape_dispenser": {"x": 0.6, "y": 0.2},
+    }
+    text = json.dumps(doc, indent=2)
+    bad = tmp_path / "layout.json"
+    bad.write_text(text, encoding="utf-8")
+    objects = ", ".join(desk.objects)
+    assert _errors(lambda p: load_layout(p, desk), bad) == [
+        f"{bad}:{_quoted(text, 'yw')}: white_mug.yw: Extra inputs are not permitted; did you "
+        "mean 'yaw'?",
+        f"{bad}:{_quoted(text, '0.7')}: black_stapler.x: Input should be a valid number "
+        "(got '0.7')",
+        f"{bad}:{_quoted(text, 'maroon_pen_cp')}: maroon_pen_cp: unknown object "
+        f"'maroon_pen_cp' in layout; did you mean 'maroon_pen_cup'? scene 'desk' has: {objects}",
+        f"{bad}:{_quoted(text, 'tape_dispenser')}: tape_dispenser: object 'tape_dispenser' is "
+        "fixed in scene 'desk'; movable: white_mug, black_stapler, maroon_pen_cup",
+    ]
+
+
+def test_an_unknown_layout_name_far_from_every_object_lists_them(tmp_path: Path) -> None:
+    desk = load_scene("desk")
+    bad = tmp_path / "layout.json"
+    bad.write_text('{\n "white_mug": {"x": 0.45, "y": -0.35},\n "banana": {"x": 0.6, "y": 0}\n}')
+    assert _errors(lambda p: load_layout(p, desk), bad) == [
+        f"{bad}:3: banana: unknown object 'banana' in layout; scene 'desk' has: "
+        + ", ".join(desk.objects)
+    ]
+
+
+def test_every_error_of_an_elites_entry_layout_with_its_line(tmp_path: Path) -> None:
+    desk = load_scene("desk")
+    layout = {"white_mug": {"x": 0.45, "y": -0.35, "yw": 0.3}, "whte_mug": {"x": 0.5, "y": 0}}
+    doc = [{"rank": 0, "layout": layout, "objective": 0.5, "verified": True}]
+    text = json.dumps(doc, indent=2)
+    (tmp_path / "elites.json").write_text(text, encoding="utf-8")
+    path = tmp_path / "elites.json"
+    assert _errors(lambda _: load_elites(tmp_path, desk, 1), path) == [
+        f"{path}:{_quoted(text, 'yw')}: [0].layout.white_mug.yw: Extra inputs are not "
+        "permitted; did you mean 'yaw'?",
+        f"{path}:{_quoted(text, 'whte_mug')}: [0].layout.whte_mug: unknown object 'whte_mug' "
+        "in layout; scene 'desk' has: " + ", ".join(desk.objects),
+    ]
+    doc[0]["verified"] = "yes"
+    text = json.dumps(doc, indent=2)
+    path.write_text(text, encoding="utf-8")
+    assert _errors(lambda _: load_elites(tmp_path, desk, 1), path) == [
+        f"{path}:{_quoted(text, 'verified')}: [0].verified: Input should be a valid boolean "
+        "(got 'yes')"
+    ]
+
+
+def test_every_error_of_a_plan_with_its_line(tmp_path: Path) -> None:
+    doc = plan_to_data(feeding_plan())
+    first = doc["decisions"][0]
+    first["feasable"] = first.pop("feasible")
+    doc["decisions"][1]["layout"]["grape"]["x"] = "far"
+    text = json.dumps(doc, indent=1)
+    bad = tmp_path / "plan.json"
+    bad.write_text(text, encoding="utf-8")
+    element = _quoted(text, "decisions") + 1  # the line of decisions[0]'s "{"
+    assert text.splitlines()[element - 1].strip() == "{"
+    typo = _quoted(text, "feasable")
+    assert _errors(load_plan, bad) == [
+        f"{bad}:{element}: decisions[0].feasible: Field required; is 'feasable' on line {typo} a "
+        "misspelling of it?",
+        f"{bad}:{typo}: decisions[0].feasable: Extra inputs are not permitted; did you mean "
+        "'feasible'?",
+        f"{bad}:{_quoted(text, 'far')}: decisions[1].layout.grape.x: Input should be a valid "
+        "number (got 'far')",
+    ]
+
+
+def test_a_plan_that_fails_the_checks_names_the_line_of_its_field(tmp_path: Path) -> None:
+    text = json.dumps(plan_to_data(feeding_plan()), indent=1)
+    path = tmp_path / "plan.json"
+    path.write_text(text, encoding="utf-8")
+    graph, scene = load_taskgraph(resolve_taskgraph("feeding"))
+    plan, where = load_plan_with_lines(path, scene)
+    with pytest.raises(InputError) as info:
+        check_plan(plan, graph, scene, str(path), where)
+    assert error_lines(info.value) == [
+        f"{path}:{_quoted(text, 'layout')}: decisions[0].layout: stage 'choose_food': no pose "
+        "of the movable object(s) chocolate_bowl, sprinkles_bowl"
+    ]
+    with pytest.raises(InputError) as info:  # without the text: the file and the field
+        check_plan(plan, graph, scene, str(path))
+    assert str(info.value).startswith(f"{path}: decisions[0].layout: stage 'choose_food': ")
+
+
+def _calibration_text(edit: Callable[[dict[str, object]], None]) -> str:
+    cal = Calibration(
+        Intrinsics.pinhole(50.0, 640, 480), 0.2, 10, (0.2,) * 10, DEFAULT_BOARD,
+        "2026-12-02T12:00:00+00:00",
+    )  # fmt: skip
+    doc = calibration_to_data(cal)
+    edit(doc)
+    return json.dumps(doc, indent=2)
+
+
+def test_every_error_of_a_camera_calibration_with_its_line(tmp_path: Path) -> None:
+    def edit(doc: dict[str, object]) -> None:
+        doc["width"] = 0
+        doc["rms_pix"] = doc.pop("rms_px")
+        distortion = doc["distortion"]
+        assert isinstance(distortion, list)
+        distortion[1] = "0"
+
+    text = _calibration_text(edit)
+    bad = tmp_path / "calib.json"
+    bad.write_text(text, encoding="utf-8")
+    typo = _quoted(text, "rms_pix")
+    assert _errors(load_calibration, bad) == [
+        # a key missing from the top level has no line: first
+        f"{bad}: rms_px: Field required; is 'rms_pix' on line {typo} a misspelling of it?",
+        f"{bad}:{_quoted(text, 'width')}: width: Input should be greater than or equal to 1 "
+        "(got 0)",
+        f"{bad}:{_quoted(text, '0')}: distortion[1]: Input should be a valid number (got '0')",
+        f"{bad}:{typo}: rms_pix: Extra inputs are not permitted; did you mean 'rms_px'?",
+    ]
+
+
+def test_an_unknown_marker_dictionary_of_a_calibration_says_did_you_mean(tmp_path: Path) -> None:
+    def edit(doc: dict[str, object]) -> None:
+        board = doc["board"]
+        assert isinstance(board, dict)
+        board["dictionary"] = "5X5_10"
+
+    text = _calibration_text(edit)
+    bad = tmp_path / "calib.json"
+    bad.write_text(text, encoding="utf-8")
+    assert _errors(load_calibration, bad) == [
+        f"{bad}:{_quoted(text, '5X5_10')}: board.dictionary: unknown marker dictionary "
+        f"'5X5_10'; did you mean '5X5_100'? known: {', '.join(MARKER_DICTIONARIES)}"
+    ]
+
+
+def test_an_unknown_scene_name_says_did_you_mean() -> None:
+    known = ", ".join(scene_names())
+    assert "desk" in scene_names()
+    with pytest.raises(InputError) as info:
+        load_scene("deks")
+    assert str(info.value) == f"scene: unknown scene 'deks'; did you mean 'desk'? known: {known}"
+    with pytest.raises(InputError) as info:
+        load_scene("moon")
+    assert str(info.value) == f"scene: unknown scene 'moon'; known: {known}"
+
+
+def test_a_scene_name_typo_in_a_task_graph_names_its_line_once(tmp_path: Path) -> None:
+    text = (taskgraphs_dir() / "tea.toml").read_text(encoding="utf-8")
+    bad = tmp_path / "tea.toml"
+    bad.write_text(text.replace('scene = "tea"', 'scene = "taa"', 1), encoding="utf-8")
+    assert _errors(load_taskgraph, bad) == [
+        f"{bad}:{_line(text, 'scene = ')}: scene: unknown scene 'taa'; did you mean 'tea'? known: "
+        + ", ".join(scene_names())
     ]
 
 

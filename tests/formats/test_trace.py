@@ -73,18 +73,22 @@ def test_a_bad_line_names_the_file_the_line_and_the_field(
     path = _write(tmp_path, json.dumps(GOOD), line)
     with pytest.raises(InputError, match=expected) as err:
         read_trace(path)
-    assert str(err.value).startswith(f"{path}: line 2")
+    assert str(err.value).startswith(f"{path}:2: ")
     assert err.value.field == field
     assert "\n" not in str(err.value)
 
 
 def test_a_segment_must_be_consecutive_and_keep_its_goal(tmp_path: Path) -> None:
     again = _write(tmp_path, json.dumps(GOOD), json.dumps(GOOD | {"segment": 1}), json.dumps(GOOD))
-    with pytest.raises(InputError, match="line 3: segment: segment 0 started earlier"):
+    with pytest.raises(InputError) as err:
         read_trace(again)
+    assert str(err.value) == (
+        f"{again}:3: segment: segment 0 started earlier: a segment's lines must be consecutive"
+    )
     moved = _write(tmp_path, json.dumps(GOOD), json.dumps(GOOD | {"goal": [0.1, 0.1, 0.1]}))
-    with pytest.raises(InputError, match="line 2: goal: segment 0 changed its goal"):
+    with pytest.raises(InputError) as err:
         read_trace(moved)
+    assert str(err.value).startswith(f"{moved}:2: goal: segment 0 changed its goal")
 
 
 def test_an_empty_or_missing_trace_is_one_line(tmp_path: Path) -> None:

@@ -11,8 +11,11 @@ character device, a link to ``/dev/zero`` (which never ends), a folder, nothing,
 dangling link. Every output option is pointed at the same non-files and at a file where a
 folder is expected. Numeric options get the extremes that break the maths.
 
-Every case must end within 5 s with exit 2 and one ``legws: error:`` line, stay under
-1 GiB, and change no file outside its output path (:func:`snapshot`).
+Every case must end within 5 s with exit 2 and ``legws: error:`` lines only, one per error
+(a broken field is one line; a document with several wrong fields, or a wrong field and
+the required one it stood for, has a line for each, every one ``FILE:LINE: field: ...``
+when the field is in the file), stay under 1 GiB, and change no file outside its output
+path (:func:`snapshot`).
 """
 
 from __future__ import annotations

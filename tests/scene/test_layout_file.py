@@ -65,13 +65,16 @@ def test_round_trip(desk: Scene, layout: dict[str, ObjectPose]) -> None:
     assert layout_from_data(data, desk, "mem") == layout
 
 
-def _error(desk: Scene, tmp_path: Path, data: Any) -> tuple[Path, str]:
+def _error(desk: Scene, tmp_path: Path, data: Any, line: int | None = 1) -> tuple[Path, str]:
+    """The error of loading ``data`` (one line of JSON: every field on line 1; ``line``
+    ``None``: an error of the whole file, without a line)."""
     path = write(tmp_path, data)
     with pytest.raises(InputError) as info:
         load_layout(path, desk)
     message = str(info.value)
-    assert info.value.source == str(path)
-    assert message.startswith(f"{path}: ")
+    where = str(path) if line is None else f"{path}:{line}"
+    assert info.value.source == where
+    assert message.startswith(f"{where}: ")
     assert "\n" not in message
     return path, message
 
@@ -111,7 +114,7 @@ def test_bad_field(desk: Scene, tmp_path: Path, entry: dict[str, Any], field: st
 
 
 def test_not_an_object(desk: Scene, tmp_path: Path) -> None:
-    _, message = _error(desk, tmp_path, [{"white_mug": {"x": 0.6, "y": 0.2}}])
+    _, message = _error(desk, tmp_path, [{"white_mug": {"x": 0.6, "y": 0.2}}], line=None)
     assert "(top level)" in message
 
 

@@ -236,7 +236,7 @@ def test_load_elites_takes_the_best_verified(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"no elites\.json"):
         load_elites(old, sc, 2)
     bad = _run_folder(tmp_path / "bad", [{"rank": 0, "layout": {}, "verified": "yes"}])
-    with pytest.raises(InputError, match=r"elites.json: \[0\].verified"):
+    with pytest.raises(InputError, match=r"elites.json:1: \[0\].verified"):
         load_elites(bad, sc, 1)
 
 

@@ -134,7 +134,7 @@ def test_malformed_plan_names_file_and_field(
         load_plan(p)
     text = str(info.value)
     assert "\n" not in text
-    assert text.startswith(f"{p}: {field}: "), text
+    assert text.startswith(f"{p}:1: {field}: "), text  # one line of JSON: every field on line 1
     assert message in text
 
 

@@ -291,7 +291,9 @@ def test_bad_calibration_file_is_one_line_naming_the_field(
     with pytest.raises(InputError) as info:
         load_calibration(path)
     message = str(info.value)
-    assert message.startswith(f"{path}: {field}: "), message
+    # one line of JSON: every field on line 1; a missing top-level key has no line
+    at = str(path) if value is _DELETE and len(where) == 1 else f"{path}:1"
+    assert message.startswith(f"{at}: {field}: "), message
     assert needle in message
     assert "\n" not in message
 
