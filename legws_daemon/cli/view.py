@@ -1,7 +1,8 @@
 """``legws view RECORDING.rrd``: look at a daemon recording.
 
 * ``--screenshot OUT.png`` (with ``--time T``, ``--size WxH``): a picture of the
-  viewer at time ``T`` s (the end by default), rendered headless
+  viewer at time ``T`` s (by default the recording's last posterior value, where the
+  posterior plot has its curves; the end without one), rendered headless
   (:mod:`legws_daemon.telemetry.screenshot`); prints its path.
 * ``--web [HOST:]PORT``: serves the file to Rerun's web viewer on ``HOST`` (127.0.0.1 by
   default), the page on ``PORT`` and the gRPC stream on ``PORT+1``
@@ -50,7 +51,8 @@ DEFAULT_SIZE = (1600, 1000)
     "--time",
     "at",
     type=FiniteFloat(),
-    help="seconds on the recording's `time` timeline (with --screenshot; default: the end)",
+    help="seconds on the recording's `time` timeline (with --screenshot; default: its last "
+    "posterior value, else the end)",
 )
 @click.option(
     "--size",

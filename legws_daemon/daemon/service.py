@@ -522,6 +522,7 @@ class DaemonService:
                 with contextlib.suppress(KeyError):
                     position = c.stage.target(event.goal).position
             watch.event(event, position)
+        self._log_stage_change()  # a stage begun in this tick is set up before its lines
         self._emit(event)
 
     def _forecast_confirms(self, c: Controller) -> None:
@@ -539,6 +540,13 @@ class DaemonService:
             if d.confirms:
                 self._emit(ConfirmsNeeded(d.decision, d.layout, d.uncertified, len(d.goals),
                                           d.objective))  # fmt: skip
+
+    def _log_stage_change(self) -> None:
+        """Log the set-up of a stage begun since the last one (the loop's thread)."""
+        c = self.controller
+        if c is not None and c.stage is not self._logged_stage:
+            self._logged_stage = c.stage
+            self._log_setup()
 
     def _status(self, rec: TickRecord | None, slack: float | None) -> StatusMessage:
         c, cfg = self.controller, self.config
@@ -855,12 +863,13 @@ class DaemonService:
 
     def _log_setup(self) -> None:
         tel, c = self.config.telemetry, self.controller
-        if tel is None or c is None or self.worker is None or c.stage.goals_home is None:
-            return  # nothing to infer in this stage (a single candidate, or the task is done)
+        if tel is None or c is None or self.worker is None or not c.stage.targets:
+            return  # the task is done: no decision
+        goals = c.stage.goals_home  # None: a single candidate, a stage without inference
         self.worker.submit(
             tel.log_setup,
             scene=c.scene,
-            goals=c.stage.goals_home,
+            goals=goals if goals is not None else c.stage.goal_names,
             goal_objects={g: g for g in c.stage.goal_names if g in c.scene.objects},
             planned=dict(c.layouts.planned),
             p_thresh=c.params.p_thresh,
@@ -1116,9 +1125,7 @@ class DaemonService:
                 self.watch.tick(rec)
                 for event in self.watch.poll():  # a finished fit, never waited for
                     self._emit(event)
-            if c.stage is not self._logged_stage:
-                self._logged_stage = c.stage
-                self._log_setup()
+            self._log_stage_change()
             slack = None
             if rec.tick % status_every == 0:
                 slack = c.live_slack()

@@ -10,7 +10,8 @@ Every EE sample and text-log row carries the index of the stage it was logged in
 before the first set-up). The readers take an optional ``stage``: ``None`` means the last
 stage for :func:`read_goals` and :func:`read_params` (what the viewer shows) and every
 stage for :func:`read_ee_path` and :func:`read_text_log`; an ``int`` is a stage index
-(negative from the end); a ``str`` is a stage name.
+(negative from the end); a ``str`` is a stage's name if only one stage has it, else
+``NAME#K``, the K-th stage of that name (:func:`select_index`).
 
 The posterior plots ``plots/posterior/<goal>`` carry no stage index: a tick belongs to
 the stage whose EE samples span it (from the stage's first EE tick to the next stage's
@@ -22,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -34,9 +36,10 @@ from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
-from legws_daemon.formats.goalset import goalset_from_data
+from legws_daemon.formats.goalset import ParamsSchema, goalset_from_data, params_from_schema
 from legws_daemon.formats.log_lines import How
 from legws_daemon.formats.log_lines import parse_commit as parse_commit
+from legws_daemon.formats.validation import validate
 from legws_daemon.telemetry.rerun_log import (
     EE_ARCHETYPE,
     EE_PATH,
@@ -53,27 +56,35 @@ StageKey = int | str | None
 
 @dataclass(frozen=True, slots=True)
 class Stage:
-    """One ``log_setup`` of a recording.
+    """One ``log_setup`` of a recording: one decision.
 
     Attributes:
         index: stage index (0 for the first set-up).
         name: the stage name given to ``log_setup`` (may be ``None``).
-        goals: the stage's goal set.
+        goals: the stage's goal set; ``None`` for a decision without inference (a single
+            candidate).
         params: the stage's parameters.
         p_thresh: the threshold the daemon plotted.
         scene: scene name.
         robot: robot name.
         goal_objects: goal name -> object name.
+        candidates: the candidates' names (the goal set's, or the single one's).
     """
 
     index: int
     name: str | None
-    goals: GoalSet
+    goals: GoalSet | None
     params: Params
     p_thresh: float
     scene: str | None
     robot: str | None
     goal_objects: dict[str, str]
+    candidates: tuple[str, ...] = ()
+
+    @property
+    def inference(self) -> bool:
+        """Whether the daemon inferred in this stage (it has a goal set)."""
+        return self.goals is not None
 
 
 class EePath(NamedTuple):
@@ -215,7 +226,17 @@ def _parse_doc(text: str, path: Path) -> dict[str, Any]:
 
 def _stage(doc: dict[str, Any], path: Path) -> Stage:
     source = f"{path} ({GOALS_DOC} stage {doc['stage_index']})"
-    goals, params = goalset_from_data(doc, source)
+    goals: GoalSet | None = None
+    if doc.get("inference", True):
+        goals, params = goalset_from_data(doc, source)
+        candidates = goals.names
+    else:  # a decision without inference: its candidates' names and the parameters
+        names = doc.get("candidates")
+        if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
+            raise InputError("expected the candidates' names", source=source, field="candidates")
+        candidates = tuple(names)
+        schema = validate(ParamsSchema, doc.get("params") or {}, source)
+        params = params_from_schema(schema, source)
     objects = doc.get("goal_objects") or {}
     return Stage(
         index=doc["stage_index"],
@@ -226,34 +247,93 @@ def _stage(doc: dict[str, Any], path: Path) -> Stage:
         scene=doc.get("scene"),
         robot=doc.get("robot"),
         goal_objects={str(k): str(v) for k, v in objects.items()},
+        candidates=tuple(candidates),
+    )
+
+
+def stage_labels(names: Sequence[str | None]) -> list[str]:
+    """A label per stage that names it alone: its name, or ``NAME#K`` (the K-th stage of
+    that name, from 1) where a name repeats (a task graph's stages run again); an unnamed
+    stage is its index."""
+    counts: dict[str, int] = {}
+    for name in names:
+        if name is not None:
+            counts[name] = counts.get(name, 0) + 1
+    seen: dict[str, int] = {}
+    labels = []
+    for i, name in enumerate(names):
+        if name is None:
+            labels.append(str(i))
+            continue
+        seen[name] = seen.get(name, 0) + 1
+        labels.append(name if counts[name] == 1 else f"{name}#{seen[name]}")
+    return labels
+
+
+def select_index(names: Sequence[str | None], key: int | str, source: str) -> int:
+    """The index of the stage ``key`` addresses among stages named ``names``.
+
+    ``key``: an index (negative from the end, also as text), a label of
+    :func:`stage_labels` (``sort#2``), ``NAME#K`` for any name, or a name that only one
+    stage has. A name several stages have is refused in one line that lists them.
+    """
+    n = len(names)
+    if isinstance(key, str):
+        labels = stage_labels(names)
+        if key in labels:
+            return labels.index(key)
+        named = [i for i, name in enumerate(names) if name == key]
+        if len(named) > 1:
+            choices = ", ".join(f"{i}={labels[i]}" for i in named)
+            raise InputError(
+                f"{len(named)} stages are named '{key}' ({choices}): give the index or NAME#K",
+                source=source,
+                field="stage",
+            )
+        name, _, k = key.rpartition("#")
+        of_name = [i for i, other in enumerate(names) if other == name]
+        if name and k.isdigit() and of_name:
+            if 1 <= int(k) <= len(of_name):
+                return of_name[int(k) - 1]
+            raise InputError(
+                f"no stage '{key}': {len(of_name)} stage(s) named '{name}' (#1..#{len(of_name)})",
+                source=source,
+                field="stage",
+            )
+        if not key.lstrip("-").isdigit():
+            known = ", ".join(f"{i}={label}" for i, label in enumerate(labels))
+            raise InputError(
+                f"no stage is named '{key}'; stages: {known}", source=source, field="stage"
+            )
+        key = int(key)
+    if -n <= key < n:
+        return key % n
+    raise InputError(
+        f"no stage {key}; the recording has {n} (0..{n - 1})", source=source, field="stage"
     )
 
 
 def select_stage(stages: list[Stage], stage: StageKey, source: str) -> Stage:
-    """The stage named or indexed by ``stage`` (``None``: the last one)."""
+    """The stage ``stage`` addresses (:func:`select_index`; ``None``: the last one)."""
     if stage is None:
         return stages[-1]
-    if isinstance(stage, str):
-        named = [s for s in stages if s.name == stage]
-        if len(named) == 1:
-            return named[0]
-        if stage.lstrip("-").isdigit():
-            return select_stage(stages, int(stage), source)
-        known = ", ".join(f"{s.index}={s.name}" for s in stages)
-        what = "several stages are" if named else "no stage is"
-        raise InputError(f"{what} named '{stage}'; stages: {known}", source=source, field="stage")
-    if -len(stages) <= stage < len(stages):
-        return stages[stage]
-    raise InputError(
-        f"no stage {stage}; the recording has {len(stages)} (0..{len(stages) - 1})",
-        source=source,
-        field="stage",
-    )
+    return stages[select_index([s.name for s in stages], stage, source)]
 
 
 def read_goals(path: Path | str, stage: StageKey = None) -> GoalSet:
-    """The goal set of a stage (default: the last one, as the viewer shows it)."""
-    return select_stage(read_stages(path), stage, str(path)).goals
+    """The goal set of a stage (default: the last one, as the viewer shows it).
+
+    Raises:
+        InputError: the stage has a single candidate (no goal set).
+    """
+    chosen = select_stage(read_stages(path), stage, str(path))
+    if chosen.goals is None:
+        raise InputError(
+            f"stage {chosen.index} ({chosen.name}) has a single candidate, no goal set",
+            source=str(path),
+            field="stage",
+        )
+    return chosen.goals
 
 
 def read_params(path: Path | str, stage: StageKey = None) -> Params:
@@ -419,7 +499,7 @@ def read_posterior(path: Path | str, stage: StageKey = None) -> Posterior:
     p = Path(path)
     stages = read_stages(p)
     chosen = stages if stage is None else [select_stage(stages, stage, str(p))]
-    goals = tuple(dict.fromkeys(g for s in chosen for g in s.goals.names))
+    goals = tuple(dict.fromkeys(g for s in chosen if s.goals for g in s.goals.names))
     column = {
         "/" + POSTERIOR_PREFIX + rr.escape_entity_path_part(g): j for j, g in enumerate(goals)
     }

@@ -7,8 +7,9 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
 * ``world/robot/<link>`` (the link's pose per tick) with ``world/robot/<link>/mesh`` (the
   Sawyer's own meshes, static, :mod:`.robot_drawing`) and the gripper's fingers at their
   opening; ``world/ee`` (EE frame, plus the exact float64 pose as ``legws.EePose``),
-  ``world/ee_trail``, ``world/objects/<obj>`` (the object's shape and colour, labelled with
-  its name and, while inferring, its probability), ``world/committed`` (an outline around
+  ``world/ee_trail``, ``world/objects/<obj>`` (the object's shape and colour; a candidate
+  of the current stage labelled with its name and, while inferring, its probability, the
+  others unlabelled), ``world/committed`` (an outline around
   the committed object), ``world/joystick``, ``world/command``, ``world/placement`` (with a
   tracker: arrows from each misplaced object to where it should stand),
   ``world/calibration/target`` (``legws operator calibrate``: the target shown, a point
@@ -22,11 +23,16 @@ Entity layout (timelines ``tick``, a sequence, and ``time``, a duration in secon
   certificates are for and what the live watch says), ``log``
   (commits, cancels, faults; every row tagged with its stage), ``status/mode``.
 * ``meta/robot``, ``meta/params`` (the Params JSON as given) and ``meta/goals`` (one JSON
-  document per stage: the goal-set file of :mod:`legws_daemon.formats.goalset` plus the
-  stage's name and index, scene, robot, threshold and goal -> object map), static: the
-  viewer shows the latest. ``meta/stages``: the same documents on the timelines, so
+  document per stage, i.e. per decision: the goal-set file of
+  :mod:`legws_daemon.formats.goalset` plus the stage's name and index, ``candidates``,
+  ``inference`` (false for a single candidate, whose document has no goal set), scene,
+  robot, threshold and goal -> object map), static: the viewer shows the latest.
+  ``meta/stages``: the same documents on the timelines, so
   :mod:`legws_daemon.telemetry.recording` reads every stage back (a finished file keeps only
   the newest static value).
+* A posterior curve ends (a NaN) where its goal stops being inferred: inference stopped,
+  the goal no longer a candidate, or a new stage set up; it never runs across a stage
+  where its object is no candidate.
 
 A ``save:`` file is written without rerun's footer (its manifest would grow in memory for
 the whole session) and finished at :meth:`RerunLog.close` (:mod:`.rrd_file`).
@@ -172,11 +178,37 @@ def parse_targets(texts: str | Sequence[str]) -> list[tuple[str, str | None]]:
     return parsed
 
 
+#: Seconds a plot shows before and after the time cursor: its curves are drawn up to the
+#: cursor, the legend stands in the room after it (at 800x500 a legend over the curves
+#: hid most of the posterior).
+PLOT_WINDOW = (36.0, 24.0)
+
+
+def _cursor(seconds: float) -> rrb.TimeRangeBoundary:
+    return rrb.TimeRangeBoundary.cursor_relative(seconds=seconds)
+
+
+def _plot(name: str, contents: str | list[str], **kwargs: Any) -> rrb.TimeSeriesView:
+    """A plot of the last :data:`PLOT_WINDOW` seconds up to the cursor on the ``time``
+    timeline, with its legend at the top right, after the cursor."""
+    before, after = PLOT_WINDOW
+    return rrb.TimeSeriesView(
+        name=name,
+        origin="/plots",
+        contents=contents,
+        axis_x=rrb.TimeAxis(view_range=rrb.TimeRange(start=_cursor(-before), end=_cursor(after))),
+        time_ranges=rrb.VisibleTimeRange("time", start=_cursor(-before), end=_cursor(0.0)),
+        plot_legend=rrb.PlotLegend(corner="RightTop"),
+        **kwargs,
+    )
+
+
 def default_blueprint() -> rrb.Blueprint:
     """The operator's layout: the 3D world over the text log on the left; the status panel
     and three plots on the right — the posterior (0 to 1, with the threshold and the
-    commits), the certificate's slack, and the tick timing against its budget. The side
-    panels start collapsed (the views get the room); the time panel stays."""
+    commits), the certificate's slack, and the tick timing against its budget, each the
+    last :data:`PLOT_WINDOW` seconds up to the time cursor with its legend after it. The
+    side panels start collapsed (the views get the room); the time panel stays."""
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -186,21 +218,14 @@ def default_blueprint() -> rrb.Blueprint:
             ),
             rrb.Vertical(
                 rrb.TextDocumentView(name="status", origin="/status", contents="/status"),
-                rrb.TimeSeriesView(
-                    name="posterior",
-                    origin="/plots",
-                    contents=[f"/{POSTERIOR_PREFIX}**", "/plots/threshold", f"/{COMMITS_PLOT}"],
+                _plot(
+                    "posterior",
+                    [f"/{POSTERIOR_PREFIX}**", "/plots/threshold", f"/{COMMITS_PLOT}"],
                     axis_y=rrb.ScalarAxis(range=(0.0, 1.0), zoom_lock=True),
-                    plot_legend=rrb.PlotLegend(corner="LeftTop"),
                 ),
-                rrb.TimeSeriesView(name="slack", origin="/plots", contents="/plots/slack"),
-                rrb.TimeSeriesView(
-                    name="timing (ms)",
-                    origin="/plots",
-                    contents=f"/{TIMING}/**",
-                    plot_legend=rrb.PlotLegend(corner="LeftTop"),
-                ),
-                row_shares=[1.2, 3, 2, 2],
+                _plot("slack", "/plots/slack"),
+                _plot("timing (ms)", f"/{TIMING}/**"),
+                row_shares=[1, 4, 1.5, 1.5],
             ),
             column_shares=[3, 2],
         ),
@@ -428,8 +453,10 @@ class _Shape:
 
     def archetype(self, position: FloatArray, q_wxyz: FloatArray, label: str) -> Any:
         quat = rr.Quaternion(xyzw=_xyzw(q_wxyz))
+        # an empty list clears the label an earlier row gave
         common: dict[str, Any] = {"centers": [position], "colors": [self.color],
-                                  "labels": [label], "fill_mode": "solid"}  # fmt: skip
+                                  "labels": [label] if label else [],
+                                  "fill_mode": "solid"}  # fmt: skip
         if self.kind == "cylinder":
             radius, height = self.size[0], self.size[1]
             return rr.Cylinders3D(lengths=[height], radii=[radius], quaternions=[quat], **common)
@@ -648,23 +675,32 @@ class RerunLog:
         self,
         *,
         scene: Scene,
-        goals: GoalSet,
+        goals: GoalSet | Sequence[str],
         goal_objects: dict[str, str],
         planned: dict[str, ObjectPose],
         p_thresh: float,
         params_json: str,
         stage: str | None = None,
     ) -> None:
-        """Log a stage: table, planned layout, grasps, goal set, params, threshold.
+        """Log a stage (one decision): table, planned layout, grasps, goal set, params,
+        threshold.
+
+        ``goals`` is the candidates' goal set, or, for a decision without inference (a
+        single candidate), the candidates' names: the stage is recorded all the same (its
+        EE samples and log lines carry its own index), without grasps or posterior.
 
         Replaces the static data of the previous stage; objects of the previous scene that
-        this one lacks are cleared at the next tick.
+        this one lacks are cleared at the next tick. Every plot line in progress ends here
+        (a NaN at the latest tick): no curve runs on from one decision into the next.
 
         Raises:
             InputError: unknown goal or object names, a threshold outside (0, 1), or a
                 ``params_json`` that is not a valid Params object.
         """
-        self._check_setup(scene, goals, goal_objects, planned, p_thresh)
+        if isinstance(goals, str):
+            raise InputError(f"expected candidate names, got {goals!r}", field="goals")
+        names = goals.names if isinstance(goals, GoalSet) else tuple(goals)
+        self._check_setup(scene, names, goal_objects, planned, p_thresh)
         if self._closed:
             return
         doc = self._stage_doc(scene, goals, goal_objects, planned, p_thresh, params_json, stage)
@@ -674,27 +710,33 @@ class RerunLog:
         static: dict[str, str] = {}
         self._log_table(scene, static)
         self._log_planned(scene, planned, static)
-        self._log_grasps(goals, static)
-        self._log_series(goals, static)
+        if isinstance(goals, GoalSet):
+            self._log_grasps(goals, static)
+        self._log_series(names if isinstance(goals, GoalSet) else (), static)
         self._clear_static(static)
         text = json.dumps(doc, indent=1, allow_nan=False)
         self._stream.log(GOALS_DOC, rr.TextDocument(text), static=True)
         self._set_time(*self._now)  # the set-up belongs to the latest tick (0 at start)
+        self._end_lines(self._open_series)
+        self._open_series = set()
         self._stream.log(STAGES_DOC, rr.TextDocument(text))
         self._stream.log(PARAMS_DOC, rr.TextDocument(params_json), static=True)
-        self._reset_stage(scene, goals, goal_objects, p_thresh)
+        self._reset_stage(scene, names, goal_objects, p_thresh)
         self._logged += 1
 
     @staticmethod
     def _check_setup(
         scene: Scene,
-        goals: GoalSet,
+        names: Sequence[str],
         goal_objects: Mapping[str, str],
         planned: Mapping[str, ObjectPose],
         p_thresh: float,
     ) -> None:
+        if not names or not all(isinstance(n, str) and n for n in names):
+            raise InputError(f"expected candidate names, got {list(names)!r}", field="goals")
         for goal, obj in goal_objects.items():
-            goals.index(goal)
+            if goal not in names:
+                raise InputError(f"unknown goal '{goal}'; known: {', '.join(names)}", field="goal")
             scene.object(obj)
         for obj in planned:
             scene.object(obj)
@@ -704,14 +746,19 @@ class RerunLog:
     def _stage_doc(
         self,
         scene: Scene,
-        goals: GoalSet,
+        goals: GoalSet | Sequence[str],
         goal_objects: Mapping[str, str],
         planned: Mapping[str, ObjectPose],
         p_thresh: float,
         params_json: str,
         stage: str | None,
     ) -> dict[str, Any]:
-        doc = goalset_to_data(goals, parse_params_json(params_json))
+        params = parse_params_json(params_json)
+        if isinstance(goals, GoalSet):
+            doc = goalset_to_data(goals, params)
+            doc.update(candidates=list(goals.names), inference=True)
+        else:  # no goal set: a decision without inference
+            doc = {"params": params.as_dict(), "candidates": list(goals), "inference": False}
         doc.update(
             legws_telemetry=TELEMETRY_FORMAT,
             stage=stage,
@@ -765,10 +812,10 @@ class RerunLog:
             self._stream.log(path, frame, approach, static=True)
             static[path] = "grasp"
 
-    def _log_series(self, goals: GoalSet, static: dict[str, str]) -> None:
+    def _log_series(self, names: Sequence[str], static: dict[str, str]) -> None:
         # a goal keeps its colour for the whole session (its earlier curves stay in the
         # plot), so the styles of earlier stages' goals are not cleared
-        for name in goals.names:
+        for name in names:
             if name in self._goal_colours:
                 continue
             colour = _PALETTE[len(self._goal_colours) % len(_PALETTE)]
@@ -808,7 +855,11 @@ class RerunLog:
         self._static = static
 
     def _reset_stage(
-        self, scene: Scene, goals: GoalSet, goal_objects: Mapping[str, str], p_thresh: float
+        self,
+        scene: Scene,
+        names: Sequence[str],
+        goal_objects: Mapping[str, str],
+        p_thresh: float,
     ) -> None:
         shapes = {name: _shape_of(scene, name) for name in scene.objects}
         # objects gone, or drawn as another shape now (the old archetype would stay)
@@ -819,7 +870,7 @@ class RerunLog:
         )
         self._shapes = shapes
         self._objects = {}
-        self._goal_object = {g: goal_objects[g] for g in goals.names if g in goal_objects}
+        self._goal_object = {g: goal_objects[g] for g in names if g in goal_objects}
         self._object_goals = {}
         for goal, obj in self._goal_object.items():
             self._object_goals.setdefault(obj, []).append(goal)
@@ -1081,10 +1132,14 @@ class RerunLog:
         self._stream.log("world/committed", box)
 
     def _object_label(self, name: str, posterior: Mapping[str, float] | None) -> str:
-        """The object's name, then its probability (in :data:`_LABEL_STEPS` steps, so the
-        label is re-sent only when it visibly changes) while inferring."""
+        """A candidate's name, then its probability (in :data:`_LABEL_STEPS` steps, so the
+        label is re-sent only when it visibly changes) while inferring. Once a stage is set
+        up, other objects (done with, or for a later decision) have none: a brick sorted
+        into a bin would write its name over the bin's."""
         goals = self._object_goals.get(name)
-        if not goals or posterior is None:
+        if not goals:
+            return name if self._stage < 0 else ""
+        if posterior is None:
             return name
         p = min(max(sum(float(posterior.get(g, 0.0)) for g in goals), 0.0), 1.0)
         return f"{name} {round(p * _LABEL_STEPS) / _LABEL_STEPS:.2f}"
@@ -1126,14 +1181,18 @@ class RerunLog:
             path = self._posterior_path(goal)
             self._stream.log(path, [fast.plain("Scalars:scalars", [p])])
             drawn.add(path)
-        if slack is not None:
-            drawn.add("plots/slack")
         if posterior is None:  # inference stopped: a NaN ends each line (none across the gap)
-            for path in sorted(self._open_series):
-                self._stream.log(path, [fast.constant("Scalars:scalars", math.nan)])
+            self._end_lines(self._open_series)
             self._open_series = set()
-        else:  # the slack comes every few ticks: its line goes on between its points
+        else:
+            # a goal no longer inferred (not a candidate now) ends its line; the slack
+            # comes every few ticks: its line goes on between its points
+            gone = {p for p in self._open_series if p.startswith(POSTERIOR_PREFIX)} - drawn
+            self._end_lines(gone)
+            self._open_series -= gone
             self._open_series |= drawn
+            if slack is not None:
+                self._open_series.add("plots/slack")
         if self._p_thresh is not None and (self._threshold_due or tick % _THRESHOLD_EVERY == 0):
             value = [fast.constant("Scalars:scalars", self._p_thresh)]
             self._stream.log("plots/threshold", value)
@@ -1150,6 +1209,11 @@ class RerunLog:
                 self._stream.log(f"{TIMING}/budget_ms", [fast.constant("Scalars:scalars", budget)])
             if ms > budget:
                 self._stream.log(f"{TIMING}/overruns", [fast.plain("Scalars:scalars", [ms])])
+
+    def _end_lines(self, paths: Iterable[str]) -> None:
+        """A NaN at the current time on each plot of ``paths``: its line ends there."""
+        for path in sorted(paths):
+            self._stream.log(path, [self._fast.constant("Scalars:scalars", math.nan)])
 
     # --- events and lifecycle ------------------------------------------------------------------
 

@@ -10,6 +10,12 @@ file, polls :meth:`~rerun.experimental.ViewerClient.get_state` until nothing is 
 and the recording has its timelines, puts the time cursor on the ``time`` timeline
 (paused), and takes a screenshot of the whole viewer (views, time panel and all).
 
+Without a time the cursor goes to the recording's last posterior value
+(:func:`last_posterior_time`: the end of its last inference), where the posterior plot,
+which shows the time before the cursor, has its curves; a session that went on idle after
+its last decision would show an empty plot at its end. A recording without a posterior
+(not the daemon's) is shown at its end.
+
 The viewer shows its log messages as notification toasts over the views for a few
 seconds. Its log level is set to ``error`` (``RUST_LOG``), which leaves only the toast of
 its gRPC address, shown at start-up. The headless viewer's clock is the frames it draws
@@ -27,6 +33,7 @@ import socket
 import subprocess
 import tempfile
 import time as clock
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +41,7 @@ import numpy as np
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path, regular_file, write_atomic
+from legws_daemon.telemetry.rerun_log import POSTERIOR_PREFIX
 from legws_daemon.telemetry.rrd_file import RRD_MAGIC
 from legws_daemon.telemetry.web_viewer import (
     accepting,
@@ -73,7 +81,8 @@ def screenshot_recording(
     Args:
         rrd: a Rerun recording (``.rrd``).
         out: the PNG to write (atomically; a regular file or nothing).
-        time: seconds on the ``time`` timeline; the end of the recording when ``None``.
+        time: seconds on the ``time`` timeline; when ``None``, the recording's last
+            posterior value (:func:`last_posterior_time`), else its end.
         size: the viewer's window, width and height in pixels.
         timeout: seconds the whole run may take.
 
@@ -98,6 +107,8 @@ def screenshot_recording(
     check_recording(rrd)
     output_path(out)
     deadline = clock.monotonic() + timeout
+    if time is None:
+        time = last_posterior_time(rrd)
     with tempfile.TemporaryDirectory(prefix="legws-screenshot-") as tmp:
         png = _capture(rrd.resolve(), time, size, Path(tmp), deadline)
     return write_atomic(out, png)
@@ -117,6 +128,34 @@ def check_recording(rrd: Path) -> None:
         raise InputError(
             f"is not a rerun recording (it does not start with {RRD_MAGIC!r})", source=str(rrd)
         )
+
+
+def last_posterior_time(rrd: Path) -> float | None:
+    """Seconds on the ``time`` timeline of the recording's last posterior value (a finite
+    one: a NaN ends a curve), or ``None`` when it has none or cannot be read here (the
+    viewer then says why)."""
+    from rerun.chunk import RrdReader
+
+    latest: int | None = None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer": a recording that was cut short
+            stream = RrdReader(rrd).stream().filter(content=[f"/{POSTERIOR_PREFIX}**"])
+            chunks = stream.to_chunks()
+    except (RuntimeError, ValueError, OSError):
+        return None
+    for chunk in chunks:
+        if chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if TIME_TIMELINE not in names or "Scalars:scalars" not in names:
+            continue
+        nanos = batch.column(TIME_TIMELINE).cast("int64").to_pylist()
+        for ns, value in zip(nanos, batch.column("Scalars:scalars").to_pylist(), strict=True):
+            if ns is not None and value and value[0] is not None and math.isfinite(value[0]):
+                latest = ns if latest is None else max(latest, ns)
+    return None if latest is None else latest / 1e9
 
 
 def _free_port() -> int:

@@ -10,8 +10,10 @@ from typing import Any
 import pytest
 import rerun as rr
 
+from legws_daemon.formats.log_lines import commit_text
+from legws_daemon.telemetry.rerun_log import RerunLog
 from tests.cli.helpers import Result, assert_bad_input
-from tests.telemetry.helpers import record, straight_episode
+from tests.telemetry.helpers import log_episode, record, straight_episode, tick_kwargs
 
 Cli = Callable[..., Result]
 
@@ -52,7 +54,7 @@ def test_replay_commits_on_the_goal_reached(cli: Cli, banana: tuple[Path, int]) 
     commit = stage["commit"]
     assert commit["goal"] == "banana"
     assert commit["tick"] == commit_tick
-    assert commit["seconds"] == pytest.approx(commit_tick * 0.05)
+    assert commit["time"] == pytest.approx(commit_tick * 0.05)
     assert commit["p"] >= 0.9
     assert stage["recorded_commit"]["goal"] == "banana"
     assert stage["recorded_commit"]["tick"] == commit_tick
@@ -67,15 +69,21 @@ def test_replay_commits_on_the_goal_reached(cli: Cli, banana: tuple[Path, int]) 
     assert "final_posterior" not in stage
 
 
-def test_a_higher_threshold_commits_later_or_never(
+def test_a_higher_threshold_does_not_commit_by_the_end_of_inference(
     cli: Cli, banana: tuple[Path, int], two_stages: Path
 ) -> None:
+    """The replay is fed up to the daemon's commit, not the arm's motion after it."""
     path, commit_tick = banana
     (stage,) = _report(cli, path, "--threshold", "0.99")["stages"]
     assert stage["params"]["p_thresh"] == 0.99
     assert stage["recorded_params"]["p_thresh"] == 0.9
-    assert stage["commit"]["goal"] == "banana"
-    assert stage["commit"]["tick"] > commit_tick
+    assert stage["commit"] is None
+    assert stage["replayed_samples"] == commit_tick + 1  # ticks 0..commit
+    end = stage["end_of_inference"]
+    assert (end["tick"], end["cause"]) == (commit_tick, "commit")
+    assert end["replayed_posterior"] == stage["recorded_commit"]["recorded_posterior"]
+    lower = _report(cli, path, "--threshold", "0.8")["stages"][0]["commit"]
+    assert lower["goal"] == "banana" and lower["tick"] < commit_tick
     cereal = _report(cli, two_stages, "--stage", "s1", "--threshold", "0.99")["stages"]
     assert cereal[0]["commit"] is None
     assert cereal[0]["recorded_commit"]["goal"] == "cereal_box"
@@ -108,7 +116,8 @@ def test_text_report(cli: Cli, banana: tuple[Path, int]) -> None:
     assert "posterior at the commit: cereal_box 0.1" in result.out
     assert f"recorded posterior at tick {commit_tick}: cereal_box 0.1" in result.out
     assert "final posterior" not in result.out
-    assert "end of inference" not in result.out  # both committed
+    assert f"up to the end of inference at tick {commit_tick} " in result.out
+    assert "posterior at the end of inference" not in result.out  # both committed
 
 
 @pytest.mark.parametrize(
@@ -147,3 +156,57 @@ def test_bad_recordings_exit_2(cli: Cli, tmp_path: Path) -> None:
     stream.disconnect()
     assert_bad_input(cli("replay", other), str(other), "no legws telemetry")
     assert_bad_input(cli("replay"), "RECORDING")
+
+
+@pytest.fixture(scope="module")
+def older(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int]:
+    """A session as a legws before single-candidate stages were set up recorded it: a
+    decision on the banana, then a single candidate (the bowl) whose commit and samples
+    are logged in the banana's stage, then the banana again."""
+    path = tmp_path_factory.mktemp("replay") / "older.rrd"
+    ep = straight_episode("breakfast_easy", "banana")
+    n = len(ep.positions)
+    with RerunLog(f"save:{path}", robot="sawyer-sim") as log:
+        log_episode(log, ep, tick0=0, stage="choose")
+        log.log_text(n, n * 0.05, "INFO", "stage_done stage=choose goal=banana action=pick")
+        log.log_text(n, n * 0.05, "INFO", commit_text("bowl", 1.0, how="single"))
+        for k in range(10):
+            log.log_tick(n + k, (n + k) * 0.05, **tick_kwargs(ep, k, None))
+        log.log_text(n + 9, (n + 9) * 0.05, "INFO", "stage_done stage=into goal=bowl action=place")
+        log_episode(log, ep, tick0=n + 10, stage="choose")
+    return path, n
+
+
+def test_a_single_candidate_of_an_older_recording_is_a_stage_of_its_own(
+    cli: Cli, older: tuple[Path, int]
+) -> None:
+    path, n = older
+    stages = _report(cli, path)["stages"]
+    assert [(s["index"], s["label"], s["inference"], s["set_up"]) for s in stages] == [
+        (0, "choose#1", True, True),
+        (1, "into", False, False),
+        (2, "choose#2", True, True),
+    ]
+    first, single, _ = stages
+    assert first["last_tick"] == n - 1 and [c["goal"] for c in first["recorded_commits"]] == [
+        "banana"
+    ]
+    assert (single["first_tick"], single["last_tick"], single["samples"]) == (n, n + 9, 10)
+    assert single["candidates"] == ["bowl"] and single["recorded_stage"] == 0
+    (commit,) = single["recorded_commits"]
+    assert (commit["goal"], commit["how"], commit["recorded_posterior"]) == ("bowl", "single", None)
+    text = cli("replay", path, "--stage", "into").out
+    assert "Stage 1 into (scene breakfast_easy): a single candidate, bowl: no inference" in text
+    assert "made by an older legws: its commit is in stage 0's log" in text
+
+
+def test_a_repeated_name_is_addressed_by_index_or_name_and_number(
+    cli: Cli, older: tuple[Path, int]
+) -> None:
+    path, _ = older
+    assert [s["index"] for s in _report(cli, path, "--stage", "choose#2")["stages"]] == [2]
+    assert [s["index"] for s in _report(cli, path, "--stage", "-1")["stages"]] == [2]
+    assert [s["index"] for s in _report(cli, path, "--stage", "into")["stages"]] == [1]
+    result = cli("replay", path, "--stage", "choose")
+    assert_bad_input(result, "2 stages are named 'choose' (0=choose#1, 2=choose#2)", "NAME#K")
+    assert_bad_input(cli("replay", path, "--stage", "choose#3"), "'choose#3'", "(#1..#2)")

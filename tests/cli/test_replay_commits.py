@@ -7,7 +7,8 @@ The recording has three stages written with :class:`RerunLog` as the daemon woul
   banana and back home.
 * ``abandoned``: the person steers a quarter of the way to the stapler, no commit; the
   arm goes home without inference.
-* ``single``: one candidate, a ``how=single`` commit and no posterior at all.
+* ``single``: one candidate (set up by its name, as the daemon does), a ``how=single``
+  commit and no posterior at all.
 """
 
 from __future__ import annotations
@@ -64,9 +65,22 @@ def _log_stage(
     stage: str,
     stop: int,
     line: tuple[How, str] | None,
+    single: str | None = None,
 ) -> Logged:
-    """Log ``path`` with the posterior up to sample ``stop``, the commit line (if any) there."""
-    setup(log, ep, stage)
+    """Log ``path`` with the posterior up to sample ``stop``, the commit line (if any) there
+    (``single``: a stage of that one candidate, set up by its name)."""
+    if single is None:
+        setup(log, ep, stage)
+    else:
+        log.log_setup(
+            scene=ep.scene,
+            goals=[single],
+            goal_objects={single: single},
+            planned=ep.scene.default_layout(),
+            p_thresh=ep.params.p_thresh,
+            params_json=json.dumps(ep.params.as_dict()),
+            stage=stage,
+        )
     steered = Episode(ep.scene, ep.goals, ep.params, ep.target, path)
     observer = IntentObserver(ep.goals, ep.params)
     for k in range(len(path)):
@@ -109,7 +123,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Logg
         tick0 += len(halfway)
         stages.append(
             _log_stage(log, mug, mug.positions[:5], tick0=tick0, stage="single", stop=-1,
-                       line=("single", "white_mug"))
+                       line=("single", "white_mug"), single="white_mug")
         )  # fmt: skip
     return path, stages
 
@@ -135,21 +149,23 @@ def test_a_confirmed_commit_below_the_threshold(
     expected = logged.observer_at(logged.stop)
     assert expected["banana"] < 0.9
     assert (commit["tick"], commit["goal"], commit["how"]) == (confirm_tick, "banana", "confirmed")
-    assert commit["seconds"] == pytest.approx(confirm_tick * 0.05)
+    assert commit["time"] == pytest.approx(confirm_tick * 0.05)
     assert commit["p"] == round(expected["banana"], 4)
     assert commit["below_threshold"] is True
     assert commit["posterior_tick"] == confirm_tick
     assert commit["recorded_posterior"] == expected  # logged as the daemon saw it
     assert commit["replayed_posterior"] == _approx(expected)
-    # the replay, without the operator, commits later on the same goal: not a mismatch
-    replayed = stage["commit"]
-    assert replayed["goal"] == "banana" and replayed["tick"] > confirm_tick
-    assert replayed["posterior"] == _approx(logged.observer_at(replayed["tick"] - logged.tick0))
-    assert stage["agrees"] is True
+    # the replay stops where the operator confirmed: after it the arm drove to the banana
+    # on its own, and a posterior of that path (which commits, see below) means nothing
+    assert stage["replayed_samples"] == logged.stop + 1
+    assert stage["commit"] is None and stage["agrees"] is None
+    assert logged.observer_at(len(logged.path) - HOME - 1)["banana"] > 0.9
     assert stage["mismatches"] == []
-    end = stage["posterior_at_end_of_inference"]
-    assert end["tick"] == confirm_tick  # the last tick with a posterior, not the arm at home
+    end = stage["end_of_inference"]
+    assert (end["tick"], end["cause"]) == (confirm_tick, "commit")
+    assert end["time"] == pytest.approx(confirm_tick * 0.05)
     assert end["recorded_posterior"] == expected
+    assert end["replayed_posterior"] == _approx(expected)
 
 
 def test_without_a_commit_the_posterior_at_the_end_of_inference(
@@ -159,10 +175,12 @@ def test_without_a_commit_the_posterior_at_the_end_of_inference(
     stage = _report(cli, path, "--stage", "abandoned")["stages"][0]
     assert stage["commit"] is None
     assert stage["recorded_commits"] == [] and stage["recorded_commit"] is None
-    end = stage["posterior_at_end_of_inference"]
+    end = stage["end_of_inference"]
     end_tick = logged.tick0 + logged.stop
     expected = logged.observer_at(logged.stop)
-    assert (end["tick"], end["seconds"]) == (end_tick, pytest.approx(end_tick * 0.05))
+    assert (end["tick"], end["time"]) == (end_tick, pytest.approx(end_tick * 0.05))
+    assert end["cause"] == "last posterior"
+    assert stage["replayed_samples"] == logged.stop + 1
     assert end["recorded_posterior"] == expected
     assert end["replayed_posterior"] == _approx(expected)
     at_home = logged.observer_at(len(logged.path) - 1)  # what the old report showed
@@ -176,12 +194,17 @@ def test_a_single_candidate_commit_has_no_posterior(
 ) -> None:
     path, (_, _, logged) = recording
     stage = _report(cli, path, "--stage", "single")["stages"][0]
+    assert (stage["inference"], stage["set_up"], stage["candidates"]) == (
+        False,
+        True,
+        ["white_mug"],
+    )
     (commit,) = stage["recorded_commits"]
     assert (commit["tick"], commit["how"], commit["p"]) == (logged.tick0, "single", 1.0)
     assert commit["recorded_posterior"] is None  # not the previous stage's
-    assert commit["posterior_tick"] == logged.tick0
-    assert commit["replayed_posterior"] == _approx(logged.observer_at(0))
-    assert stage["posterior_at_end_of_inference"] is None
+    assert commit["replayed_posterior"] is None  # nothing inferred, nothing replayed
+    assert stage["commit"] is None and stage["replayed_samples"] == 0
+    assert stage["end_of_inference"] is None
     assert stage["mismatches"] == []
 
 
@@ -195,12 +218,17 @@ def test_the_text_report_marks_how_each_commit_came(
     tick = confirmed.tick0 + confirmed.stop
     p = round(confirmed.observer_at(confirmed.stop)["banana"], 4)
     assert (
-        f"recorded commit: banana at tick {tick} ({tick * 0.05:.3f} s), p = {p:.3f} "
-        "(confirmed by the operator, below p_thresh 0.9 as expected) (same goal)"
+        f"recorded commit: banana at tick {tick} (logged at time {tick * 0.05:.3f} s), "
+        f"p = {p:.3f} (confirmed by the operator, below p_thresh 0.9 as expected)\n"
     ) in out
     assert f"recorded posterior at tick {tick}: cereal_box " in out
+    assert f"replayed commit: none by tick {tick}\n" in out
     end = abandoned.tick0 + abandoned.stop
-    assert f"posterior at the end of inference (tick {end} ({end * 0.05:.3f} s)):" in out
+    assert (
+        f"posterior at the end of inference, tick {end} (time {end * 0.05:.3f} s) "
+        "(its last recorded posterior):"
+    ) in out
+    assert "Stage 2 single (scene desk): a single candidate, white_mug: no inference" in out
     assert f"recorded commit: white_mug at tick {single.tick0} " in out
     assert "(single candidate, no inference)" in out
     assert "MISMATCH" not in out

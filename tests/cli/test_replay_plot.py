@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import socket
 from collections.abc import Callable, Iterator
@@ -9,10 +10,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
+from matplotlib.text import Annotation, Text
 from PIL import Image
 
 from legws_daemon.formats.log_lines import commit_text
-from legws_daemon.telemetry.posterior_plot import COMMIT_STYLE, HEIGHT, WIDTH, goal_colours
+from legws_daemon.telemetry.posterior_plot import (
+    COMMIT_STYLE,
+    HEIGHT,
+    LABEL_ROWS,
+    WIDTH,
+    PlotCommit,
+    StagePlot,
+    figure_png,
+    goal_colours,
+    posterior_figure,
+)
 from legws_daemon.telemetry.rerun_log import RerunLog
 from tests.cli.helpers import Result, assert_bad_input
 from tests.telemetry.helpers import log_episode, straight_episode
@@ -97,3 +110,66 @@ def test_a_bad_recording_leaves_no_plot(cli: Cli, tmp_path: Path) -> None:
     out = tmp_path / "p.png"
     assert_bad_input(cli("replay", text, "--plot", out), "not a readable rerun recording")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.rrd"]
+
+
+def overlapping_labels(fig: Figure) -> list[tuple[str, str]]:
+    """Every pair of drawn texts of the figure whose extents overlap (by more than half a
+    pixel each way), and every text that leaves the figure as ``(text, "outside")``."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    texts: list[Text] = list(fig.texts)
+    for ax in fig.axes:
+        texts += [*ax.texts, ax.xaxis.label, ax.yaxis.label, ax.title]
+        legend = ax.get_legend()
+        texts += legend.get_texts() if legend is not None else []
+        for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+            texts += [t.label1 for t in axis.get_major_ticks() if lo <= t.get_loc() <= hi]
+    boxes = [
+        (t.get_text(), t.get_window_extent(renderer))
+        for t in texts
+        if t.get_visible() and t.get_text().strip()
+    ]
+    width, height = fig.bbox.width, fig.bbox.height
+    out = []
+    for i, (a, box) in enumerate(boxes):
+        if box.x0 < 0 or box.y0 < 0 or box.x1 > width or box.y1 > height:
+            out.append((a, "outside"))
+        for b, other in boxes[i + 1 :]:
+            dx = min(box.x1, other.x1) - max(box.x0, other.x0)
+            dy = min(box.y1, other.y1) - max(box.y0, other.y0)
+            if dx > 0.5 and dy > 0.5:
+                out.append((a, b))
+    return out
+
+
+def _stage(label: str, start: float, end: float, commits: list[PlotCommit]) -> StagePlot:
+    times = np.linspace(start, end, 5)
+    values = np.tile([0.5, 0.5], (5, 1))
+    return StagePlot(label, start, end, ("a", "b"), 0.9, None, times, values, times, values,
+                     commits, commits[0] if commits else None)  # fmt: skip
+
+
+def test_short_stages_and_close_commits_do_not_overprint() -> None:
+    """The labels of stages a few pixels wide go to rows of their own (then to their index
+    alone), a commit's label slides down past a neighbour's: no two texts overlap."""
+    stages = [_stage("0 pick_brick#1", 0.0, 60.0, [PlotCommit(30.0, "a", "inferred", 0.9)])]
+    t = 60.0
+    for i in range(1, 9):  # stages of half a second to two seconds
+        length = 0.5 + 0.2 * i
+        commits = [PlotCommit(t + 0.1, "b", "single", 1.0), PlotCommit(t + 0.3, "a", "confirmed",
+                   0.71)]  # fmt: skip
+        stages.append(_stage(f"{i} sort#{i} (single)", t, t + length, commits))
+        t += length
+    stages.append(_stage("9 feed", t, t + 40.0, [PlotCommit(t + 20.0, "b", "inferred", 0.93)]))
+    fig = posterior_figure(stages, "Posterior over time: short.rrd")
+    assert overlapping_labels(fig) == []
+    bands = [t for t in fig.axes[0].texts if not isinstance(t, Annotation)]
+    shown = [t.get_text() for t in bands if t.get_visible()]
+    assert shown[0] == "0 pick_brick#1" and shown[-1] == "9 feed"
+    assert shown[-2] == "8 sort#8 (single)"  # whole: the long stage after it has room
+    assert set(shown[1:-2]) <= {str(i) for i in range(1, 8)} and len(shown) >= 8
+    assert 2 <= len({round(t.get_position()[1], 6) for t in bands}) <= LABEL_ROWS
+    commits = [t for t in fig.axes[0].texts if isinstance(t, Annotation) and t.get_visible()]
+    assert len(commits) >= 10  # of 19: slid past each other, cut, or left out
+    with Image.open(io.BytesIO(figure_png(fig))) as image:
+        assert image.size == (WIDTH, HEIGHT)

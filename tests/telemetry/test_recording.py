@@ -26,6 +26,8 @@ from legws_daemon.telemetry.recording import (
     read_recorded_commits,
     read_stages,
     read_text_log,
+    select_index,
+    stage_labels,
 )
 from legws_daemon.telemetry.rerun_log import RerunLog, commit_text
 from tests.telemetry.helpers import (
@@ -227,6 +229,62 @@ def test_an_unknown_stage_is_an_input_error(
     message = str(err.value)
     assert str(two_stages) in message
     assert "0=s0, 1=s1" in message or "(0..1)" in message
+
+
+NAMES = ["pick", "sort", "pick", "sort", None, "done"]
+
+
+@pytest.mark.parametrize(
+    ("key", "index"),
+    [(3, 3), (-1, 5), ("-2", 4), ("4", 4), ("pick#1", 0), ("sort#2", 3), ("done", 5),
+     ("done#1", 5)],
+)  # fmt: skip
+def test_a_stage_is_addressed_by_index_or_label(key: int | str, index: int) -> None:
+    assert stage_labels(NAMES) == ["pick#1", "sort#1", "pick#2", "sort#2", "4", "done"]
+    assert select_index(NAMES, key, "rec.rrd") == index
+
+
+@pytest.mark.parametrize(
+    ("key", "message"),
+    [
+        ("sort", "rec.rrd: stage: 2 stages are named 'sort' (1=sort#1, 3=sort#2): give the "
+                 "index or NAME#K"),
+        ("sort#3", "rec.rrd: stage: no stage 'sort#3': 2 stage(s) named 'sort' (#1..#2)"),
+        ("nope", "rec.rrd: stage: no stage is named 'nope'; stages: 0=pick#1, 1=sort#1, "
+                 "2=pick#2, 3=sort#2, 4=4, 5=done"),
+        (6, "rec.rrd: stage: no stage 6; the recording has 6 (0..5)"),
+    ],
+)  # fmt: skip
+def test_an_ambiguous_or_unknown_stage_is_one_line_with_the_choices(
+    key: int | str, message: str
+) -> None:
+    with pytest.raises(InputError) as err:
+        select_index(NAMES, key, "rec.rrd")
+    assert str(err.value) == message
+
+
+def test_a_single_candidate_stage_has_no_goal_set(tmp_path: Path, first: Episode) -> None:
+    path = tmp_path / "single.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, first, "choose")
+        log.log_setup(
+            scene=first.scene,
+            goals=["banana"],
+            goal_objects={"banana": "banana"},
+            planned=first.scene.default_layout(),
+            p_thresh=0.9,
+            params_json=json.dumps(PARAMS.as_dict()),
+            stage="take",
+        )
+        log.log_tick(0, 0.0, **tick_kwargs(first, 0, None))
+    a, b = read_stages(path)
+    assert (a.inference, a.candidates) == (True, first.goals.names)
+    assert (b.name, b.inference, b.goals, b.candidates) == ("take", False, None, ("banana",))
+    assert b.params == PARAMS and b.goal_objects == {"banana": "banana"}
+    assert read_posterior(path, 1).goals == ()
+    with pytest.raises(InputError, match="stage 1 \\(take\\) has a single candidate"):
+        read_goals(path)
+    assert read_goals(path, "choose").names == first.goals.names
 
 
 def test_a_recording_without_ticks(tmp_path: Path, first: Episode) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -13,11 +14,19 @@ from typing import Any
 import numpy as np
 import pytest
 import rerun as rr
+import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
 
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.recording import entity_paths, read_ee_path, read_stages
-from legws_daemon.telemetry.rerun_log import RerunLog, _fast, parse_target, parse_targets
+from legws_daemon.telemetry.rerun_log import (
+    PLOT_WINDOW,
+    RerunLog,
+    _fast,
+    commit_text,
+    parse_target,
+    parse_targets,
+)
 from tests.telemetry.helpers import (
     Episode,
     arm_visual,
@@ -166,9 +175,9 @@ def test_objects_have_their_shape_colour_and_one_label(recording: Path, episode:
     assert set(colours) == {(r << 24) | (g << 16) | (b << 8) | 0xFF}  # its own colour
     assert labels[0] == "banana 0.50"  # two goals, uniform prior
     assert float(labels[-1].split()[-1]) >= 0.9
-    # the bowl is a cylinder (not a goal: its name only, sent once)
+    # the bowl is a cylinder, and no candidate: no label (sent once)
     bowl = _rows(recording, "world/objects/bowl", "Cylinders3D:labels")
-    assert [x for _, x in bowl] == [["bowl"]]
+    assert [x for _, x in bowl] == [[]]
     assert not _rows(recording, "world/objects/bowl", "Boxes3D:labels")
     # the planned poses and grasps carry no labels
     for entity in ("world/planned/banana", "world/grasps/banana"):
@@ -486,6 +495,109 @@ def test_a_curve_ends_when_inference_stops(tmp_path: Path, episode: Episode) -> 
     slack = _rows(path, "plots/slack", "Scalars:scalars")
     # a tick without a slack value does not end its line; the end of inference does
     assert [t for t, v in slack if np.isnan(v[0])] == [2]
+
+
+def _curve(path: Path, goal: str) -> list[tuple[int, float]]:
+    return [(t, v[0]) for t, v in _rows(path, f"plots/posterior/{goal}", "Scalars:scalars") if v]
+
+
+def test_a_curve_ends_where_its_goal_is_no_candidate(tmp_path: Path) -> None:
+    """Two decisions on the breakfast table with another on the desk between them (its
+    posterior logged from its first tick, as the daemon does): the banana's curve ends at
+    the desk's set-up and has no value until the banana is a candidate again."""
+    table = straight_episode("breakfast_easy", "banana", hold=0)
+    desk = straight_episode("desk", "white_mug", hold=0)
+    path = tmp_path / "stages.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        log_episode(log, table, stage="first")
+        log_episode(log, desk, tick0=len(table.positions), stage="desk")
+        log_episode(log, table, tick0=len(table.positions) + len(desk.positions), stage="again")
+    a, b = len(table.positions), len(table.positions) + len(desk.positions)
+    banana = _curve(path, "banana")
+    ends = [t for t, v in banana if np.isnan(v)]
+    assert ends == [a - 1]  # at the desk's set-up, after the banana's last value
+    assert not [t for t, v in banana if a <= t < b and np.isfinite(v)]
+    assert [t for t, v in banana if np.isfinite(v)] == [*range(a), *range(b, b + a)]
+    mug = _curve(path, "white_mug")  # the desk's goal ends at the next set-up
+    assert [t for t, v in mug if np.isnan(v)] == [b - 1]
+
+
+def test_a_goal_dropped_from_the_posterior_ends_its_curve(tmp_path: Path, episode: Episode) -> None:
+    path = tmp_path / "dropped.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        setup(log, episode)
+        for tick, p in enumerate([{"cereal_box": 0.4, "banana": 0.6}, {"cereal_box": 1.0}]):
+            log.log_tick(tick, tick * 0.05, **tick_kwargs(episode, 0, p))
+    assert _curve(path, "banana")[0] == (0, 0.6)
+    assert np.isnan(_curve(path, "banana")[1][1]) and _curve(path, "banana")[1][0] == 1
+    assert _curve(path, "cereal_box") == [(0, 0.4), (1, 1.0)]
+
+
+def test_a_single_candidate_stage_is_set_up_by_its_name(tmp_path: Path) -> None:
+    """The stage of a decision without inference: its own document (no goal set), its
+    lines and EE samples carry its index, the previous stage's grasps are cleared, and
+    only its candidate is labelled."""
+    ep = straight_episode("breakfast_easy", "banana", hold=0)
+    path = tmp_path / "single.rrd"
+    with RerunLog(f"save:{path}", robot="r") as log:
+        log_episode(log, ep, stage="choose")
+        tick = len(ep.positions)
+        log.log_setup(
+            scene=ep.scene,
+            goals=["bowl"],
+            goal_objects={"bowl": "bowl"},
+            planned=ep.scene.default_layout(),
+            p_thresh=0.9,
+            params_json=json.dumps(ep.params.as_dict()),
+            stage="into",
+        )
+        log.log_text(tick, tick * 0.05, "INFO", commit_text("bowl", 1.0, how="single"))
+        log.log_tick(tick, tick * 0.05, **tick_kwargs(ep, 0, None))
+    docs = [json.loads(x[0]) for _, x in _rows(path, "meta/stages", "TextDocument:text")]
+    assert [(d["stage"], d["inference"], d["candidates"]) for d in docs] == [
+        ("choose", True, list(ep.goals.names)),
+        ("into", False, ["bowl"]),
+    ]
+    assert "goals" not in docs[1] and docs[1]["params"] == ep.params.as_dict()
+    assert [(s.index, s.name, s.goals is None) for s in read_stages(path)] == [
+        (0, "choose", False),
+        (1, "into", True),
+    ]
+    assert read_ee_path(path, 1).ticks.tolist() == [tick]
+    assert _rows(path, "log", "legws.Stage:stage")[-1] == (tick, [1])  # the commit's line
+    assert _rows(path, "world/grasps/banana", "Arrows3D:vectors")[-1] == (None, [])
+    bowl = _rows(path, "world/objects/bowl", "Cylinders3D:labels")
+    banana = _rows(path, "world/objects/banana", "Boxes3D:labels")
+    assert bowl[-1] == (tick, ["bowl"]) and banana[-1] == (tick, [])
+    assert not _rows(path, "plots/posterior/bowl", "Scalars:scalars")
+
+
+def test_the_plots_show_the_time_up_to_the_cursor_with_the_legend_after_it(
+    recording: Path,
+) -> None:
+    """The blueprint in the file: each plot queries the last seconds up to the cursor and
+    shows room after it, where its legend stands (at 800x500 a legend over the curves hid
+    them)."""
+    reader = RrdReader(recording)
+    props: dict[str, dict[str, Any]] = {}
+    names: dict[str, str] = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch, entity = chunk.to_record_batch(), str(chunk.entity_path)
+        for column in batch.schema.names:
+            value = batch.column(column).to_pylist()[-1]
+            if column == "ViewBlueprint:display_name":
+                names[entity] = value[0]
+            elif column.split(":")[0] in ("PlotLegend", "VisibleTimeRanges", "TimeAxis"):
+                props.setdefault(entity.rsplit("/", 1)[0], {})[column] = value
+    plots = {names[view]: found for view, found in props.items()}
+    before, after = (round(s * 1e9) for s in PLOT_WINDOW)
+    right_top = rrb.components.Corner2D.RightTop.value
+    window = {
+        "PlotLegend:corner": [right_top],
+        "TimeAxis:view_range": [{"start": -before, "end": after}],
+        "VisibleTimeRanges:ranges": [{"timeline": "time", "range": {"start": -before, "end": 0}}],
+    }
+    assert plots == {"posterior": window, "slack": window, "timing (ms)": window}
 
 
 def test_a_calibration_target_is_drawn_labelled_and_cleared_and_the_panel_says_whose(

@@ -1,6 +1,7 @@
 """``screenshot_recording``: the headless native viewer draws a recording at the time asked
 (a magenta box that moves right between 0 and 2 s is seen further right at 1.8 s than at
-0.5 s), without notification toasts, and bad inputs are one-line errors."""
+0.5 s), by default at its last posterior, without notification toasts, and bad inputs are
+one-line errors."""
 
 from __future__ import annotations
 
@@ -16,8 +17,10 @@ import rerun.blueprint as rrb
 from PIL import Image
 
 from legws_daemon.errors import InputError
-from legws_daemon.telemetry.screenshot import screenshot_recording
+from legws_daemon.telemetry.rerun_log import _PALETTE, RerunLog
+from legws_daemon.telemetry.screenshot import last_posterior_time, screenshot_recording
 from tests.browser import require, vulkan_missing
+from tests.telemetry.helpers import arm_visual, log_episode, straight_episode, tick_kwargs
 
 SIZE = (960, 600)
 _CUBE_FACES = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
@@ -205,3 +208,57 @@ def test_a_cut_off_recording_says_why_in_one_line(moving_box: Path, tmp_path: Pa
     assert text.startswith(f"{cut}: the viewer found no recording in it: ")
     assert "exceeds file size" in text and "legws recording finish" in text
     _no_viewer_left()
+
+
+#: Seconds the idle session below runs on after its last decision.
+IDLE = 50.0
+
+
+@pytest.fixture(scope="module")
+def idle_after(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+    """A daemon session as :class:`RerunLog` writes it: a reach that commits on the
+    banana, then :data:`IDLE` s without inference (the task done, the daemon left on)."""
+    path = tmp_path_factory.mktemp("rrd") / "idle.rrd"
+    ep = straight_episode("breakfast_easy", "banana")
+    with RerunLog(f"save:{path}", robot="sawyer-sim", tick_period=0.05) as log:
+        log.log_robot(arm_visual())
+        log_episode(log, ep, stage="choose")
+        first = len(ep.positions)
+        for tick in range(first, first + round(IDLE / 0.05)):
+            kwargs = {**tick_kwargs(ep, len(ep.positions) - 1, None), "mode": "idle"}
+            log.log_tick(tick, tick * 0.05, **kwargs)
+    return path, (first - 1) * 0.05
+
+
+def test_the_default_time_is_the_last_posterior(idle_after: tuple[Path, float]) -> None:
+    path, last = idle_after
+    assert last_posterior_time(path) == pytest.approx(last)
+    assert last_posterior_time(write_moving_box(path.with_name("box.rrd"))) is None
+
+
+def posterior_pixels(png: Path, colours: list[int]) -> int:
+    """Pixels of the posterior plot in the colours of its curves (``0xRRGGBBAA``): the
+    right-hand column of the default layout, above its bottom quarter (slack, timing)."""
+    rgb = np.asarray(Image.open(png).convert("RGB"), dtype=np.int16)
+    height, width, _ = rgb.shape
+    panel = rgb[int(0.12 * height) : int(0.62 * height), int(0.62 * width) :]
+    count = 0
+    for colour in colours:
+        want = np.array([(colour >> s) & 0xFF for s in (24, 16, 8)], dtype=np.int16)
+        count += int(np.sum(np.all(np.abs(panel - want) <= 24, axis=-1)))
+    return count
+
+
+@pytest.mark.slow
+def test_the_default_picture_shows_the_posterior(
+    idle_after: tuple[Path, float], tmp_path: Path
+) -> None:
+    """At the end of a session that idled after its last decision the plot (the seconds
+    up to the cursor) is empty; by default the picture is taken at the last posterior."""
+    require(vulkan_missing())
+    path, last = idle_after
+    curves = [_PALETTE[0], _PALETTE[1]]  # cereal_box, banana: the goals in their order
+    default = screenshot_recording(path, tmp_path / "default.png", size=(800, 500))
+    end = screenshot_recording(path, tmp_path / "end.png", time=last + IDLE, size=(800, 500))
+    assert posterior_pixels(end, curves) < 30, "the curves at the end?"
+    assert posterior_pixels(default, curves) > 150, f"no posterior in {default}"
