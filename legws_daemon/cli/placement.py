@@ -47,7 +47,7 @@ def _scene(source: str) -> Scene:
 def _plan(graph: TaskGraph, scene: Scene, plan_arg: Path | None) -> Plan:
     """The plan of ``--plan DIR`` (checked against the graph as the daemon checks it), or
     the graph's cached plan (``legws plan GRAPH``); never planned here."""
-    from legws_daemon.task.plan_file import check_plan, load_plan
+    from legws_daemon.task.plan_file import check_plan, load_plan_with_lines
 
     if plan_arg is None:
         from legws_daemon.design.stage_plan import cached_plan  # the search stack: seconds
@@ -62,8 +62,8 @@ def _plan(graph: TaskGraph, scene: Scene, plan_arg: Path | None) -> Plan:
             )
         return plan
     plan_json = plan_arg / "plan.json" if plan_arg.is_dir() else plan_arg
-    plan = load_plan(plan_json, scene)
-    return check_plan(plan, graph, scene, str(plan_json))
+    plan, lines = load_plan_with_lines(plan_json, scene)
+    return check_plan(plan, graph, scene, str(plan_json), lines)
 
 
 def decision_stem(index: int, label: str) -> str:
