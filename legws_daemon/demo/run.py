@@ -154,8 +154,8 @@ def run_demo(
     args = [sys.executable, "-m", "legws_daemon", "daemon", "--profile", profile.name,
             "--taskgraph", taskgraph, "--rerun", f"save:{recording}", "--zenoh-config",
             str(cfg_path), "--duration", str(timeout)]  # fmt: skip
-    if plan is not None:
-        args += ["--plan", str(plan)]
+    # the plan made here, or none (the daemon would plan a task graph by default)
+    args += ["--plan", str(plan) if plan is not None else "none"]
     if web is not None:
         args += ["--rerun", web]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
