@@ -7,7 +7,7 @@ bins: pick (3 candidates) -> sort -> pick (2) -> sort -> pick (1: a single candi
 inference) -> sort, six decisions, two to three minutes. Each brick left is a candidate of
 two picks with a sort between them; ``sort`` and ``pick_brick`` repeat. The run is made
 once per test session, also with several pytest-xdist workers (the first makes it under a
-lock, the others wait and read it).
+lock, the others wait and read it), and every check of it runs in one test.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def _report(cli: Cli, *argv: str | Path) -> dict[str, Any]:
     return report
 
 
-def test_one_replay_stage_per_decision(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
+def _check_one_replay_stage_per_decision(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
     """Six decisions, six stages: the single candidate's included, with its own commit;
     every commit in the stage of its decision."""
     path, summary = lego
@@ -128,7 +128,7 @@ def test_one_replay_stage_per_decision(cli: Cli, lego: tuple[Path, dict[str, Any
     assert stages[5]["first_tick"] == single["last_tick"] + 1
 
 
-def test_the_replay_stops_at_the_commit(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
+def _check_the_replay_stops_at_the_commit(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
     """Each inference ends at the daemon's commit: the replay is fed the EE path up to it
     (not the arm's own motion on to the goal and home), commits there on the same goal,
     and its posterior there is the daemon's."""
@@ -159,7 +159,7 @@ def test_the_replay_stops_at_the_commit(cli: Cli, lego: tuple[Path, dict[str, An
             assert max(end["replayed_posterior"].values()) < 0.99
 
 
-def test_stages_are_addressed_unambiguously(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
+def _check_stages_are_addressed_unambiguously(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
     path, _ = lego
     assert_bad_input(
         cli("replay", path, "--stage", "sort"),
@@ -173,7 +173,7 @@ def test_stages_are_addressed_unambiguously(cli: Cli, lego: tuple[Path, dict[str
     assert _report(cli, path, "--stage", "-1")["stages"][0]["label"] == "sort#3"
 
 
-def test_every_time_says_its_clock(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
+def _check_every_time_says_its_clock(cli: Cli, lego: tuple[Path, dict[str, Any]]) -> None:
     path, _ = lego
     result = cli("replay", path)
     assert result.code == 0, result
@@ -191,7 +191,7 @@ def test_every_time_says_its_clock(cli: Cli, lego: tuple[Path, dict[str, Any]]) 
             assert s["first_time"] - 0.1 < c["time"] < s["last_time"]
 
 
-def test_the_plot_labels_do_not_overlap(
+def _check_the_plot_labels_do_not_overlap(
     cli: Cli, lego: tuple[Path, dict[str, Any]], tmp_path: Path
 ) -> None:
     path, _ = lego
@@ -222,7 +222,7 @@ def _curve(path: Path, goal: str) -> list[tuple[int, float]]:
     return sorted(rows, key=lambda r: (r[0], not np.isnan(r[1])))  # a tick's NaN first
 
 
-def test_a_curve_has_a_gap_where_its_object_is_no_candidate(
+def _check_a_curve_has_a_gap_where_its_object_is_no_candidate(
     lego: tuple[Path, dict[str, Any]],
 ) -> None:
     """Read back from the recording: no value of a goal in a stage where it is no
@@ -247,7 +247,7 @@ def test_a_curve_has_a_gap_where_its_object_is_no_candidate(
     assert len(left) == 3 and gaps >= 2 + 2  # the bricks of two picks, the bins of 3 sorts
 
 
-def test_the_default_screenshot_shows_the_posterior_at_800x500(
+def _check_the_default_screenshot_shows_the_posterior_at_800x500(
     lego: tuple[Path, dict[str, Any]], tmp_path: Path
 ) -> None:
     """``legws view --screenshot`` without ``--time``: at the last posterior, the plot has
@@ -284,3 +284,18 @@ def _labels_at(path: Path, ns: int) -> dict[str, str]:
             if label is not None and t <= ns and newer:
                 latest[name] = (t, row, label[0] if label else "")
     return {name: label for name, (_, _, label) in latest.items()}
+
+
+def test_a_real_lego_recording_replays_and_draws_truthfully(
+    cli: Cli, lego: tuple[Path, dict[str, Any]], tmp_path: Path
+) -> None:
+    """Every check on the one recording, in one test: the demo takes minutes of real time,
+    and tests of it spread over several pytest-xdist workers would leave all but one waiting
+    for it. The screenshot's check comes last (it is skipped without Vulkan)."""
+    _check_one_replay_stage_per_decision(cli, lego)
+    _check_the_replay_stops_at_the_commit(cli, lego)
+    _check_stages_are_addressed_unambiguously(cli, lego)
+    _check_every_time_says_its_clock(cli, lego)
+    _check_the_plot_labels_do_not_overlap(cli, lego, tmp_path)
+    _check_a_curve_has_a_gap_where_its_object_is_no_candidate(lego)
+    _check_the_default_screenshot_shows_the_posterior_at_800x500(lego, tmp_path)
