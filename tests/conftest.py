@@ -98,3 +98,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     in at the end, so no worker is left running a long test alone. The order is the same
     in every worker (pytest-xdist requires it)."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """A real-time recording some tests read is started in the background as soon as they
+    are selected (tests/cli/test_replay_recording.py): minutes of real time that occupy no
+    worker."""
+    module = "tests/cli/test_replay_recording.py::"
+    if any(item.nodeid.startswith(module) for item in session.items):
+        from tests.cli.test_replay_recording import begin_demo
+
+        begin_demo()

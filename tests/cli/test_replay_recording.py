@@ -6,19 +6,22 @@ recording to ``.rrd``) and the simulated user through a LEGO graph of three bric
 bins: pick (3 candidates) -> sort -> pick (2) -> sort -> pick (1: a single candidate, no
 inference) -> sort, six decisions, two to three minutes. Each brick left is a candidate of
 two picks with a sort between them; ``sort`` and ``pick_brick`` repeat. The run is made
-once per test session, also with several pytest-xdist workers (the first makes it under a
-lock, the others wait and read it), and every check of it runs in one test.
+once per test session, in the background from the end of collection on (tests/conftest.py
+starts it when this test is selected; with several pytest-xdist workers, the first), and
+every check of it runs in one test, which waits for it.
 """
 
 from __future__ import annotations
 
-import fcntl
 import itertools
 import json
 import os
 import re
+import shlex
 import subprocess
 import sys
+import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -64,33 +67,53 @@ action = "place"
 pytestmark = pytest.mark.slow
 
 
-def _demo(folder: Path) -> Path:
-    """Run the demo into ``folder`` (its summary.json written last: the run is complete)."""
+#: The longest the demo may take, s.
+DEMO_TIMEOUT = 540
+
+
+def demo_folder() -> Path:
+    """Where this test session's demo runs: one folder for every pytest-xdist worker."""
+    session = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
+    return Path(tempfile.gettempdir()) / f"legws-replay-lego3-{session}"
+
+
+def begin_demo() -> None:
+    """Start the demo in the background, once per session (the first caller creates the
+    folder's ``started`` marker): it runs in real time beside the other tests, occupying no
+    worker, and writes ``rc`` (its exit code) when it ends."""
+    folder = demo_folder()
     folder.mkdir(parents=True, exist_ok=True)
+    try:
+        (folder / "started").open("x").close()
+    except FileExistsError:
+        return  # another worker started it
     graph = folder / "lego3.toml"
     graph.write_text(GRAPH)
-    out = folder / "demo"
-    run = subprocess.run(
-        [sys.executable, "-m", "legws_daemon", "demo", str(graph), "--out", str(out),
-         "--seed", "0", "--no-plan", "--timeout", "420"],
-        capture_output=True, text=True, timeout=540, check=False,
+    demo = shlex.join(
+        [sys.executable, "-m", "legws_daemon", "demo", str(graph), "--out",
+         str(folder / "demo"), "--seed", "0", "--no-plan", "--timeout", "420"]
     )  # fmt: skip
-    assert run.returncode == 0, run.stderr[-3000:]
-    return out
+    with (folder / "demo.log").open("wb") as log:
+        subprocess.Popen(
+            ["sh", "-c", f"timeout {DEMO_TIMEOUT} {demo}; echo $? > {folder / 'rc.tmp'} && "
+             f"mv {folder / 'rc.tmp'} {folder / 'rc'}"],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )  # fmt: skip
 
 
 @pytest.fixture(scope="module")
-def lego(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
-    """The recording and the demo's summary."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        shared = tmp_path_factory.getbasetemp().parent  # this session's, for every worker
-        with (shared / "replay-lego3.lock").open("w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            out = shared / "replay-lego3" / "demo"
-            if not (out / "summary.json").is_file():
-                out = _demo(shared / "replay-lego3")
-    else:
-        out = _demo(tmp_path_factory.mktemp("replay-lego3"))
+def lego() -> tuple[Path, dict[str, Any]]:
+    """The recording and the demo's summary, once the background demo has ended."""
+    begin_demo()  # (already running when the session selected this test)
+    folder = demo_folder()
+    deadline = time.monotonic() + DEMO_TIMEOUT + 30
+    while not (folder / "rc").is_file():
+        assert time.monotonic() < deadline, "the demo did not end"
+        time.sleep(1.0)
+    log = (folder / "demo.log").read_text(errors="replace")
+    assert (folder / "rc").read_text().strip() == "0", log[-3000:]
+    out = folder / "demo"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     return out / "recording.rrd", summary
