@@ -177,8 +177,10 @@ def _read_picture(path: Path) -> np.ndarray:
     import numpy as np
 
     from legws_daemon.formats.files import read_limited
+    from legws_daemon.tracking.calibration import check_picture_size
 
     data = read_limited(path, "picture")
+    check_picture_size(data, str(path))  # from its header: a small file may decode to GiB
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise InputError("not a picture OpenCV can read (PNG, JPEG, BMP, TIFF)", source=str(path))

@@ -21,6 +21,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -44,7 +46,7 @@ from legws_daemon.formats.validation import (
     read_json_with_lines,
     validate,
 )
-from legws_daemon.tracking.camera import Intrinsics
+from legws_daemon.tracking.camera import MAX_ASPECT, MAX_FOCAL, MIN_FOCAL, Intrinsics
 from legws_daemon.tracking.markers import dictionary
 
 #: The board's marker dictionary: not the scenes' ``4X4_50``, so that the board's markers
@@ -430,14 +432,22 @@ class _CalibrationModel(BaseModel):
     @model_validator(mode="after")
     def _plausible(self) -> _CalibrationModel:
         m = self.matrix
+        size = max(self.width, self.height)
         for loc, value in (((0, 0), "fx"), ((1, 1), "fy")):
             f = m[loc[0]][loc[1]]
-            if not 0 < f <= 100 * max(self.width, self.height):
+            if not MIN_FOCAL * size <= f <= MAX_FOCAL * size:
                 raise field_error(
                     ("matrix", *loc),
-                    f"the focal length {value} must be positive and at most 100 times the "
-                    f"picture's size, got {f:g}",
+                    f"the focal length {value} must be {MIN_FOCAL:g} to {MAX_FOCAL:g} times the "
+                    f"picture's larger side ({MIN_FOCAL * size:g} to {MAX_FOCAL * size:g} px), "
+                    f"got {f:g}",
                 )
+        if not 1 / MAX_ASPECT <= m[0][0] / m[1][1] <= MAX_ASPECT:
+            raise field_error(
+                ("matrix", 1, 1),
+                f"fx / fy must be within {MAX_ASPECT:g} of 1 (square-ish pixels), got "
+                f"{m[0][0] / m[1][1]:g}",
+            )
         for loc in ((0, 1), (1, 0), (2, 0), (2, 1)):
             if m[loc[0]][loc[1]] != 0:
                 raise field_error(
@@ -529,6 +539,39 @@ def save_calibration(cal: Calibration, path: Path) -> Path:
     """Write the calibration file atomically (a reader never sees half of it)."""
     text = json.dumps(calibration_to_data(cal), indent=2, allow_nan=False) + "\n"
     return write_atomic(path, text.encode("utf-8"))
+
+
+#: Largest picture decoded, pixels (8K UHD is 33 MP): a 1 MB PNG can say 32000 x 32000.
+MAX_PICTURE_PIXELS = 50_000_000
+
+
+def check_picture_size(data: bytes, source: str) -> tuple[int, int]:
+    """A picture file's width and height from its header, before anything decodes it.
+
+    Raises:
+        InputError: not a picture the header of which PIL reads (PNG, JPEG, BMP, TIFF, …),
+            or more than :data:`MAX_PICTURE_PIXELS` pixels.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    too_big = (f"is more than the {MAX_PICTURE_PIXELS / 1e6:g} million pixels a calibration "
+               "picture may have (nothing was decoded)")  # fmt: skip
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as picture:  # reads the header only
+                width, height = picture.size
+    except Image.DecompressionBombError as err:  # PIL's own bound, far above ours
+        said = re.search(r"\((\d+) pixels\)", str(err))
+        pixels = f"{int(said[1]):,} pixels" if said else "its size"
+        raise InputError(f"{pixels} {too_big}", source=source) from None
+    except (UnidentifiedImageError, OSError, ValueError):
+        raise InputError(
+            "not a picture OpenCV can read (PNG, JPEG, BMP, TIFF)", source=source
+        ) from None
+    if width * height > MAX_PICTURE_PIXELS:
+        raise InputError(f"{width} x {height} pixels {too_big}", source=source)
+    return width, height
 
 
 def load_calibration(path: Path) -> Calibration:

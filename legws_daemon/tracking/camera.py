@@ -17,6 +17,32 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
 
+#: A focal length below this fraction of the picture's larger side would be a field of view
+#: wider than ~176°; above ``MAX_FOCAL`` times it, narrower than ~0.6°: no lens of a tracker.
+MIN_FOCAL = 0.02
+MAX_FOCAL = 100.0
+#: Pixels this far from square (fx / fy) are no camera's.
+MAX_ASPECT = 4.0
+
+
+def intrinsics_problem(matrix: np.ndarray, width: int, height: int) -> str | None:
+    """What makes a camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` of a
+    ``width`` x ``height`` picture unusable (``None``: nothing): focal lengths outside
+    ``[MIN_FOCAL, MAX_FOCAL]`` times the larger side, pixels more than ``MAX_ASPECT`` from
+    square. Such a matrix is ill-conditioned and OpenCV's solvers fail on it."""
+    size = max(width, height)
+    fx, fy = float(matrix[0][0]), float(matrix[1][1])
+    for name, f in (("fx", fx), ("fy", fy)):
+        if not MIN_FOCAL * size <= f <= MAX_FOCAL * size:
+            return (
+                f"the focal length {name} must be {MIN_FOCAL:g} to {MAX_FOCAL:g} times the "
+                f"picture's larger side ({MIN_FOCAL * size:g} to {MAX_FOCAL * size:g} px), "
+                f"got {f:g}"
+            )
+    if not 1 / MAX_ASPECT <= fx / fy <= MAX_ASPECT:
+        return f"fx / fy must be within {MAX_ASPECT:g} of 1 (square-ish pixels), got {fx / fy:g}"
+    return None
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -45,6 +71,9 @@ class Intrinsics:
             raise InputError("distortion must be 5 finite coefficients k1, k2, p1, p2, k3")
         if self.width < 1 or self.height < 1:
             raise InputError(f"image size must be positive, got {self.width}x{self.height}")
+        problem = intrinsics_problem(k, self.width, self.height)
+        if problem is not None:
+            raise InputError(problem)
         object.__setattr__(self, "matrix", k)
         object.__setattr__(self, "distortion", d)
 
@@ -62,7 +91,11 @@ class Intrinsics:
         """Normalised image coordinates ``(N, 2)`` (``x/z, y/z`` in the camera frame) of
         pixels ``(N, 2)``, lens distortion removed."""
         pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
-        out = cv2.undistortPoints(pts, self.matrix, self.distortion)
+        try:
+            out = cv2.undistortPoints(pts, self.matrix, self.distortion)
+        except cv2.error as err:
+            reason = opencv_reason(err)
+            raise InputError(f"OpenCV cannot undistort these pixels: {reason}") from None
         return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
@@ -104,3 +137,12 @@ class CameraPose:
         z /= np.linalg.norm(z)
         x /= np.linalg.norm(x)
         return cls(np.column_stack([x, np.cross(z, x), z]), e)
+
+
+def opencv_reason(err: BaseException) -> str:
+    """OpenCV's error in one line, without its source path (``cv2.error`` carries the
+    C++ file, line and function)."""
+    text = getattr(err, "err", None) or str(err)
+    lines = [line.strip() for line in str(text).splitlines() if line.strip()]
+    reason = lines[-1] if lines else type(err).__name__
+    return reason.split(") ", 1)[-1] if reason.startswith("OpenCV(") else reason

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
 from legws_daemon.scene.scene import ObjectPose
-from legws_daemon.tracking.camera import CameraPose, Intrinsics
+from legws_daemon.tracking.camera import CameraPose, Intrinsics, opencv_reason
 from legws_daemon.tracking.markers import local_corners
 
 #: Rays closer to parallel with a plane than this (cosine of the angle to its normal) miss it.
@@ -65,11 +65,16 @@ def solve_camera(pixels: ArrayLike, points: ArrayLike, intrinsics: Intrinsics) -
     if len(img) != len(obj) or len(obj) < 4:
         raise InputError(f"need as many pixels as points, at least 4: {len(img)}, {len(obj)}")
     k, d = intrinsics.matrix, intrinsics.distortion
-    ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=cv2.SOLVEPNP_SQPNP)
-    if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+    try:  # OpenCV raises on what it cannot solve: a frame without a pose, never the end
+        ok, rvec, tvec = cv2.solvePnP(obj, img, k, d, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            raise InputError("the table markers' corners give no camera pose (degenerate layout)")
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
+        projected, _ = cv2.projectPoints(obj, rvec, tvec, k, d)
+    except cv2.error as err:
+        raise InputError(f"OpenCV finds no camera pose: {opencv_reason(err)}") from None
+    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         raise InputError("the table markers' corners give no camera pose (degenerate layout)")
-    rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, d, rvec, tvec)
-    projected, _ = cv2.projectPoints(obj, rvec, tvec, k, d)
     rms = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - img) ** 2, axis=1))))
     return CameraFit(CameraPose.from_opencv(rvec, tvec), rms)
 

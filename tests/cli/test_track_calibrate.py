@@ -4,6 +4,8 @@ true scale, and one-line errors for an unreadable camera and bad input."""
 from __future__ import annotations
 
 import re
+import struct
+import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -72,12 +74,31 @@ def test_images_from_a_folder_with_pictures_left_out(
     assert "from 12 of 13 views" in result.out
 
 
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG that says ``width`` x ``height`` grey pixels and holds 16 rows of them."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = zlib.crc32(kind + data) & 0xFFFFFFFF
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    rows = zlib.compress(b"\x00" * (width + 1) * 16)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", rows)
+            + chunk(b"IEND", b""))  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("setup", "args", "needles"),
     [
         (None, ("--images", "{tmp}/none/*.png"), ("--images: no pictures match",)),
         (None, ("--images", "{tmp}/missing.png"), ("missing.png: no such file",)),
         ("text", ("--images", "{tmp}/bad.png"), ("bad.png: not a picture OpenCV can read",)),
+        # a 32000 x 32000 PNG header (it decodes to 1 GiB): refused from its header
+        (
+            "huge",
+            ("--images", "{tmp}/huge.png"),
+            ("huge.png: 1,024,000,000 pixels is more than the 50 million", "nothing was decoded"),
+        ),
         ("few", ("--images", "{tmp}/few/*.png"), ("--images: only 3 of 3 views", "at least 8")),
         ("sizes", ("--images", "{tmp}/sizes/*.png"), ("b.png: is 320x240", "640x480")),
         (None, ("--camera", "99"), ("camera 99: cannot open the camera",)),
@@ -99,6 +120,8 @@ def test_bad_input_is_one_line(
 ) -> None:
     if setup == "text":
         (tmp_path / "bad.png").write_text("not a picture")
+    elif setup == "huge":
+        (tmp_path / "huge.png").write_bytes(png_header_only(32000, 32000))
     elif setup == "few":
         (tmp_path / "few").mkdir()
         for i, view in enumerate(synthetic_views()[:3]):

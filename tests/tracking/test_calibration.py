@@ -249,8 +249,12 @@ BAD_FILES = [
     (("matrix",), 600, "matrix", "valid tuple"),
     (("matrix", 0), [600, 0], "matrix[0]", "a row of 3 numbers, got 2"),
     (("matrix", 0, 0), float("nan"), "matrix[0][0]", "finite"),
-    (("matrix", 0, 0), 0.0, "matrix[0][0]", "fx must be positive"),
-    (("matrix", 1, 1), -600.0, "matrix[1][1]", "fy must be positive"),
+    (("matrix", 0, 0), 0.0, "matrix[0][0]", "fx must be 0.02 to 100 times"),
+    (("matrix", 1, 1), -600.0, "matrix[1][1]", "fy must be 0.02 to 100 times"),
+    # accepted once (a tracker then died in OpenCV): 1e-300 px is no lens, nor is 1e9
+    (("matrix", 0, 0), 1e-300, "matrix[0][0]", "(12.8 to 64000 px), got 1e-300"),
+    (("matrix", 1, 1), 1e9, "matrix[1][1]", "(12.8 to 64000 px), got 1e+09"),
+    (("matrix", 1, 1), 100.0, "matrix[1][1]", "fx / fy must be within 4 of 1"),
     (("matrix", 0, 1), 0.5, "matrix[0][1]", "must be 0"),
     (("matrix", 2, 2), 2.0, "matrix[2][2]", "must be 1"),
     (("matrix", 0, 2), 700.0, "matrix[0][2]", "cx must lie in the picture"),
@@ -353,3 +357,15 @@ def test_the_board_frame_matches_the_board_picture() -> None:
     expected = (found.object_points[:, :2] / DEFAULT_BOARD.square + 0.5) * PPS - 0.5
     np.testing.assert_allclose(found.image_points, expected, atol=1.0)
     assert len(charuco_board(DEFAULT_BOARD).getIds()) == DEFAULT_BOARD.markers
+
+
+def test_a_picture_is_measured_from_its_header_before_it_is_decoded() -> None:
+    from legws_daemon.tracking.calibration import MAX_PICTURE_PIXELS, check_picture_size
+    from tests.cli.test_track_calibrate import png_header_only
+
+    assert check_picture_size(png_header_only(640, 480), "a.png") == (640, 480)
+    assert MAX_PICTURE_PIXELS < 10000 * 6000  # over ours, under PIL's own bound
+    with pytest.raises(InputError, match=r"^b.png: 10000 x 6000 pixels is more than the 50 mi"):
+        check_picture_size(png_header_only(10000, 6000), "b.png")
+    with pytest.raises(InputError, match=r"^c.png: not a picture OpenCV can read"):
+        check_picture_size(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40, "c.png")

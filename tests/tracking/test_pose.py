@@ -128,3 +128,35 @@ def test_random_cameras_and_poses_are_recovered(
     assert math.hypot(fit.pose.x - x, fit.pose.y - y) < 1e-6
     assert yaw_gap(fit.pose.yaw, yaw) < 1e-5
     assert fit.rms < 1e-6
+
+
+@pytest.mark.parametrize(
+    "pixels",
+    [np.full((4, 2), np.nan), np.full((4, 2), 1e308), np.zeros((4, 2))],
+    ids=["nan", "huge", "one point"],
+)
+def test_what_opencv_cannot_solve_is_a_frame_without_a_pose_not_the_end(
+    pixels: np.ndarray,
+) -> None:
+    """cv2.solvePnP raises cv2.error on such corners (it ended the tracker once): one
+    InputError line without OpenCV's source path, which the tracker reports per frame."""
+    camera = Intrinsics.pinhole(60, 640, 480)
+    square = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]], dtype=np.float64)
+    with pytest.raises(InputError) as err:
+        solve_camera(pixels, square, camera)
+    text = str(err.value)
+    assert "camera pose" in text and ".cpp" not in text and "\n" not in text
+
+
+@pytest.mark.parametrize(
+    ("fx", "fy", "expected"),
+    [
+        (1e-300, 1e-300, "fx must be 0.02 to 100 times the picture's larger side"),
+        (600.0, 1e9, "fy must be 0.02 to 100 times"),
+        (600.0, 100.0, "fx / fy must be within 4 of 1"),
+    ],
+)
+def test_implausible_intrinsics_are_refused(fx: float, fy: float, expected: str) -> None:
+    k = np.array([[fx, 0.0, 320.0], [0.0, fy, 240.0], [0.0, 0.0, 1.0]])
+    with pytest.raises(InputError, match=expected):
+        Intrinsics(k, np.zeros(5), 640, 480)
