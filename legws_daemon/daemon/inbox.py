@@ -116,6 +116,12 @@ class JoystickInbox:
         """Messages rejected so far, all reasons."""
         return sum(self.reasons.values())
 
+    def refuse(self, err: InputError) -> None:
+        """A payload refused before it was read (too large): counted as ``invalid``."""
+        with self._lock:
+            self._reject("invalid", None, str(err))
+            self.invalid_fields[err.field or "payload"] += 1
+
     def offer(self, payload: bytes, now: float) -> Sample | None:
         """Validate one payload received at ``now``; keep it if it is the operator's newest.
 

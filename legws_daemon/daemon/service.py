@@ -111,7 +111,7 @@ from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.targets import Held
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
-from legws_daemon.transport.session import keys, open_session
+from legws_daemon.transport.session import keys, open_session, payload_bytes
 
 log = logging.getLogger("legws.daemon")
 #: Rerun text-log level of each event kind (INFO when not listed).
@@ -627,8 +627,8 @@ class DaemonService:
         thread that waits holds up the transport). The loop, or the load preparer, replies
         when the command is done; ``status`` and bad requests are answered here at once."""
         self.gate.wait()  # validated and answered between ticks: a burst shares no tick
-        payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
+            payload = payload_bytes(query.payload, self.keys["command"])
             request = parse(CommandRequest, payload, self.keys["command"])
         except InputError as err:
             query.reply_err(json.dumps({"ok": False, "error": str(err)}).encode())
@@ -659,10 +659,21 @@ class DaemonService:
             busy = f"busy: {COMMAND_QUEUE} commands are waiting; nothing was done"
             pending.finish({"ok": False, "command": request.command, "error": busy})
 
+    def _on_joystick(self, sample: zenoh.Sample) -> None:
+        """zenoh thread: a joystick payload to the inbox (its size read before its bytes)."""
+        now = time.monotonic()
+        try:
+            payload = payload_bytes(sample.payload, self.keys["joystick"])
+        except InputError as err:
+            self.inbox.refuse(err)
+            return
+        self.inbox.offer(payload, now)
+
     def _on_objects(self, sample: zenoh.Sample) -> None:
         """zenoh thread: validate a tracker's object poses; the loop applies them."""
         try:
-            msg = parse(ObjectsMessage, sample.payload.to_bytes(), self.keys["objects"])
+            payload = payload_bytes(sample.payload, self.keys["objects"])
+            msg = parse(ObjectsMessage, payload, self.keys["objects"])
         except InputError as err:
             self.objects_rejected += 1
             self.objects_error = str(err)
@@ -678,7 +689,7 @@ class DaemonService:
         if role == "daemon":
             return  # its own word to the bridge (sawyer adapter), heard back
         try:
-            message: StopMessage | None = parse_stop(sample.payload.to_bytes(), key)
+            message: StopMessage | None = parse_stop(payload_bytes(sample.payload, key), key)
             error = None
         except InputError as err:
             message, error = None, str(err)
@@ -1028,7 +1039,7 @@ class DaemonService:
                 self._forecast_confirms(controller)
             subscriber = session.declare_subscriber(
                 self.keys["joystick"],
-                lambda s: self.inbox.offer(s.payload.to_bytes(), time.monotonic()),
+                self._on_joystick,
             )
             queryable = session.declare_queryable(self.keys["command"], self._on_query)
             objects = session.declare_subscriber(self.keys["objects"], self._on_objects)

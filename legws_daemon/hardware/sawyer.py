@@ -62,6 +62,7 @@ from legws_daemon.robot.kinematics import ORIENTATION_GAIN, small_rotation_error
 from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import Box, within_speed
 from legws_daemon.scene.scene import Scene
+from legws_daemon.transport.session import payload_bytes
 
 if TYPE_CHECKING:
     from legws_daemon.robot.mink_ik import MinkVelocityIK
@@ -247,7 +248,7 @@ class SawyerAdapter(Adapter):
         """zenoh callback: validate a state message and keep it as the newest."""
         received = time.monotonic()
         try:
-            msg = parse_state(sample.payload.to_bytes(), self.state_key)
+            msg = parse_state(payload_bytes(sample.payload, self.state_key), self.state_key)
         except InputError as err:
             with self._lock:
                 self.rejected += 1

@@ -23,6 +23,7 @@ from pathlib import Path
 import zenoh
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.messages import MAX_PAYLOAD
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.formats.validation import read_text
 
@@ -155,3 +156,19 @@ def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
         yield session
     finally:
         session.close()  # type: ignore[no-untyped-call]
+
+
+def payload_bytes(payload: zenoh.ZBytes | None, source: str, limit: int = MAX_PAYLOAD) -> bytes:
+    """A received payload's bytes, copied out of zenoh only when it is at most ``limit``
+    bytes long: its size is read first (a 16 MiB joystick message is refused without a
+    16 MiB copy).
+
+    Raises:
+        InputError: too large, naming ``source`` (the key).
+    """
+    if payload is None:
+        return b""
+    size = len(payload)
+    if size > limit:
+        raise InputError(f"payload of {size} bytes exceeds {limit}", source=source)
+    return payload.to_bytes()

@@ -1,0 +1,60 @@
+"""Huge payloads on the bench transport (the daemon in its own process, zenoh loopback):
+16 MiB joystick messages are refused from their size, counted, move nothing, and leave
+the daemon's memory flat."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.transport.session import config_from_spec, keys, open_session
+from tests.daemon.procs import ee, monitor, ready, start, stop, write_profile
+from tests.net import free_port
+
+ROBOT = "sawyer_sim"
+pytestmark = pytest.mark.slow
+
+
+def rss_mib(pid: int) -> float:
+    """The process's resident memory, MiB (Linux: /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
+def test_16_mib_joystick_payloads_are_refused_and_leave_memory_flat(tmp_path: Path) -> None:
+    port = free_port()
+    profile = write_profile(tmp_path, "sim", port)
+    daemon = start(
+        ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90"],
+        tmp_path / "daemon.log",
+    )
+    spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        with monitor(port, ROBOT) as m, open_session(config_from_spec(spec)) as pub:
+            assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
+            time.sleep(1.0)
+            before, p0 = rss_mib(daemon.pid), ee(m)
+            invalid0 = m.latest()["rejections"]["invalid"]  # type: ignore[index]
+            steer = {"schema": 1, "stamp": 0.0, "axes": [0.0, 1.0, 0.0], "source": "big"}
+            huge = json.dumps({**steer, "seq": 1, "pad": "x" * (16 << 20)}).encode()
+            for _ in range(20):  # 320 MiB in all
+                pub.put(keys(ROBOT)["joystick"], huge)
+                time.sleep(0.05)
+            assert m.wait_for(
+                lambda m: m.latest()["rejections"]["invalid"] >= invalid0 + 20,  # type: ignore[index]
+                20,
+            ), m.latest()
+            time.sleep(1.0)
+            after = rss_mib(daemon.pid)
+            np.testing.assert_array_equal(ee(m), p0)  # nothing moved
+            assert after - before < 64, (before, after)  # measured: a few MiB
+    finally:
+        code, _ = stop(daemon)
+    assert code == 0
