@@ -676,9 +676,19 @@ class Controller:
             case _:
                 assert_never(request.command)
 
-    def stop(self, by: str, source: str | None = None, reason: str | None = None) -> None:
+    def stop(
+        self,
+        by: str,
+        source: str | None = None,
+        reason: str | None = None,
+        *,
+        announce: bool = True,
+        repeats: int = 0,
+    ) -> None:
         """Stop: zero velocity, the robot side told to hold the stop, mode ``stopped`` until
-        the operator's ``reset``. ``by`` is the authenticated role that asked."""
+        the operator's ``reset``. ``by`` is the authenticated role that asked. ``announce``
+        ``False``: all of that, without the ``stop`` event (a flood of stops: the daemon
+        says one a second, with the ``repeats`` it did not announce)."""
         self.modes.to(Mode.STOPPED)
         self.assistant = None
         if self.calibration is not None:
@@ -688,7 +698,8 @@ class Controller:
         except LegwsError:
             with contextlib.suppress(LegwsError):
                 self.adapter.halt()
-        self.emit(Stop(self.mode.value, by, source, reason))
+        if announce:
+            self.emit(Stop(self.mode.value, by, source, reason, repeats))
 
     def _reset(self) -> dict[str, Any]:
         """Clear a stop or fault and start the task again: put back what the robot holds

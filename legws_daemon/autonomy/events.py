@@ -226,6 +226,9 @@ class Stop(Event):
     by: str = "operator"
     source: str | None = None
     reason: str | None = None
+    #: stops of the same role carried out since its last stop event, not announced (a
+    #: flood: at most one event a second per role)
+    repeats: int = 0
 
     def text(self) -> str:
         said = f" ({self.source})" if self.source else ""

@@ -137,6 +137,8 @@ REJECTION_EVENT_INTERVAL = 2.0
 #: A ``deadman`` event at most this often (a flickering input is reported as its latest
 #: state once the interval has passed), seconds.
 DEADMAN_EVENT_INTERVAL = 1.0
+#: A role's stop events come at most this often, s (each stop acts at once all the same).
+STOP_EVENT_INTERVAL = 1.0
 #: Recent events kept in memory (for a look in a debugger; the record is the event stream).
 RECENT_EVENTS = 256
 
@@ -393,6 +395,8 @@ class DaemonService:
         )
         self._deadman: NoInput | None = "no_operator"  # as last reported (None: input flows)
         self.started_at: float | None = None  # the daemon's wall clock at its start, s
+        #: per stop role: when its last stop event went out, stops not announced since
+        self._stop_said: dict[str, tuple[float, int]] = {}
         self._last_deadman_event = -np.inf
         self._last_rejection_event: dict[str, float] = {}
         self._rejections_unreported: dict[str, InputRejected] = {}
@@ -701,12 +705,21 @@ class DaemonService:
         c = self.controller
         if not self._stops or c is None:
             return False
+        now = time.monotonic()
         while self._stops:
             role, message, error = self._stops.popleft()
             self._cancel_loads(f"cancelled: a stop by {role} came after it")
             source = message.source if message is not None else None
             reason = message.reason if message is not None else f"invalid stop message: {error}"
-            c.stop(role, source, reason)
+            # every stop acts at once; a role's stop events (and log lines) at most one a
+            # second, the next one counting those not announced
+            last, quiet = self._stop_said.get(role, (-np.inf, 0))
+            if now - last >= STOP_EVENT_INTERVAL:
+                c.stop(role, source, reason, repeats=quiet)
+                self._stop_said[role] = (now, 0)
+            else:
+                c.stop(role, source, reason, announce=False)
+                self._stop_said[role] = (last, quiet + 1)
         return True
 
     def _apply_objects(self) -> None:

@@ -1,6 +1,7 @@
-"""Huge payloads on the bench transport (the daemon in its own process, zenoh loopback):
+"""The bench transport under floods (the daemon in its own process, zenoh loopback):
 16 MiB joystick messages are refused from their size, counted, move nothing, and leave
-the daemon's memory flat."""
+the daemon's memory flat; a flood of stops stops at once and is announced once a second per
+role."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from legws_daemon.formats.bridge_messages import stop_key
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_spec, keys, open_session
 from tests.daemon.procs import ee, monitor, ready, start, stop, write_profile
@@ -58,3 +60,39 @@ def test_16_mib_joystick_payloads_are_refused_and_leave_memory_flat(tmp_path: Pa
     finally:
         code, _ = stop(daemon)
     assert code == 0
+
+
+def test_a_stop_flood_stops_at_once_and_says_so_once_a_second_per_role(tmp_path: Path) -> None:
+    port = free_port()
+    profile = write_profile(tmp_path, "sim", port)
+    daemon = start(
+        ["daemon", "--profile", str(profile), "--scene", "desk", "--duration", "90"],
+        tmp_path / "daemon.log",
+    )
+    spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        with monitor(port, ROBOT) as m, open_session(config_from_spec(spec)) as pub:
+            assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
+            body = json.dumps({"schema": 1, "source": "flood", "reason": "test"}).encode()
+            started = time.monotonic()
+            sent = 0
+            while time.monotonic() - started < 3.0:  # ~2000 stops of two roles in 3 s
+                for role in ("observer", "safety"):
+                    pub.put(stop_key(ROBOT, role), body)
+                    sent += 1
+                time.sleep(0.003)
+            seconds = time.monotonic() - started
+            assert m.wait_for(lambda m: m.latest()["mode"] == "stopped", 5)  # type: ignore[index]
+            time.sleep(1.5)  # the last announced
+            stops = [e["detail"] for e in m.events if e["kind"] == "stop"]
+            for role in ("observer", "safety"):
+                mine = [d for d in stops if d["by"] == role]
+                assert 1 <= len(mine) <= seconds + 1, (role, len(mine))
+                assert mine[0]["repeats"] == 0
+                assert sum(d["repeats"] for d in mine) + len(mine) <= sent
+            assert sum(d["repeats"] for d in stops) > 100  # the flood was carried out, quietly
+    finally:
+        code, _ = stop(daemon)
+    assert code == 0
+    log = (tmp_path / "daemon.log").read_text()
+    assert log.count("legws daemon: stop ") <= 2 * (seconds + 1)
