@@ -711,10 +711,11 @@ class DaemonService:
             self._cancel_loads(f"cancelled: a stop by {role} came after it")
             source = message.source if message is not None else None
             reason = message.reason if message is not None else f"invalid stop message: {error}"
-            # every stop acts at once; a role's stop events (and log lines) at most one a
-            # second, the next one counting those not announced
+            # every stop acts at once; a stop that stops the robot is always announced, a
+            # role's further stops (and log lines) at most one a second, the next one counting
+            # those not announced
             last, quiet = self._stop_said.get(role, (-np.inf, 0))
-            if now - last >= STOP_EVENT_INTERVAL:
+            if now - last >= STOP_EVENT_INTERVAL or c.mode != Mode.STOPPED:
                 c.stop(role, source, reason, repeats=quiet)
                 self._stop_said[role] = (now, 0)
             else:
