@@ -22,5 +22,5 @@ with Client.from_profile(profile) as daemon, daemon.joystick("example") as stick
         stick.publish(axes, Buttons(enable=True))
         if s.mode == "idle":  # the task is done
             break
-    for event in daemon.events(timeout=0.0):
+    for event in daemon.events(timeout=1.0):  # (events and status come on their own keys)
         print(event.kind, {k: v for k, v in event.detail.items() if k != "posterior"})
