@@ -37,6 +37,7 @@ import click
 from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.joystick.daemon_status import STATUS_WAIT
 
 if TYPE_CHECKING:
     from legws_daemon.joystick.daemon_status import StatusWatch
@@ -46,9 +47,8 @@ R = TypeVar("R")
 
 #: A profile name in hw_profiles/ (or a .toml path).
 DEFAULT_PROFILE = Path("sim")
-#: How long a command waits for the daemon's first status by default, s
-#: (:data:`legws_daemon.joystick.daemon_status.STATUS_WAIT`, not imported: a light CLI).
-WAIT_DAEMON = 20.0
+#: How long a command waits for the daemon's first status by default, s.
+WAIT_DAEMON = STATUS_WAIT
 
 
 @dataclass(frozen=True)

@@ -210,11 +210,6 @@ class StatusLine:
             self.stream.write("\n")
             self.stream.flush()
 
-    def text(self) -> str | None:
-        """The line for the newest status (``None`` before the first)."""
-        status = self.watch.newest
-        return None if status is None else self.prefix + status_text(status, self.session)
-
     def show(self) -> None:
         """Write the line if it changed (one step of the thread; callable directly)."""
         status = self.watch.newest
