@@ -401,17 +401,17 @@ def read_json(path: Path, kind: str = "text") -> Any:
     and ``Infinity`` literals parse (as Python's json module allows) and are then rejected
     by the schema's finite-number fields, so the message names the field.
     """
-    return _parse_json(read_text(path, kind), str(path), None)
+    return parse_json(read_text(path, kind), str(path), None)
 
 
 def read_json_with_lines(path: Path, kind: str = "text") -> tuple[Any, SourceText]:
     """:func:`read_json`, and the file's text to find the line of each error in (pass it
     to :func:`validate`); the errors of reading name the line of their field too."""
     where = SourceText(read_text(path, kind), "json")
-    return _parse_json(where.text, str(path), where), where
+    return parse_json(where.text, str(path), where), where
 
 
-def _parse_json(text: str, source: str, where: SourceText | None) -> Any:
+def parse_json(text: str, source: str, where: SourceText | None) -> Any:
     try:
         data = json.loads(text, object_pairs_hook=unique_keys)
     except DuplicateKeyError as dup:
