@@ -1,13 +1,15 @@
 """Entry point of ``legws``: the command group and the error policy.
 
 Bad input of any kind (a usage error, a file or field that does not validate, an
-unknown name) prints ``legws: error: ...`` on stderr and exits 2: one line per error (a
-file with three wrong fields: three lines, each ``FILE:LINE: field: ...``). Nothing the
-user can cause prints a traceback.
+unknown name, a path the operating system refuses) prints ``legws: error: ...`` on stderr
+and exits 2: one line per error (a file with three wrong fields: three lines, each
+``FILE:LINE: field: ...``). Nothing the user can cause prints a traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -92,6 +94,17 @@ def run(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("legws: interrupted", err=True)
         return 130
+    except BrokenPipeError:  # ``legws ... | head``: the reader left; nothing to say
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except OSError as exc:
+        # a path the system refuses (a name too long, a loop of links, no permission) that
+        # reached a call outside the readers and writers of formats.files
+        if exc.filename is None:
+            raise
+        what = exc.strerror or type(exc).__name__
+        return _fail(f"{os.fsdecode(exc.filename)}: {what}")
     return int(result) if isinstance(result, int) else 0
 
 

@@ -28,18 +28,20 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import open_output, read_lines
+from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.formats.validation import (
     MAX_COORDINATE,
     DuplicateKeyError,
     check_text,
     printable,
     unique_keys,
+    unsafe_character,
 )
 
 #: A deflection may exceed norm 1 by this much (rounding in the sender's own clip).
 NORM_TOLERANCE = 1e-6
 #: Most segments and ticks in one trace: a calibration has 20 reaches of a few hundred
-#: ticks; a day of teleoperation at 20 Hz is 1.7 million ticks.
+#: ticks; the size limit of a trace file (32 MiB) holds about 250,000.
 MAX_SEGMENTS = 100_000
 MAX_TICKS = 5_000_000
 
@@ -89,6 +91,7 @@ def _short(value: Any) -> str:
 
 def parse_tick(text: str, where: str) -> tuple[int, list[float], list[float], list[float]]:
     """``(segment, ee, u, goal)`` of one line; ``where`` is ``FILE:LINE``."""
+    check_json_nesting(text, where)
     try:
         data = json.loads(text, object_pairs_hook=unique_keys)
     except DuplicateKeyError as dup:
@@ -100,7 +103,8 @@ def parse_tick(text: str, where: str) -> tuple[int, list[float], list[float], li
         raise InputError(f"invalid JSON: {reason}", source=where) from None
     if not isinstance(data, dict):
         raise InputError(f"expected a JSON object, got {_short(data)}", source=where)
-    check_text(data, where)
+    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
+        check_text(data, where)
     for key in ("segment", "ee", "u", "goal"):
         if key not in data:
             raise InputError("missing", source=where, field=key)

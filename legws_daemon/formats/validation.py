@@ -23,6 +23,7 @@ from pydantic import AllowInfNan, BaseModel, Field, RootModel, Strict, Validatio
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import read_limited
+from legws_daemon.formats.nesting import check_json_nesting, check_toml_nesting
 from legws_daemon.formats.positions import Loc, SourceText
 
 #: Largest magnitude accepted for any coordinate or size, metres: far beyond any robot cell,
@@ -412,6 +413,7 @@ def read_json_with_lines(path: Path, kind: str = "text") -> tuple[Any, SourceTex
 
 
 def parse_json(text: str, source: str, where: SourceText | None) -> Any:
+    check_json_nesting(text, source)
     try:
         data = json.loads(text, object_pairs_hook=unique_keys)
     except DuplicateKeyError as dup:
@@ -426,7 +428,8 @@ def parse_json(text: str, source: str, where: SourceText | None) -> Any:
         raise InputError("invalid JSON: nested too deeply", source=source) from None
     except ValueError as err:  # e.g. an integer of more than 4300 digits
         raise InputError(f"invalid JSON: {err}", source=source) from None
-    check_text(data, source, where=where)
+    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
+        check_text(data, source, where=where)
     return data
 
 
@@ -468,6 +471,7 @@ def read_toml_with_lines(path: Path, kind: str = "text") -> tuple[dict[str, Any]
 def parse_toml(text: str, source: str) -> dict[str, Any]:
     """:func:`read_toml` of text already read from ``source``; a non-finite number or a
     control character names the line of its field."""
+    check_toml_nesting(text, source)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.files import read_lines
 from legws_daemon.formats.messages import JoystickMessage, parse
-from legws_daemon.formats.validation import read_text
 from legws_daemon.joystick.publisher import Publisher
 
 #: Fastest replay accepted (a factor on the recorded timing).
@@ -35,7 +35,7 @@ def load_recording(path: Path) -> list[JoystickMessage]:
     a file without messages.
     """
     messages: list[JoystickMessage] = []
-    for number, line in enumerate(read_text(path, "joystick log").splitlines(), start=1):
+    for number, line in read_lines(path, "joystick log"):  # a line at a time
         if not line.strip():
             continue
         where = f"{path}:{number}"
