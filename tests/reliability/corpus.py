@@ -36,6 +36,14 @@ from typing import Any
 from legws_daemon.formats.files import LIMITS
 from tests.cli.helpers import EXAMPLE_GOALSET
 from tests.formats.helpers import toml_dumps
+from tests.reliability.classes import (
+    PATH_CASES,
+    depth_texts,
+    image_cases,
+    key_path_texts,
+    place_path,
+    size_texts,
+)
 
 REPO = Path(__file__).parents[2]
 
@@ -408,6 +416,10 @@ class Sandbox:
         folder.mkdir()
         return folder / kind.filename
 
+    def folder(self, kind: Kind, label: str) -> Path:
+        """A new folder of its own for a case."""
+        return self._new(kind, label).parent
+
     def file(self, kind: Kind, label: str, data: bytes) -> Path:
         path = self._new(kind, label)
         path.write_bytes(data)
@@ -500,6 +512,9 @@ def file_cases(box: Sandbox, kind: Kind) -> list[Case]:
             data = text_change(kind, valid)
             if data is not None:
                 add(label, box.file(kind, label, data))
+        for texts in (depth_texts(kind), key_path_texts(kind), size_texts(kind, valid)):
+            for label, data in texts:
+                add(label, box.file(kind, label, data))
         add("over-the-size-limit", box.oversized(kind))
     else:
         for label, data in {
@@ -511,6 +526,11 @@ def file_cases(box: Sandbox, kind: Kind) -> list[Case]:
             add(label, box.file(kind, label, data), every=True)
     for what in SPECIALS:
         add(what, box.special(kind, what), every=True)
+    for what in PATH_CASES:
+        folder = box.folder(kind, what)
+        path = place_path(box.root, folder, kind.filename, what, b"{}")
+        if path is not None:  # a name too long for the system: through every command
+            add(what, path, every=what == "name-too-long")
     return cases
 
 
@@ -624,8 +644,10 @@ def parameter_cases(box: Sandbox) -> list[Case]:
         "scene-escape-name": ["certify", "--scene", "desk\u202e", "--json"],
         "joystick-replay-speed-0": ["joystick", "replay", "in/none.jsonl", "--speed", "0"],
         "recording-timeout-nan": ["recording", "finish", "in/no.rrd", "--timeout", "nan"],
+        "placement-plan-name-too-long": ["placement", "feeding", "--plan", "in/" + "n" * 300],
     }
     cases += [Case(f"options/{k}", v, box.env) for k, v in options.items()]
+    cases += [Case(f"images/{k}", v, box.env) for k, v in image_cases(box.root)]
     return cases
 
 
