@@ -39,8 +39,8 @@ MiB = 1024 * KiB
 #: the largest real file of its kind (the shipped scenes and task graphs are 1-3 KiB, a
 #: plan of the feeding graph 9 KiB, an optimiser's elites 0.4 MiB) and small enough that
 #: parsing it takes well under a second and a few tens of MiB. The line formats are read
-#: a line at a time and held parsed: a joystick log of 16 MiB is two hours at 20 Hz
-#: (145,000 messages, ~2 s to validate, ~260 MiB held), a teleoperation trace of 32 MiB
+#: a line at a time and held parsed: a joystick log of 32 MiB is two hours at 20 Hz
+#: (155,000 messages of ~220 bytes, ~2 s to validate), a teleoperation trace of 32 MiB
 #: 250,000 ticks (~3 s, ~80 MiB).
 LIMITS: dict[str, int] = {
     "scene": 256 * KiB,
@@ -51,7 +51,7 @@ LIMITS: dict[str, int] = {
     "hardware profile": 256 * KiB,
     "input mapping": 256 * KiB,
     "zenoh config": 256 * KiB,
-    "joystick log": 16 * MiB,
+    "joystick log": 32 * MiB,
     "elites": 8 * MiB,
     "summary": 4 * MiB,
     "reachability map": 256 * MiB,

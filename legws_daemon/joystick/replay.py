@@ -25,20 +25,27 @@ from legws_daemon.joystick.publisher import Publisher
 
 #: Fastest replay accepted (a factor on the recorded timing).
 MAX_SPEED = 1000.0
+#: Most messages in one file: two hours at 20 Hz (read in ~2 s, ~270 MiB held).
+MAX_MESSAGES = 150_000
 
 
 def load_recording(path: Path) -> list[JoystickMessage]:
     """Every message of a JSONL recording; blank lines are skipped.
 
     Raises :class:`InputError` naming ``file:line`` and the field for a line that does not
-    validate, for a ``stamp`` earlier than its predecessor's within one recording, and for
-    a file without messages.
+    validate, for a ``stamp`` earlier than its predecessor's within one recording, for more
+    than :data:`MAX_MESSAGES` messages, and for a file without messages.
     """
     messages: list[JoystickMessage] = []
     for number, line in read_lines(path, "joystick log"):  # a line at a time
         if not line.strip():
             continue
         where = f"{path}:{number}"
+        if len(messages) >= MAX_MESSAGES:
+            raise InputError(
+                f"more than {MAX_MESSAGES:,} messages (two hours at 20 Hz): split the file",
+                source=where,
+            )
         message = parse(JoystickMessage, line, where)
         if messages and _continues(messages[-1], message) and message.stamp < messages[-1].stamp:
             raise InputError(
