@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from legws_daemon.formats.printable import LIMIT, MESSAGE_LIMIT, safe_text
+
 
 class LegwsError(Exception):
     """Root of every error legws raises on purpose."""
@@ -11,14 +13,20 @@ class InputError(LegwsError):
     """Bad user input: a file, a field, a flag or a message that does not validate.
 
     The message is one line naming the source (file), the field and what was expected.
+    Each part is made terminal-safe (:func:`~legws_daemon.formats.printable.safe_text`):
+    a file name from the command line, a name from a message or a library's error text
+    may hold escape sequences, line breaks or bidirectional controls, and these are
+    written as visible escapes; a part too long is cut with an ellipsis. ``source`` and
+    ``field`` keep the safe forms (what ``str()`` starts with).
     """
 
     def __init__(self, message: str, *, source: str | None = None, field: str | None = None):
-        self.source = source
-        self.field = field
-        parts = [p for p in (source, field) if p]
+        self.source = safe_text(source, LIMIT) if source is not None else None
+        self.field = safe_text(field, LIMIT) if field is not None else None
+        parts = [p for p in (self.source, self.field) if p]
         prefix = ": ".join(parts)
-        super().__init__(f"{prefix}: {message}" if prefix else message)
+        text = safe_text(message, MESSAGE_LIMIT)
+        super().__init__(f"{prefix}: {text}" if prefix else text)
 
 
 class InfeasibleError(LegwsError):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.robot import assets
 
 
@@ -26,15 +27,15 @@ def fetch_cmd(force: bool) -> None:
     """
     if not force:
         try:
-            click.echo(assets.sawyer_dir())
+            echo(assets.sawyer_dir())
             return
         except InputError:
             pass
-    click.echo(
+    echo(
         f"legws: downloading robosuite=={assets.ROBOSUITE_VERSION} with pip for its Sawyer model",
         err=True,
     )
-    click.echo(assets.fetch(force=True))
+    echo(assets.fetch(force=True))
 
 
 @assets_cmd.command("reachability")
@@ -65,18 +66,16 @@ def reachability_cmd(scene_name: str, build_anew: bool) -> None:
     key = cache_key(world, q_home)
     path = assets.assets_dir() / "reachability" / f"{key}.npz"
     if build_anew or not (path.is_file() or (SHIPPED / f"{key}.npz").is_file()):
-        click.echo(
-            "legws: building the reachability map (once per robot model, ~1.5 min)", err=True
-        )
+        echo("legws: building the reachability map (once per robot model, ~1.5 min)", err=True)
     load_or_build(world, q_home, build_anew=build_anew)
-    click.echo(path)
+    echo(path)
 
 
 @assets_cmd.command("status")
 def status_cmd() -> None:
     """Print the Sawyer model's folder; exit 2 with one line when it is not fetched or
     fails its integrity check (the line names the file and the command that restores it)."""
-    click.echo(assets.sawyer_dir())
+    echo(assets.sawyer_dir())
 
 
 @assets_cmd.command("check")
@@ -87,4 +86,4 @@ def check_cmd() -> None:
     and the command that restores it (``legws assets fetch --force``) otherwise.
     """
     v = assets.verify()
-    click.echo(f"{v.folder}: intact ({v.files} files, {v.size} bytes, sha256 {v.digest})")
+    echo(f"{v.folder}: intact ({v.files} files, {v.size} bytes, sha256 {v.digest})")

@@ -18,6 +18,7 @@ import click
 
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import (
     COMMAND_BURST,
     ProfileSpec,
@@ -136,7 +137,7 @@ def fake_cmd(
 
     problem = authentication_problem(config)
     if problem is not None:  # a fake moves nothing: said, not refused (the real one refuses)
-        click.echo(
+        echo(
             f"fake bridge: INSECURE TRANSPORT: {problem}; any process that reaches it can "
             "command this arm within its limits",
             err=True,
@@ -160,11 +161,11 @@ def fake_cmd(
                 workspace=profile.workspace,
             ) as fake,
         ):
-            click.echo(
+            echo(
                 f"fake bridge for '{profile.robot}' at {rate:g} Hz on {fake.state_key} and "
                 f"{fake.command_key} ({where or 'no endpoints'}); SIGINT or SIGTERM stops it"
             )
-            click.echo(limits_line(profile))
+            echo(limits_line(profile))
             while not stop.wait(0.2):
                 pass
             received, rejected, limited = fake.received, fake.rejected, fake.limited
@@ -172,7 +173,7 @@ def fake_cmd(
         for s, handler in previous.items():
             signal.signal(s, handler)
     enforced = ", ".join(f"{name} {n}" for name, n in limited.items() if n) or "none"
-    click.echo(
+    echo(
         f"fake bridge stopped: {received} commands received, {rejected} rejected; "
         f"limits enforced: {enforced}"
     )

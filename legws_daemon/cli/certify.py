@@ -38,6 +38,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.formats.operator_file import load_operator
+from legws_daemon.formats.printable import echo
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
 from legws_daemon.scene.layout_file import dump_json, load_layout
@@ -458,4 +459,7 @@ def certify_cmd(
     require_finite(report)
     if export_goals is not None:
         write_atomic(export_goals, dump_json(goalset_to_data(goals, params)).encode())
-    click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report, goals))
+    if as_json:
+        click.echo(json.dumps(report, allow_nan=False))  # ASCII: every other character escaped
+    else:
+        echo(render_text(report, goals))

@@ -17,6 +17,7 @@ from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import open_output, output_path
 from legws_daemon.formats.operator_file import OperatorFile, load_operator
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
@@ -46,15 +47,15 @@ def _load_plan(
         try:
             plan = cached_plan(graph, scene, operators=people)
         except InputError as err:  # not usable: planned again and replaced
-            click.echo(f"legws daemon: warning: {err}", err=True)
+            echo(f"legws daemon: warning: {err}", err=True)
             plan = None
         if plan is not None:
             where = plan.directory
-            click.echo(f"legws daemon: {graph.name} runs on its cached plan ({where}); "
+            echo(f"legws daemon: {graph.name} runs on its cached plan ({where}); "
                        "--plan none: the shipped layout", err=True)  # fmt: skip
             return plan
         who = f" for operator {operator.name}" if operator is not None else ""
-        click.echo(
+        echo(
             f"legws daemon: no cached plan of {graph.name}{who}: planning it now, before the "
             f"control loop starts (`legws plan {graph.name}` makes it ahead; --plan none runs "
             "the shipped layout)",
@@ -62,7 +63,7 @@ def _load_plan(
         )
         started = time.monotonic()
         plan = plan_taskgraph(graph, scene, operators=people, progress=True)
-        click.echo(f"legws daemon: planned {graph.name} in {time.monotonic() - started:.0f} s",
+        echo(f"legws daemon: planned {graph.name} in {time.monotonic() - started:.0f} s",
                    err=True)  # fmt: skip
         return plan
     from legws_daemon.task.plan_file import check_plan, load_plan_with_lines
@@ -281,7 +282,7 @@ def daemon_cmd(
     if cost is not None:
         params = params.with_cost(cost)
     if operator is not None:
-        click.echo(f"legws daemon: certificates for operator {operator.name}: "
+        echo(f"legws daemon: certificates for operator {operator.name}: "
                    f"{operator.certify_with.describe()}", err=True)  # fmt: skip
     zcfg = config_from_file(zenoh_config) if zenoh_config else config_from_spec(spec.transport)
     problem = authentication_problem(zcfg)
@@ -300,9 +301,9 @@ def daemon_cmd(
             stack.callback(rerun_log.close)
             if rerun_log.web is not None:
                 target = rerun_log.web.target
-                click.echo(f"legws daemon: watch in a browser: {target.page_url}", err=True)
+                echo(f"legws daemon: watch in a browser: {target.page_url}", err=True)
                 if not ipaddress.IPv4Address(target.host).is_loopback:
-                    click.echo(f"legws daemon: warning: the session is served unauthenticated "
+                    echo(f"legws daemon: warning: the session is served unauthenticated "
                                f"to every host that reaches {target.host}", err=True)  # fmt: skip
             telemetry = rerun_log
         trace = stack.enter_context(open_output(trace_file)) if trace_file else None

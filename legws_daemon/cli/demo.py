@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import load_profile_named
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
@@ -82,28 +83,28 @@ def demo_cmd(
     if plan:
         from legws_daemon.design.stage_plan import plan_taskgraph
 
-        click.echo(f"legws: planning the layout of each decision of {graph.name}", err=True)
+        echo(f"legws: planning the layout of each decision of {graph.name}", err=True)
         planned = plan_taskgraph(graph, scene, progress=False)
         plan_dir = planned.directory
         for d in planned.decisions:
             cert = "no inference" if d.certificate is None else f"J = {d.certificate:.3f}"
-            click.echo(f"  {d.label}: {cert}", err=True)
+            echo(f"  {d.label}: {cert}", err=True)
 
     def show(event: dict[str, Any]) -> None:
         kind, d = event["kind"], event["detail"]
         if kind == "commit":
             how = "no inference" if d["single"] else f"p={d['p']} after {d['seconds']:.2f} s"
-            click.echo(f"  {d.get('decision', d['stage'])}: commit {d['goal']} ({how})", err=True)
+            echo(f"  {d.get('decision', d['stage'])}: commit {d['goal']} ({how})", err=True)
         elif kind in ("stage_done", "task_done", "fault", "warning", "cancel", "fallback"):
             detail = {k: v for k, v in d.items() if k not in ("posterior", "history")}
-            click.echo(f"  {kind} {detail}", err=True)
+            echo(f"  {kind} {detail}", err=True)
 
-    click.echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
+    echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
     if web_target is not None:
-        click.echo(f"legws: watch in a browser: {web_target.page_url}", err=True)
+        echo(f"legws: watch in a browser: {web_target.page_url}", err=True)
     result = run_demo(graph.name if taskgraph == graph.name else taskgraph, spec, folder,
                       seed=seed, timeout=timeout, plan=plan_dir, log=show,
                       web=web)  # fmt: skip
-    click.echo(markdown(result))
+    echo(markdown(result))
     if not result.completed:
         raise click.ClickException(f"the task did not complete; see {folder / 'daemon.log'}")

@@ -10,6 +10,7 @@ import click
 
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.scene.scene import Layout
 
 
@@ -137,4 +138,4 @@ def eval_cmd(
             out_dir / "eval.json", (json.dumps(report, indent=2, allow_nan=False) + "\n").encode()
         )
         write_atomic(out_dir / "eval.md", text.encode())
-    click.echo(text)
+    echo(text)

@@ -36,6 +36,7 @@ import click
 
 from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.joystick.daemon_status import STATUS_WAIT
 
@@ -185,7 +186,7 @@ def watching(
     try:
         wait_for_status(
             watch, options.wait_daemon, options.dialled(profile),
-            lambda text: click.echo(f"legws: {text}", err=True),
+            lambda text: echo(f"legws: {text}", err=True),
         )  # fmt: skip
         with (
             StatusLine(watch, sys.stderr, pub.session_id, "legws: daemon: ")
@@ -199,7 +200,7 @@ def watching(
 
 def _started(pub: Publisher, what: str) -> None:
     """Say what runs."""
-    click.echo(f"legws: {what} on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
+    echo(f"legws: {what} on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
 
 
 @click.group(
@@ -319,7 +320,7 @@ def can_cmd(options: PublisherOptions, interface: str, channel: str, bitrate: in
     summary = f"{reader.frames} frames, {reader.rejected} rejected, {published} messages published"
     if reader.last_error:
         summary += f"; last rejection: {reader.last_error}"
-    click.echo(f"legws: CAN joystick stopped: {summary}", err=True)
+    echo(f"legws: CAN joystick stopped: {summary}", err=True)
 
 
 @joystick_group.command("replay")
@@ -360,7 +361,7 @@ def replay_cmd(options: PublisherOptions, file: Path, speed: float, loop: bool) 
             duration=options.duration,
             stop_event=stop,
         )
-    click.echo(f"legws: replay stopped: {published} messages published", err=True)
+    echo(f"legws: replay stopped: {published} messages published", err=True)
 
 
 @joystick_group.command("evdev")
@@ -417,9 +418,9 @@ def evdev_cmd(
     if list_only:
         found = list_devices()
         for dev in found:
-            click.echo(dev.describe())
+            echo(dev.describe())
         if not found:
-            click.echo(none_found_reason())
+            echo(none_found_reason())
         return
     profile = options.load_profile()
     rate = options.rate_for(profile)
@@ -450,7 +451,7 @@ def evdev_cmd(
     finally:
         reader.close()
     state = reader.state
-    click.echo(
+    echo(
         f"legws: evdev joystick stopped: {state.events} events, {state.dropped} dropped "
         f"(SYN_DROPPED), {reader.unplugged} unplugged, {reader.reconnected} reconnected, "
         f"{published} messages published",

@@ -18,7 +18,8 @@ import click
 from legws_daemon import __version__
 from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.validation import error_lines, printable
+from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text
+from legws_daemon.formats.validation import error_lines
 
 EXIT_BAD_INPUT = 2
 
@@ -61,9 +62,10 @@ def cli() -> None:
 
 def _fail(*messages: str) -> int:
     # one line each, and nothing a terminal would act on (a path or a message field may
-    # hold escape sequences or bidirectional controls): those are written as Python escapes
+    # hold escape sequences or bidirectional controls): those are written as Python escapes,
+    # and a line too long is cut
     for message in messages:
-        text = printable(" ".join(message.split()))
+        text = safe_text(" ".join(message.split()), MESSAGE_LIMIT)
         click.echo(f"legws: error: {text}", err=True)
     return EXIT_BAD_INPUT
 

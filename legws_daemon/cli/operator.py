@@ -12,6 +12,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
 from legws_daemon.formats.operator_file import NUMBERS, OperatorFile
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import load_profile_named
 
 
@@ -45,7 +46,7 @@ def trace_cmd(recording: Path, out: Path) -> None:
     output_path(out)
     segments = recorded_segments(recording)
     ticks = write_trace(out, segments)
-    click.echo(f"legws: {len(segments)} segments, {ticks} ticks -> {out}", err=True)
+    echo(f"legws: {len(segments)} segments, {ticks} ticks -> {out}", err=True)
 
 
 @operator_group.command("fit")
@@ -99,8 +100,8 @@ def fit_cmd(
         raise InputError(str(err).removeprefix("segments: "), source=where) from None
     record = OperatorFile.from_fit(fit, name, {"traces": [str(p) for p in traces]})
     record.write(out)
-    click.echo(describe(record))
-    click.echo(f"legws: wrote {out}", err=True)
+    echo(describe(record))
+    echo(f"legws: wrote {out}", err=True)
 
 
 def describe(record: OperatorFile) -> str:

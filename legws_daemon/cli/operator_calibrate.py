@@ -29,6 +29,7 @@ import click
 from legws_daemon.core.calibration import MAX_TARGETS
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 
 if TYPE_CHECKING:
     from legws_daemon.autonomy.calibration import Reach
@@ -85,7 +86,7 @@ class _Terminal:
             case _:
                 return
         with self.lock:
-            click.echo(line, err=True)
+            echo(line, err=True)
 
 
 @click.command("calibrate")
@@ -229,14 +230,14 @@ def calibrate_cmd(
             stack.callback(rerun_log.close)
             if rerun_log.web is not None:
                 page = rerun_log.web.target.page_url
-                click.echo(f"legws: watch in a browser: {page}", err=True)
+                echo(f"legws: watch in a browser: {page}", err=True)
             telemetry = rerun_log
         config = DaemonConfig(
             spec, sc, sc.default_layout(), params, zcfg, telemetry=telemetry,
             transport_problem=problem, insecure_transport=insecure,
             calibration=CalibrationSpec(count, seed), on_event=_Terminal(),
         )  # fmt: skip
-        click.echo(
+        echo(
             f"legws: calibrating operator {name}: {count} targets on legws/{spec.robot}/; "
             "steer the arm to each (status `calibration`, Rerun world/calibration/target)",
             err=True,
@@ -259,18 +260,18 @@ def _write_trace(trace: Path, reaches: list[Reach]) -> int:
 
     segments = [Segment(i, r.ee, r.u, r.target, f"reach {r.index}") for i, r in enumerate(reaches)]
     ticks = write_trace(trace, segments)
-    click.echo(f"legws: {len(segments)} reaches, {ticks} ticks -> {trace}", err=True)
+    echo(f"legws: {len(segments)} reaches, {ticks} ticks -> {trace}", err=True)
     return ticks
 
 
 def _interrupted(done: list[Reach], count: int, trace: Path, out: Path) -> int:
     """SIGINT mid-way: the reaches done go to the trace; no operator file."""
     if not done:
-        click.echo("legws: calibration interrupted before a reach was done: nothing written",
+        echo("legws: calibration interrupted before a reach was done: nothing written",
                    err=True)  # fmt: skip
         return EXIT_INTERRUPTED
     _write_trace(trace, done)
-    click.echo(
+    echo(
         f"legws: calibration interrupted after {len(done)} of {count} reaches: no operator file "
         f"written; fit the reaches done with `legws operator fit {trace} --out {out}` (a fit "
         "needs at least 2)",
@@ -301,6 +302,6 @@ def _fit(
     extra = {**extra, "trace": str(trace), "seconds": [round(r.seconds, 2) for r in done]}
     record = OperatorFile.from_fit(fit, name, extra)
     record.write(out)
-    click.echo(describe(record))
-    click.echo(f"legws: wrote {out}", err=True)
+    echo(describe(record))
+    echo(f"legws: wrote {out}", err=True)
     return 0

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import click
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.scene.catalog import load_scene, scene_names
 from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
@@ -137,14 +138,14 @@ def placement_cmd(
         ]
     for stem, mat in mats:
         pdf, png = write_mat(mat, out_dir, stem)
-        click.echo(f"wrote {pdf} ({_pages(mat, paper)})")
-        click.echo(f"wrote {png} (preview)")
+        echo(f"wrote {pdf} ({_pages(mat, paper)})")
+        echo(f"wrote {png} (preview)")
         _warn_split(mat, pdf.name)
     markers = markers_pdf(scene, paper)
     if markers is not None:
         path = write_atomic(out_dir / "markers.pdf", markers)
         count = sum(o.marker is not None for o in scene.spec.objects)
-        click.echo(f"wrote {path} ({count} object markers to cut out)")
+        echo(f"wrote {path} ({count} object markers to cut out)")
 
 
 def _pages(mat: Mat, paper: str) -> str:
@@ -167,7 +168,7 @@ def _warn_split(mat: Mat, name: str) -> None:
     )
     for marker, pages in mat.split_markers():
         numbers = ", ".join(str(p.number) for p in pages)
-        click.echo(
+        echo(
             f"legws: warning: table marker {marker.id} lies across the cut between "
             f"pages {numbers} of {name}: {advice}",
             err=True,

@@ -10,6 +10,7 @@ import click
 
 from legws_daemon.cli.design_options import load_operators, objective_options, operator_options
 from legws_daemon.design import METHODS
+from legws_daemon.formats.printable import echo
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
 
 
@@ -149,4 +150,4 @@ def plan_cmd(
         data["cached"] = plan.cached
         click.echo(json.dumps(data))
         return
-    click.echo(render_table(plan))
+    echo(render_table(plan))

@@ -10,6 +10,7 @@ import click
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
+from legws_daemon.formats.printable import echo
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.layout_file import load_layout
 
@@ -72,4 +73,4 @@ def render_cmd(
             detail += f" ({err.filename})"
         raise InputError(f"cannot write: {detail}", source=str(output)) from None
     ms = (time.perf_counter() - start) * 1000
-    click.echo(f"wrote {path} ({width}x{height}, {view} view, {ms:.0f} ms)")
+    echo(f"wrote {path} ({width}x{height}, {view} view, {ms:.0f} ms)")

@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from legws_daemon.formats.printable import echo
 from legws_daemon.scene.catalog import load_scene, scene_names, scenes_dir
 
 
@@ -31,9 +32,7 @@ def scenes_cmd(as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(rows))
         return
-    click.echo(f"scenes in {scenes_dir()}")
-    click.echo(f"{'name':<16}{'tier':<8}{'M':>3}{'total':>7}  goals")
+    echo(f"scenes in {scenes_dir()}")
+    echo(f"{'name':<16}{'tier':<8}{'M':>3}{'total':>7}  goals")
     for r in rows:
-        click.echo(
-            f"{r['name']:<16}{r['tier']:<8}{r['m']:>3}{r['total']:>7}  {', '.join(r['goals'])}"
-        )
+        echo(f"{r['name']:<16}{r['tier']:<8}{r['m']:>3}{r['total']:>7}  {', '.join(r['goals'])}")

@@ -17,6 +17,7 @@ import click
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import endpoint_problem
 
 #: What each configuration file is for, and how it is used (its header comment).
@@ -124,11 +125,11 @@ def init_cmd(
         )
         write_new(root / f"{name}.json5", (header + json.dumps(config, indent=2)).encode(), 0o600)
 
-    click.echo(f"legws secure init: a CA and {len(ROLES)} identities in {root}")
-    click.echo(f"  daemon listens on {listen}; the others dial {connect}")
+    echo(f"legws secure init: a CA and {len(ROLES)} identities in {root}")
+    echo(f"  daemon listens on {listen}; the others dial {connect}")
     for role in ROLES:
-        click.echo(f"  {role + '.json5':15s} {USES[role].format(dir=root)}")
-    click.echo(f"  certs/ca-key.pem signs new certificates: keep it offline ({days} days valid)")
+        echo(f"  {role + '.json5':15s} {USES[role].format(dir=root)}")
+    echo(f"  certs/ca-key.pem signs new certificates: keep it offline ({days} days valid)")
 
 
 @secure_group.command("check")
@@ -142,4 +143,4 @@ def check_cmd(config_file: Path) -> None:
     problem = authentication_problem(config_from_file(config_file))
     if problem is not None:
         raise InputError(f"not authenticated: {problem}", source=str(config_file))
-    click.echo(f"{config_file}: authenticated (TLS, peer authentication, access control)")
+    echo(f"{config_file}: authenticated (TLS, peer authentication, access control)")

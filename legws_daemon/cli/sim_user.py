@@ -20,6 +20,7 @@ from legws_daemon.core.operator import (
     OperatorModel,
 )
 from legws_daemon.core.params import Params
+from legws_daemon.formats.printable import echo
 
 
 def simulated_operator(
@@ -158,8 +159,8 @@ def sim_user_cmd(
 
         wanted = ", ".join(goals) or "a random goal at each decision"
         who = "" if operator is None else f" steering like {operator.describe()}"
-        click.echo(f"legws: simulated user{who} going for {wanted} on {pub.key}", err=True)
+        echo(f"legws: simulated user{who} going for {wanted} on {pub.key}", err=True)
         pub.run(sample, options.rate_for(profile), options.duration, stop)
-    click.echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
+    echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
     for decision, goal in user.chosen:
-        click.echo(f"legws: at {decision} the user went for {goal}", err=True)
+        echo(f"legws: at {decision} the user went for {goal}", err=True)

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from legws_daemon.formats.files import output_folder, write_atomic
+from legws_daemon.formats.printable import echo
 from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.graph import Stage, TaskGraph
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
@@ -106,7 +107,7 @@ def check_cmd(taskgraph: str) -> None:
     """
     path = resolve_taskgraph(taskgraph)
     graph, _ = load_taskgraph(path)
-    click.echo(summary(path, graph))
+    echo(summary(path, graph))
 
 
 @taskgraph_group.command("show")
@@ -125,6 +126,6 @@ def show_cmd(taskgraph: str, png: Path | None) -> None:
 
         output_folder(png.parent)
         write_atomic(png, diagram_png(graph))
-    click.echo("\n".join(tree(graph)))
+    echo("\n".join(tree(graph)))
     if png is not None:
-        click.echo(f"wrote {png}")
+        echo(f"wrote {png}")

@@ -30,6 +30,7 @@ from legws_daemon.cli.joystick import DEFAULT_PROFILE, WAIT_DAEMON
 from legws_daemon.cli.numbers import FiniteFloat, PixelSize
 from legws_daemon.cli.track_calibrate import calibrate_cmd
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import load_profile_named
 
 if TYPE_CHECKING:
@@ -135,7 +136,7 @@ def track_group(
     from legws_daemon.tracking.tracker import Tracker
 
     prof = load_profile_named(profile)
-    warn = Warnings(lambda text: click.echo(f"legws: warning: {text}", err=True))
+    warn = Warnings(lambda text: echo(f"legws: warning: {text}", err=True))
     if source is None and (layout_from is not None or moves):
         raise InputError("--layout-from and --move go with --source sim:")
     follow = _follow(prof, source, layout_from)
@@ -148,24 +149,24 @@ def track_group(
         ):
             if follow is not None:
                 pub.subscribe(follow.key, follow.offer)
-                note = lambda text: click.echo(f"legws: {text}", err=True)  # noqa: E731
+                note = lambda text: echo(f"legws: {text}", err=True)  # noqa: E731
                 if follow.wait(wait_daemon, _dialled(prof, zenoh_config), stop, note) is None:
-                    click.echo("legws: stopped before the daemon's layout came", err=True)
+                    echo("legws: stopped before the daemon's layout came", err=True)
                     return  # nothing was published
             k = src.intrinsics.matrix
-            click.echo(
+            echo(
                 f"legws: tracking '{the_scene.name}' from {src.name} "
                 f"({src.intrinsics.width}x{src.intrinsics.height}, fx {k[0, 0]:.1f} px) at "
                 f"{rate:g} Hz",
                 err=True,
             )
             if follow is not None:
-                click.echo(
+                echo(
                     f"legws: rendering the layout the daemon runs (stage {follow.stage}, "
                     f"decision {follow.decision}; from {follow.key}), again when it changes",
                     err=True,
                 )
-            click.echo(f"legws: publishing on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
+            echo(f"legws: publishing on {pub.key}; Ctrl-C or SIGTERM stops", err=True)
 
             def send(frame: TrackFrame, unseen: list[str], stamp: float) -> None:
                 pub.put(pub.message(frame, unseen, stamp))
@@ -175,7 +176,7 @@ def track_group(
                 on_frame=_Progress(len(tracker.markers.objects)),
             )  # fmt: skip
     waited = f", {stats.waited} times nothing to show" if stats.waited else ""
-    click.echo(
+    echo(
         f"legws: tracked {stats.frames} frames ({stats.rate():.1f} Hz), "
         f"{stats.dropped} unreadable, {stats.published} messages{waited}",
         err=True,
@@ -231,7 +232,7 @@ def _open_source(
             raise InputError("--scene and --calibration go with --camera; sim: has both")
         the_scene = follow.scene if follow is not None else load_scene(spec.scene)
         shifts = dict(parse_move(m, the_scene) for m in moves)
-        say = lambda text: click.echo(f"legws: {text}", err=True)  # noqa: E731
+        say = lambda text: echo(f"legws: {text}", err=True)  # noqa: E731
         src = SimSource(the_scene, spec.layout, *size, warn, follow=follow, moves=shifts, say=say)
         return the_scene, src
     if scene is None or calibration is None:
@@ -261,7 +262,7 @@ class _Progress:
         now = time.monotonic()
         if text != self.text or now - self.at >= PROGRESS_EVERY:
             self.text, self.at = text, now
-            click.echo(f"legws: {stats.rate():.1f} Hz: {text}", err=True)
+            echo(f"legws: {stats.rate():.1f} Hz: {text}", err=True)
 
 
 track_group.add_command(calibrate_cmd)

@@ -25,6 +25,7 @@ import click
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
+from legws_daemon.formats.printable import echo
 
 if TYPE_CHECKING:
     import cv2
@@ -146,8 +147,8 @@ def _print_boards(paths: Sequence[Path], spec: BoardSpec) -> None:
 
     for path in paths:
         write_board(path, spec)
-        click.echo(f"wrote {path}: {spec.describe()}")
-    click.echo(
+        echo(f"wrote {path}: {spec.describe()}")
+    echo(
         f"print at 100 % (not 'fit to page') and measure: a square must be "
         f"{spec.square * 1e3:g} mm; if not, pass the measured size as --square-mm and "
         "--marker-mm when calibrating"
@@ -208,7 +209,7 @@ def _from_files(
             )
         found = detect_board(image, spec)
         note = "" if found.usable else ", left out"
-        click.echo(f"{path}: {found.count} of {spec.corners} corners{note}")
+        echo(f"{path}: {found.count} of {spec.corners} corners{note}")
         detections.append(found)
     assert size is not None  # _pictures never returns an empty list
     return detections, size, [str(p) for p in paths]
@@ -244,7 +245,7 @@ def _capture(
         frames = _frames(cap, index)
         first = next(frames)
         size = (first.shape[1], first.shape[0])
-        click.echo(
+        echo(
             f"camera {index}: {size[0]}x{size[1]}; show the board at different angles and "
             f"distances, tilted, in every part of the picture; Ctrl-C stops "
             f"(at least {MIN_VIEWS} views)"
@@ -258,11 +259,11 @@ def _capture(
             if found.usable and differs(found, taken, *size):
                 taken.append(found)
                 last = now
-                click.echo(f"view {len(taken)}/{wanted}: {found.count} of {spec.corners} corners")
+                echo(f"view {len(taken)}/{wanted}: {found.count} of {spec.corners} corners")
                 if len(taken) >= wanted:
                     break
     except KeyboardInterrupt:
-        click.echo(f"stopped with {len(taken)} views")
+        echo(f"stopped with {len(taken)} views")
     finally:
         cap.release()
     return taken, size, [f"view {i + 1}" for i in range(len(taken))]
@@ -272,19 +273,17 @@ def _report(cal: Calibration, offered: int, used: Sequence[str], out: Path) -> N
     k = cal.intrinsics.matrix
     d = cal.intrinsics.distortion
     width, height = cal.intrinsics.width, cal.intrinsics.height
-    click.echo(
+    echo(
         f"calibrated {width}x{height} from {cal.views} of {offered} views: "
         f"RMS reprojection error {cal.rms_px:.3f} px"
     )
-    click.echo(f"fx {k[0, 0]:.2f}  fy {k[1, 1]:.2f}  cx {k[0, 2]:.2f}  cy {k[1, 2]:.2f} px")
-    click.echo(
-        f"distortion k1 {d[0]:.4f}  k2 {d[1]:.4f}  p1 {d[2]:.5f}  p2 {d[3]:.5f}  k3 {d[4]:.4f}"
-    )
+    echo(f"fx {k[0, 0]:.2f}  fy {k[1, 1]:.2f}  cx {k[0, 2]:.2f}  cy {k[1, 2]:.2f} px")
+    echo(f"distortion k1 {d[0]:.4f}  k2 {d[1]:.4f}  p1 {d[2]:.5f}  p2 {d[3]:.5f}  k3 {d[4]:.4f}")
     worst = max(range(len(used)), key=lambda i: cal.view_errors_px[i])
-    click.echo(f"worst view: {used[worst]} ({cal.view_errors_px[worst]:.3f} px)")
+    echo(f"worst view: {used[worst]} ({cal.view_errors_px[worst]:.3f} px)")
     if cal.rms_px > 1.0:
-        click.echo(
+        echo(
             "an RMS above 1 px suggests a bent board, blurred views or the wrong board size: "
             "retake the worst views"
         )
-    click.echo(f"wrote {out}")
+    echo(f"wrote {out}")

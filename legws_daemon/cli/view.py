@@ -21,6 +21,7 @@ import click
 
 from legws_daemon.cli.numbers import FiniteFloat, PixelSize
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.telemetry.screenshot import (
     MAX_SIDE,
     MIN_SIDE,
@@ -80,7 +81,7 @@ def view_cmd(
         raise click.UsageError("--size goes with --screenshot or the native viewer, not --web")
     if screenshot is not None:
         written = screenshot_recording(recording, screenshot, time=at, size=size or DEFAULT_SIZE)
-        click.echo(str(written))
+        echo(str(written))
         return 0
     check_recording(recording)
     if web is not None:
@@ -91,8 +92,8 @@ def view_cmd(
 def _serve_web(recording: Path, web: str) -> int:
     target = parse_web_target(web, field="--web")
     with WebViewer.start(target, recording=recording.resolve(), field="--web") as viewer:
-        click.echo(target.page_url)
-        click.echo("serving until Ctrl-C", err=True)
+        echo(target.page_url)
+        echo("serving until Ctrl-C", err=True)
         code = viewer.wait()
         raise InputError(
             f"the Rerun web viewer stopped (code {code}): {child_error(viewer.log) or 'no output'}",

@@ -6,6 +6,11 @@ operator's of ``legws secure init``, for an authenticated transport. It keeps th
 status and queues the events it hears (bounded: a client that never reads drops the oldest),
 sends commands and waits for their replies, and opens joystick publishers on the same
 transport.
+
+What the daemon says is data for the caller, but the messages the client makes of it — a
+refusal's reason, a reply that is not JSON — are terminal-safe
+(:func:`~legws_daemon.formats.printable.safe_text`): a daemon (or anything publishing on its
+keys) cannot put an escape sequence on the terminal of a script that prints them.
 """
 
 from __future__ import annotations
@@ -30,11 +35,18 @@ from legws_daemon.formats.messages import (
     StatusMessage,
     parse,
 )
+from legws_daemon.formats.printable import safe_text
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named
 from legws_daemon.formats.validation import validate
 from legws_daemon.joystick.daemon_status import StatusWatch, wait_for_status
 from legws_daemon.joystick.publisher import Publisher, dial_spec, process_source
-from legws_daemon.transport.session import config_from_file, config_from_spec, keys, open_session
+from legws_daemon.transport.session import (
+    config_from_file,
+    config_from_spec,
+    keys,
+    open_session,
+    payload_bytes,
+)
 
 #: Events kept for :meth:`Client.events` before the oldest are dropped.
 EVENT_QUEUE = 1024
@@ -47,7 +59,7 @@ class CommandRefusedError(LegwsError):
 
     def __init__(self, reply: Reply) -> None:
         self.reply = reply
-        super().__init__(f"{reply.command}: refused: {reply.error}")
+        super().__init__(safe_text(f"{reply.command}: refused: {reply.error}"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,13 +69,28 @@ class Reply:
     Attributes:
         command: the command sent; ok: carried out; detail: the reply's fields
             (``status``: the status message; ``reset``: ``mode``, ``plan``, ``waiting`` …);
-        error: why it was refused (``None`` when ``ok``).
+        error: why it was refused (``None`` when ``ok``), terminal-safe.
     """
 
     command: str
     ok: bool
     detail: dict[str, Any] = field(default_factory=dict)
     error: str | None = None
+
+
+def _reply_detail(payload: zenoh.ZBytes | None, source: str) -> dict[str, Any]:
+    """A reply's fields (a JSON object); anything else, a refusal saying what came."""
+    try:
+        raw = payload_bytes(payload, source) or b"{}"
+    except InputError as err:  # over the size bound
+        return {"ok": False, "error": str(err)}
+    try:
+        detail = json.loads(raw)
+    except ValueError:  # not JSON (not UTF-8 either: UnicodeDecodeError is a ValueError)
+        return {"ok": False, "error": raw.decode(errors="replace")}
+    if not isinstance(detail, dict):
+        return {"ok": False, "error": f"the reply is not a JSON object: {raw.decode()}"}
+    return detail
 
 
 class Client:
@@ -259,16 +286,13 @@ class Client:
         request = validate(CommandRequest, body, self.keys["command"])
         payload = json.dumps(request.model_dump(by_alias=True, exclude_none=True)).encode()
         for answer in self.session.get(self.keys["command"], payload=payload, timeout=timeout):
-            if answer.ok is not None:
-                detail = json.loads(answer.ok.payload.to_bytes())
-                reply = Reply(command, bool(detail.get("ok", True)), detail)
-            else:
-                raw = answer.err.payload.to_bytes() if answer.err is not None else b"{}"
-                try:
-                    detail = json.loads(raw)
-                except ValueError:
-                    detail = {"error": raw.decode(errors="replace")}
-                reply = Reply(command, False, detail, str(detail.get("error", "no detail")))
+            sample = answer.ok if answer.ok is not None else answer.err
+            detail = _reply_detail(
+                sample.payload if sample is not None else None, self.keys["command"]
+            )
+            ok = answer.ok is not None and bool(detail.get("ok", True))
+            error = None if ok else safe_text(str(detail.get("error", "no detail")))
+            reply = Reply(command, ok, detail, error)
             if check and not reply.ok:
                 raise CommandRefusedError(reply)
             return reply

@@ -11,7 +11,12 @@ its own session (:class:`StatusWatch`):
   holds the operator lease, the deadman), rewritten in place on a terminal and printed on
   each change otherwise (a log file gets a line per change, not ten per second).
 
-The formatting is pure; :class:`StatusLine` is the one part that writes.
+The formatting is pure; :class:`StatusLine` is the one part that writes. Every name a
+status carries (stage, goals, commit, phase, the operator's source, a fault) comes from
+whoever publishes on the key and is shown terminal-safe
+(:func:`~legws_daemon.formats.printable.safe_text`): an escape sequence, a line break or a
+bidirectional control in it is written as a visible escape, on a terminal and through a
+pipe alike.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import TextIO
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import StatusMessage, parse
+from legws_daemon.formats.printable import safe_text
 
 #: A status older than this is not used to steer, seconds.
 STATUS_STALE = 0.5
@@ -35,6 +41,11 @@ STATUS_WAIT = 20.0
 STATUS_NOTE = 2.0
 #: How often the terminal line is rewritten at most, seconds.
 LINE_PERIOD = 0.2
+#: Longest a name of the status is shown, characters (a label is at most 64, escapes
+#: make it longer).
+NAME_LIMIT = 80
+#: Longest the fault's text is shown, characters.
+FAULT_LIMIT = 200
 
 
 class StatusWatch:
@@ -136,24 +147,29 @@ def status_text(status: StatusMessage, session: str | None = None) -> str:
     commit - · phase - · operator keyboard:4242 (you) · deadman off``.
 
     ``session``: this publisher's session id — the lease holder is marked ``(you)`` when it
-    is this one, ``(not you)`` otherwise.
+    is this one, ``(not you)`` otherwise. Every name is terminal-safe, at most
+    :data:`NAME_LIMIT` characters (the fault :data:`FAULT_LIMIT`).
     """
+
+    def name(text: str) -> str:
+        return safe_text(text, NAME_LIMIT)
+
     top = top_goal(status)
-    parts: list[str] = [status.mode]
+    parts: list[str] = [name(status.mode)]
     if status.stage:
-        parts.append(f"stage {status.stage}")
-    parts.append(f"top {top[0]} {top[1]:.2f}" if top is not None else "top -")
-    parts.append(f"commit {status.committed or '-'}")
-    parts.append(f"phase {status.phase or '-'}")
+        parts.append(f"stage {name(status.stage)}")
+    parts.append(f"top {name(top[0])} {top[1]:.2f}" if top is not None else "top -")
+    parts.append(f"commit {name(status.committed or '-')}")
+    parts.append(f"phase {name(status.phase or '-')}")
     if status.operator is None:
         parts.append("operator none")
     else:
         mine = session is not None and status.operator.session == session
         who = " (you)" if mine else " (not you)" if session is not None else ""
-        parts.append(f"operator {status.operator.source}{who}")
+        parts.append(f"operator {name(status.operator.source)}{who}")
     parts.append(f"deadman {'on' if status.deadman else 'off'}")
     if status.fault:
-        parts.append(f"fault {status.fault}")
+        parts.append(f"fault {safe_text(status.fault, FAULT_LIMIT)}")
     return " · ".join(parts)
 
 
@@ -215,7 +231,7 @@ class StatusLine:
         status = self.watch.newest
         if status is None:
             return
-        line = self.prefix + status_text(status, self.session)
+        line = safe_text(self.prefix + status_text(status, self.session))
         if self.terminal:
             if line == self._shown:
                 return

@@ -48,6 +48,7 @@ from legws_daemon.formats.input_mapping import (
     mapping_names,
     shipped_mappings,
 )
+from legws_daemon.formats.printable import safe_text
 from legws_daemon.joystick.evdev_state import (
     NO_INPUT,
     AbsRange,
@@ -256,7 +257,8 @@ def choose_mapping(
 
 
 def _log_stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
+    # a device's name is the device's to choose: made terminal-safe
+    print(safe_text(message), file=sys.stderr, flush=True)
 
 
 class EvdevReader:

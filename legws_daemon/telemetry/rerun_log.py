@@ -75,6 +75,7 @@ from legws_daemon.formats.files import output_path
 from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
 from legws_daemon.formats.log_lines import How, parse_commit
 from legws_daemon.formats.log_lines import commit_text as commit_text
+from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
@@ -352,8 +353,8 @@ def _rgba(rgb: ArrayLike, alpha: int = 255) -> int:
 
 
 def _md(text: str | None) -> str:
-    """A value in a line of Markdown: one line, its markup characters escaped."""
-    line = " ".join(str(text).split())
+    """A value in a line of Markdown: one terminal-safe line, its markup characters escaped."""
+    line = safe_text(" ".join(str(text).split()))
     return "".join("\\" + c if c in "\\`*_[]<>#|~" else c for c in line)
 
 
@@ -1218,10 +1219,13 @@ class RerunLog:
     # --- events and lifecycle ------------------------------------------------------------------
 
     def log_text(self, tick: int, t: float, level: str, text: str) -> None:
-        """A line of the text log (``INFO``, ``WARN``, ``ERROR``); tagged with the stage."""
+        """A line of the text log (``INFO``, ``WARN``, ``ERROR``); tagged with the stage. The
+        text is made terminal-safe (``legws replay`` prints it; a goal name or a joystick's
+        source in it may hold escapes)."""
         if self._closed:
             return
         try:
+            text = safe_text(text, MESSAGE_LIMIT)
             lvl = level.upper()
             lvl = "WARN" if lvl == "WARNING" else lvl
             self._set_time(tick, t)

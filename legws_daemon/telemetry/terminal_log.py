@@ -9,6 +9,12 @@ The handler looks up ``sys.stderr`` at every record instead of keeping the strea
 it was installed: a command run in-process (a test's ``CliRunner``, a notebook) swaps
 ``sys.stderr`` and closes its stand-in afterwards, and a handler holding that stand-in would
 print "--- Logging error ---" into whatever ran next.
+
+A record's message is made terminal-safe (:func:`~legws_daemon.formats.printable.safe_text`)
+and kept on its line: a goal name, a joystick's ``source`` or a library's error text the
+daemon logs may hold escape sequences, bidirectional controls or line breaks, and these
+are written as visible escapes, on a terminal or through a pipe alike. A traceback the
+record carries (``log.exception``) keeps its lines, each made safe.
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ from __future__ import annotations
 import logging
 import sys
 from typing import TextIO
+
+from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_lines, safe_text
 
 __all__ = ["LOGGERS", "log_to_terminal"]
 
@@ -38,14 +46,31 @@ class _CurrentStderr(logging.StreamHandler):  # type: ignore[type-arg]
         pass
 
 
+class _SafeFormatter(logging.Formatter):
+    """``"<prefix>: message"``, the message one terminal-safe line; a traceback's lines
+    after it, each safe."""
+
+    def __init__(self, prefix: str) -> None:
+        super().__init__()
+        self.prefix = safe_text(prefix)
+
+    def format(self, record: logging.LogRecord) -> str:
+        lines = [f"{self.prefix}: {safe_text(record.getMessage(), MESSAGE_LIMIT)}"]
+        if record.exc_info and not record.exc_text:
+            record.exc_text = self.formatException(record.exc_info)
+        lines += [safe_lines(extra) for extra in (record.exc_text, record.stack_info) if extra]
+        return "\n".join(lines)
+
+
 def log_to_terminal(prefix: str, level: int = logging.INFO) -> None:
-    """Show legws's log records at ``level`` and above on stderr as ``"<prefix>: message"``.
+    """Show legws's log records at ``level`` and above on stderr as ``"<prefix>: message"``,
+    the message one terminal-safe line.
 
     Calling it again replaces the handler it installed before (one line per record, the
     newest prefix); other handlers, the root logger and third-party loggers are left alone.
     Records still propagate to the root logger's handlers (pytest's ``caplog`` sees them).
     """
-    formatter = logging.Formatter(f"{prefix}: %(message)s")
+    formatter = _SafeFormatter(prefix)
     for name in LOGGERS:
         logger = logging.getLogger(name)
         for old in [h for h in logger.handlers if isinstance(h, _CurrentStderr)]:

@@ -10,11 +10,20 @@ given for a real network (router/client, TLS, access control). A session must be
 A session that cannot open is one line without zenoh's source locations
 (:func:`session_problem`): a listen endpoint another process holds is
 ``tcp/127.0.0.1:7447 is in use — another daemon?``.
+
+zenoh's own log stays off the terminal as zenoh writes it. Its Rust side logs nowhere
+unless ``zenoh.init_log_from_env_or`` (or ``try_init_log_from_env``) is called — which
+legws never does: that log goes to standard output, coloured with escape sequences, whatever
+``RUST_LOG`` says. Its Python side (the ``zenoh`` logger: an exception a callback raised,
+with its traceback) is routed by :func:`route_zenoh_log`, which every :func:`open_session`
+calls, into legws's log as one terminal-safe line (``zenoh: callback error: ValueError:
+...``, the traceback only at DEBUG).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,6 +33,7 @@ import zenoh
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import MAX_PAYLOAD
+from legws_daemon.formats.printable import safe_text
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.formats.validation import read_text
 
@@ -142,10 +152,45 @@ def session_problem(err: BaseException) -> str:
     return f"cannot open a zenoh session: {detail}"
 
 
+#: zenoh's Python logger, and the legws logger its records are told on
+ZENOH_LOGGER = "zenoh"
+_log = logging.getLogger("legws.transport")
+
+
+class _ZenohLog(logging.Handler):
+    """A record of zenoh's as one line of legws's log: its message and, with an exception,
+    the exception's type and the first line of its text (the traceback at DEBUG)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            exc = record.exc_info[1] if record.exc_info else None
+            if exc is not None:
+                first = (str(exc).strip().splitlines() or [""])[0]
+                text += f": {type(exc).__name__}" + (f": {first}" if first else "")
+            _log.log(record.levelno, "zenoh: %s", safe_text(text))
+            if exc is not None:
+                _log.debug("zenoh: the traceback of that", exc_info=record.exc_info)
+        except Exception:
+            self.handleError(record)
+
+
+def route_zenoh_log() -> None:
+    """Tell zenoh's Python log records on the ``legws.transport`` logger, one safe line
+    each, instead of letting them reach Python's last-resort handler (their tracebacks
+    on stderr as they are). Idempotent; leaves zenoh's Rust log alone (off)."""
+    logger = logging.getLogger(ZENOH_LOGGER)
+    if not any(isinstance(h, _ZenohLog) for h in logger.handlers):
+        logger.addHandler(_ZenohLog())
+    logger.propagate = False
+
+
 @contextmanager
 def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
     """Open a session and always close it; a session that cannot open is one
-    :class:`InputError` line (:func:`session_problem`)."""
+    :class:`InputError` line (:func:`session_problem`). zenoh's Python log goes to legws's
+    (:func:`route_zenoh_log`)."""
+    route_zenoh_log()
     try:
         session = zenoh.open(config)
     except Exception as err:
