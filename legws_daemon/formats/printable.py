@@ -128,7 +128,6 @@ def safe_lines(text: str, limit: int | None = LIMIT) -> str:
     return "\n".join(safe_text(line, limit) for line in text.split("\n"))
 
 
-
 def echo(message: object = "", *, err: bool = False, limit: int | None = LIMIT) -> None:
     """``click.echo`` of ``message`` made terminal-safe line by line (:func:`safe_lines`):
     how a command prints text that holds anything from outside (a name, a path, a message,

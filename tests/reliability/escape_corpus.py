@@ -39,6 +39,17 @@ def hostile_texts(base: str = "desk") -> Iterator[tuple[str, str]]:
     yield "very-long", base + ("\x1b]0;x\x07\u202e" + "a" * 90) * (LONG // 100)
 
 
+def as_argument(text: str) -> str:
+    """``text`` as a process's argument can hold it: without NUL (an argument ends there)
+    and with only the surrogates that bytes which are not UTF-8 decode to (U+DC80 to U+DCFF,
+    Python's ``surrogateescape``)."""
+    return "".join(
+        c
+        for c in text
+        if c != "\x00" and not ("\ud800" <= c < "\udc80" or "\udd00" <= c <= "\udfff")
+    )
+
+
 def unsafe_in(text: str) -> list[str]:
     """The characters of ``text`` no terminal should get (as ``U+XXXX``), each once, in
     order: those :func:`str.isprintable` refuses, but the line breaks between lines; and
