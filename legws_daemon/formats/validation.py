@@ -25,6 +25,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.files import read_limited
 from legws_daemon.formats.nesting import check_json_nesting, check_toml_nesting
 from legws_daemon.formats.positions import Loc, SourceText
+from legws_daemon.formats.printable import safe_text
 
 #: Largest magnitude accepted for any coordinate or size, metres: far beyond any robot cell,
 #: small enough that nothing downstream can overflow.
@@ -63,10 +64,9 @@ def nonzero_quaternion(q: tuple[float, float, float, float]) -> tuple[float, flo
 
 def printable(text: str) -> str:
     """``text`` with every character that is not printable (a line break in a name from a
-    file) escaped as Python writes it: a message quoting user input stays one line."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    file) escaped as Python writes it: a message quoting user input stays one line
+    (:func:`~legws_daemon.formats.printable.safe_text`, unbounded)."""
+    return safe_text(text, None)
 
 
 def field_path(loc: tuple[int | str, ...]) -> str:
