@@ -264,7 +264,7 @@ class EnvelopeMachine(RuleBasedStateMachine):
 
 TestEnvelopeSequences = EnvelopeMachine.TestCase
 TestEnvelopeSequences.settings = settings(
-    max_examples=300,
+    max_examples=200,
     stateful_step_count=40,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
