@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ipaddress
+import os
 import signal
 import threading
 import time
@@ -29,6 +30,11 @@ from legws_daemon.task.plan import Plan
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.transport.security import authentication_problem
 from legws_daemon.transport.session import config_from_file, config_from_spec
+
+# rerun writes its own log lines (a viewer it cannot reach) from Rust straight to stderr,
+# coloured with escape sequences even through a pipe: no colour (read when rerun is first
+# imported, below); a NO_COLOR set by the user wins
+os.environ.setdefault("NO_COLOR", "1")
 
 
 def _load_plan(

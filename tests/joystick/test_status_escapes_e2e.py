@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import pytest
 import zenoh
 
 from legws_daemon.errors import InputError
@@ -118,6 +119,7 @@ def test_the_status_text_of_a_hostile_status_is_safe() -> None:
         assert "(not you)" in line and " · deadman off" in line
 
 
+@pytest.mark.slow  # ~5 s: a publisher through 15 hostile names
 def test_a_sim_user_against_a_hostile_daemon_prints_nothing_unsafe(tmp_path: Path) -> None:
     port = free_port()
     profile = write_profile(tmp_path, "sim", port)
@@ -193,3 +195,19 @@ def test_zenoh_logs_nothing_of_its_own_whatever_rust_log_says(tmp_path: Path) ->
     assert done.returncode == 2, done.stderr
     assert done.stdout == ""
     assert [line.split(":")[0:2] for line in done.stderr.splitlines()] == [["legws", " error"]]
+
+
+@pytest.mark.slow  # ~20 s: a daemon start, and rerun's 5 s of trying at shutdown
+def test_the_daemons_rerun_lines_carry_no_colour_escapes(tmp_path: Path) -> None:
+    # rerun writes its own lines from Rust (a viewer it cannot reach): not coloured, even
+    # through a pipe
+    port, viewer = free_port(), free_port()  # nobody listens on the viewer's port
+    profile = write_profile(tmp_path, "sim", port)
+    done = subprocess.run(
+        [*LEGWS, "daemon", "--profile", str(profile), "--scene", "desk", "--duration", "2",
+         "--rerun", f"connect:rerun+http://127.0.0.1:{viewer}/proxy"],
+        cwd=REPO, capture_output=True, text=True, timeout=120, check=False, env=env(),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "legws daemon: started" in done.stderr
+    assert unsafe_in(done.stdout + done.stderr) == [], done.stderr[-2000:]
