@@ -18,7 +18,7 @@ import click
 from legws_daemon import __version__
 from legws_daemon.cli.lazy import LazyGroup
 from legws_daemon.errors import LegwsError
-from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text
+from legws_daemon.formats.printable import MESSAGE_LIMIT, guard_last_resort, safe_text
 from legws_daemon.formats.validation import error_lines
 
 EXIT_BAD_INPUT = 2
@@ -72,6 +72,7 @@ def _fail(*messages: str) -> int:
 
 def run(argv: Sequence[str] | None = None) -> int:
     """Run the CLI and return its exit code (used by :func:`main` and the tests)."""
+    guard_last_resort()  # a log record no handler takes is printed safe too
     try:
         result = cli.main(
             args=list(argv) if argv is not None else None, prog_name="legws", standalone_mode=False

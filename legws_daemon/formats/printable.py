@@ -28,19 +28,25 @@ back unchanged), so text made safe twice reads the same.
 
 The commands print through :func:`echo` (``click.echo`` of :func:`safe_lines`); JSON they
 print needs nothing (``json.dumps`` writes every character outside printable ASCII as a
-``\\u`` escape).
+``\\u`` escape). Log records are shown by :class:`SafeFormatter`: the terminal log, and
+what Python prints of a record no handler takes (:func:`guard_last_resort`).
 
 This module imports nothing of legws: :mod:`legws_daemon.errors` uses it.
 """
 
 from __future__ import annotations
 
+import logging
+import sys
+
 __all__ = [
     "ELLIPSIS",
     "LIMIT",
     "MESSAGE_LIMIT",
+    "SafeFormatter",
     "echo",
     "escape",
+    "guard_last_resort",
     "is_safe",
     "safe_lines",
     "safe_text",
@@ -135,3 +141,45 @@ def echo(message: object = "", *, err: bool = False, limit: int | None = LIMIT) 
     import click  # only the commands print
 
     click.echo(safe_lines(str(message), limit), err=err)
+
+
+class SafeFormatter(logging.Formatter):
+    """A log record as ``"<prefix>: message"`` (the message alone without a prefix), the
+    message one terminal-safe line (:data:`MESSAGE_LIMIT`); a traceback or stack the record
+    carries after it, its lines each made safe."""
+
+    def __init__(self, prefix: str = "") -> None:
+        super().__init__()
+        self.prefix = safe_text(prefix)
+
+    def format(self, record: logging.LogRecord) -> str:
+        message = safe_text(record.getMessage(), MESSAGE_LIMIT)
+        lines = [f"{self.prefix}: {message}" if self.prefix else message]
+        if record.exc_info and not record.exc_text:
+            record.exc_text = self.formatException(record.exc_info)
+        lines += [safe_lines(extra) for extra in (record.exc_text, record.stack_info) if extra]
+        return "\n".join(lines)
+
+
+class _LastResort(logging.Handler):
+    """Python's last resort (records of WARNING and above that no handler takes, on the
+    ``sys.stderr`` of the moment), each made safe by :class:`SafeFormatter`."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.setFormatter(SafeFormatter())
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+            sys.stderr.flush()
+        except Exception:
+            self.handleError(record)
+
+
+def guard_last_resort() -> None:
+    """Make what Python prints of a log record no handler takes (``logging.lastResort``: a
+    library's warning, a legws warning in a command without the terminal log) safe, as the
+    terminal log is. Idempotent."""
+    if not isinstance(logging.lastResort, _LastResort):
+        logging.lastResort = _LastResort()

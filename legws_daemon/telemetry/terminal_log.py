@@ -23,7 +23,7 @@ import logging
 import sys
 from typing import TextIO
 
-from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_lines, safe_text
+from legws_daemon.formats.printable import SafeFormatter
 
 __all__ = ["LOGGERS", "log_to_terminal"]
 
@@ -46,22 +46,6 @@ class _CurrentStderr(logging.StreamHandler):  # type: ignore[type-arg]
         pass
 
 
-class _SafeFormatter(logging.Formatter):
-    """``"<prefix>: message"``, the message one terminal-safe line; a traceback's lines
-    after it, each safe."""
-
-    def __init__(self, prefix: str) -> None:
-        super().__init__()
-        self.prefix = safe_text(prefix)
-
-    def format(self, record: logging.LogRecord) -> str:
-        lines = [f"{self.prefix}: {safe_text(record.getMessage(), MESSAGE_LIMIT)}"]
-        if record.exc_info and not record.exc_text:
-            record.exc_text = self.formatException(record.exc_info)
-        lines += [safe_lines(extra) for extra in (record.exc_text, record.stack_info) if extra]
-        return "\n".join(lines)
-
-
 def log_to_terminal(prefix: str, level: int = logging.INFO) -> None:
     """Show legws's log records at ``level`` and above on stderr as ``"<prefix>: message"``,
     the message one terminal-safe line.
@@ -70,7 +54,7 @@ def log_to_terminal(prefix: str, level: int = logging.INFO) -> None:
     newest prefix); other handlers, the root logger and third-party loggers are left alone.
     Records still propagate to the root logger's handlers (pytest's ``caplog`` sees them).
     """
-    formatter = _SafeFormatter(prefix)
+    formatter = SafeFormatter(prefix)
     for name in LOGGERS:
         logger = logging.getLogger(name)
         for old in [h for h in logger.handlers if isinstance(h, _CurrentStderr)]:

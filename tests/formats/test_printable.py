@@ -23,6 +23,7 @@ from legws_daemon.formats.printable import (
     LIMIT,
     MESSAGE_LIMIT,
     escape,
+    guard_last_resort,
     is_safe,
     safe_lines,
     safe_text,
@@ -233,6 +234,21 @@ def test_zenoh_python_log_is_one_safe_line_of_legws(monkeypatch: pytest.MonkeyPa
         "legws daemon: zenoh: callback error: RuntimeError: payload \\x1b]52;c;eA==\\x07\n"
     )
     assert not logging.getLogger(ZENOH_LOGGER).propagate
+
+
+def test_a_record_no_handler_takes_is_printed_safe(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(logging, "lastResort", logging.lastResort)  # put back afterwards
+    guard_last_resort()
+    guard_last_resort()
+    err = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)
+    lone = logging.getLogger("tests.formats.no_handler")
+    monkeypatch.setattr(lone, "propagate", False)  # (pytest's own handlers sit on the root)
+    lone.warning("legws: warning: the cached plan in %s is not usable", "p\x1b]0;x\x07\u202e")
+    lone.info("below WARNING: not shown")
+    assert err.getvalue() == (
+        "legws: warning: the cached plan in p\\x1b]0;x\\x07\\u202e is not usable\n"
+    )
 
 
 def test_a_refusal_from_a_hostile_daemon_is_safe() -> None:
