@@ -31,6 +31,13 @@ since it started: of the tick's EE sample for what the replay computes, of the l
 for a recorded commit (logged during its tick, a few milliseconds before the tick's EE
 sample). ``--plot`` draws the posterior over ``time``
 (:mod:`legws_daemon.telemetry.posterior_plot`).
+
+**The recording is input.** It is read as any file legws reads
+(:mod:`legws_daemon.telemetry.recording`): a damaged one (cut off, flipped bits, another
+header) is refused naming ``legws recording finish FILE --out OTHER.rrd``, which recovers its
+whole messages; every stage document, column and text-log row is validated
+(:mod:`legws_daemon.formats.recording_doc`). Anything else is one line naming the file and
+the field, exit 2.
 """
 
 from __future__ import annotations
@@ -68,6 +75,8 @@ from legws_daemon.telemetry.recording import (
 if TYPE_CHECKING:  # matplotlib loads only for --plot
     from matplotlib.figure import Figure
 
+#: Longest stage name read from a ``stage_done`` line (that of a stage document).
+MAX_NAME = 64
 #: What ended a stage's inference: the daemon's last commit, or its last recorded posterior.
 EndCause = Literal["commit", "last posterior"]
 CLOCKS = (
@@ -161,7 +170,7 @@ def _split_off_singles(
         )
         if k > 0:
             single = commits[bounds[k]]
-            part = replace(part, name=_done_name(lines, single), candidates=(single.goal,),
+            part = replace(part, name=_done_name(lines, single, source), candidates=(single.goal,),
                            goals=None, set_up=False)  # fmt: skip
         out.append(part)
     return out
@@ -179,13 +188,24 @@ def _posterior_within(posterior: Posterior, lo: float, hi: float) -> Posterior:
     )
 
 
-def _done_name(lines: list[tuple[int, str, str]], commit: RecordedCommit) -> str | None:
-    """The stage of the first ``stage_done`` line for the commit's goal after it."""
+def _done_name(
+    lines: list[tuple[int, str, str]], commit: RecordedCommit, source: Path
+) -> str | None:
+    """The stage of the first ``stage_done`` line for the commit's goal after it (a name of
+    1 to 64 characters, as a stage document's)."""
     for tick, _, text in lines:
         if tick >= commit.tick and text.startswith("stage_done "):
             fields = dict(part.split("=", 1) for part in text.split()[1:] if "=" in part)
             if fields.get("goal") == commit.goal:
-                return fields.get("stage")
+                name = fields.get("stage")
+                if name is not None and not 1 <= len(name) <= MAX_NAME:
+                    raise InputError(
+                        f"expected a stage name of 1 to {MAX_NAME} characters in a "
+                        f"stage_done line, got {len(name)}",
+                        source=str(source),
+                        field=f"log (tick {tick})",
+                    )
+                return name
     return None
 
 

@@ -1,7 +1,14 @@
 """Reading a daemon recording (``.rrd`` written by :class:`~.rerun_log.RerunLog`) headless.
 
-Uses :class:`rerun.chunk.RrdReader`: no viewer, no server. Every error (missing file, not
-an ``.rrd``, no legws telemetry in it) is an :class:`InputError` naming the file.
+Uses :class:`rerun.chunk.RrdReader`: no viewer, no server. A recording is input like any
+other file: before this process decodes any of it, its framing is checked and a ``rerun``
+child process decodes all of it (:func:`~.rrd_file.check_readable`: rerun's reader aborts
+the process on some damaged payloads), and rerun's own log lines are kept off the terminal
+(:func:`~.rrd_file.quiet_stderr`). Every document and column read is validated
+(:mod:`legws_daemon.formats.recording_doc`): a column of another Arrow type, a position of
+another number of floats, a value out of its range, a stage document that is not the goal
+set's schema. Every error (missing file, not an ``.rrd``, damaged, no legws telemetry in
+it, a field out of range) is one :class:`InputError` naming the file and the field.
 
 Stages: each :meth:`RerunLog.log_setup` call writes one ``meta/goals`` document with its
 ``stage_index`` (0, 1, ...), static (the viewer shows the latest) and on the timelines as
@@ -20,15 +27,15 @@ first EE tick), which :func:`read_posterior` uses to give each stage its own val
 
 from __future__ import annotations
 
-import json
 import math
-import warnings
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import pyarrow as pa  # type: ignore[import-untyped]
 import rerun as rr
 from rerun.chunk import RrdReader
 
@@ -36,10 +43,27 @@ from legws_daemon.core.geometry import FloatArray, IntArray
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
-from legws_daemon.formats.goalset import ParamsSchema, goalset_from_data, params_from_schema
+from legws_daemon.formats.files import regular_file
+from legws_daemon.formats.goalset import goalset_from_data, params_from_schema
 from legws_daemon.formats.log_lines import How
 from legws_daemon.formats.log_lines import parse_commit as parse_commit
-from legws_daemon.formats.validation import validate
+from legws_daemon.formats.recording_doc import (
+    MAX_ROW,
+    MAX_STAGE,
+    MAX_TICK,
+    StageDoc,
+    commit_row,
+    one_line,
+    parse_stage_doc,
+)
+from legws_daemon.formats.scene_file import CELL_XY, CELL_Z
+from legws_daemon.formats.validation import (
+    MAX_COORDINATE,
+    MAX_QUATERNION_NORM,
+    printable,
+    unsafe_character,
+)
+from legws_daemon.telemetry import rrd_file
 from legws_daemon.telemetry.rerun_log import (
     EE_ARCHETYPE,
     EE_PATH,
@@ -142,45 +166,155 @@ class RecordedCommit(NamedTuple):
     how: How
 
 
+_FLOAT = pa.float64()
+_INT = pa.int64()
+_TEXT = pa.string()
+_ITEM_NAMES = {_FLOAT: "float64", _INT: "int64", _TEXT: "string"}
+#: Largest deflection or other vector value read, metres (or a unit stick): finite and far
+#: beyond any real one.
+_MAX_VALUE = MAX_COORDINATE
+#: Longest name of a mode or a level in a row.
+_MAX_NAME = 64
+
+
 class _Batch(NamedTuple):
+    source: str  # the file
     entity: str  # without the leading "/"
     static: bool
     batch: Any  # pyarrow.RecordBatch
 
-    def column(self, name: str) -> list[Any]:
-        """The column as Python values, or ``[]`` when the chunk lacks it."""
+    def _type(self, name: str) -> Any:
         index = self.batch.schema.get_field_index(name)
-        return [] if index < 0 else list(self.batch.column(index).to_pylist())
+        return None if index < 0 else self.batch.schema.field(index).type
+
+    def error(self, name: str, message: str, tick: int | None = None) -> InputError:
+        where = f"{self.entity}: {name}" + ("" if tick is None else f" (tick {tick})")
+        return InputError(message, source=self.source, field=where)
+
+    def ticks(self) -> list[int | None]:
+        """The ``tick`` timeline (``[]`` when the chunk lacks it): int64, 0..MAX_TICK."""
+        kind = self._type("tick")
+        if kind is None:
+            return []
+        if kind != _INT:
+            raise self.error("tick", f"expected the tick timeline as int64, got {kind}")
+        ticks: list[int | None] = self.batch.column("tick").to_pylist()
+        for tick in ticks:
+            if tick is not None and not 0 <= tick <= MAX_TICK:
+                raise self.error("tick", f"expected a tick in 0..{MAX_TICK}, got {tick}")
+        return ticks
 
     def seconds(self, name: str = "time") -> list[float | None]:
         """A duration timeline in seconds (``[]`` when the chunk lacks it)."""
-        index = self.batch.schema.get_field_index(name)
-        if index < 0:
+        kind = self._type(name)
+        if kind is None:
             return []
-        nanos = self.batch.column(index).cast("int64").to_pylist()
+        if not pa.types.is_duration(kind):
+            raise self.error(name, f"expected the {name} timeline as a duration, got {kind}")
+        nanos = self.batch.column(name).cast("int64").to_pylist()
         return [None if n is None else n / 1e9 for n in nanos]
+
+    def row_ids(self) -> list[bytes]:
+        """Rerun's row ids (TUIDs: in logging order)."""
+        name = "rerun.controls.RowId"
+        kind = self._type(name)
+        if kind is None or not (pa.types.is_fixed_size_binary(kind) and kind.byte_width == 16):
+            raise self.error(name, f"expected rerun's 16-byte row ids, got {kind}")
+        ids: list[bytes] = self.batch.column(name).to_pylist()
+        return ids
+
+    def lists(
+        self, name: str, item: Any, sizes: Sequence[int], *, nan: bool = False
+    ) -> list[list[Any] | None]:
+        """The component ``name``, a list of ``item`` (float64, int64, string) per row with
+        one of ``sizes`` values, as Python lists (``None`` where a row lacks it; ``[]``
+        when the chunk lacks it). Floats are finite (``nan``: or NaN)."""
+        kind = self._type(name)
+        if kind is None:
+            return []
+        if not (pa.types.is_list(kind) and kind.value_type == item):
+            raise self.error(name, f"expected a list of {_ITEM_NAMES[item]}, got {kind}")
+        rows: list[list[Any] | None] = self.batch.column(name).to_pylist()
+        for i, row in enumerate(rows):
+            if row is None:
+                continue
+            if len(row) not in sizes:
+                want = " or ".join(str(n) for n in sizes)
+                noun = "value" if list(sizes) == [1] else "values"
+                raise self.error(name, f"expected {want} {noun}, got {len(row)}", self.tick(i))
+            if any(v is None for v in row):
+                raise self.error(name, "expected values, got a null", self.tick(i))
+            if item == _FLOAT and not all(math.isfinite(v) or (nan and v != v) for v in row):
+                raise self.error(name, f"expected finite numbers, got {row!r}", self.tick(i))
+        return rows
+
+    def tick(self, row: int) -> int | None:
+        """The tick of a row (to name it in an error)."""
+        ticks = self.ticks()
+        return ticks[row] if row < len(ticks) else None
+
+    def column(
+        self, name: str, item: Any, sizes: Sequence[int], *, nan: bool = False
+    ) -> list[list[Any] | None]:
+        """:meth:`lists`, with ``None`` for every row when the chunk lacks it."""
+        return self.lists(name, item, sizes, nan=nan) or [None] * self.batch.num_rows
+
+
+#: ``(device, inode, size, mtime, entities)`` -> the batches read (the last few reads: the
+#: replay reads each stage's data from the same file in turn).
+_READ: dict[tuple[Any, ...], list[_Batch]] = {}
+_READ_KEEP = 8
+
+
+def _check_path(path: Path) -> os.stat_result:
+    source = str(path)
+    if os.path.islink(path) and not os.path.exists(path):
+        raise InputError(
+            f"is a link to {os.path.realpath(path)}, which does not exist", source=source
+        )
+    try:
+        return regular_file(path, "recording")
+    except InputError as err:
+        if not path.exists():
+            raise InputError("no such file", source=source) from None
+        if path.is_dir():
+            raise InputError(
+                "expected a rerun recording (.rrd), got a folder", source=source
+            ) from None
+        raise InputError(f"{err}; expected a rerun recording (.rrd)") from None
 
 
 def _batches(path: Path, *entities: str) -> list[_Batch]:
     """Every chunk of the given entities (all if none) as an Arrow record batch."""
     source = str(path)
-    if not path.exists():
-        raise InputError("no such file", source=source)
-    if not path.is_file():
-        raise InputError("expected a rerun recording (.rrd), got a folder", source=source)
+    st = _check_path(path)
+    rrd_file.check_readable(path)
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, entities)
+    if key in _READ:
+        return _READ[key]
+    captured = rrd_file.Captured()
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "no footer": a recording that was cut short
+        with rrd_file.quiet_stderr() as captured:
             stream = RrdReader(path).stream()
             if entities:
                 stream = stream.filter(content=["/" + e for e in entities])
-            chunks = stream.to_chunks()
-    except (RuntimeError, ValueError, OSError) as exc:
-        reason = str(exc).split(": ", 1)[-1] if source in str(exc) else str(exc)
+            batches = [
+                _Batch(source, c.entity_path.lstrip("/"), c.is_static, c.to_record_batch())
+                for c in stream.to_chunks()
+            ]
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except BaseException as exc:  # RuntimeError, ValueError, OSError, or a Rust panic's
+        text = " ".join(str(exc).split())
+        reason = text.split(": ", 1)[-1] if source in text else text
+        reason = reason or captured.reason or type(exc).__name__
         raise InputError(
             f"not a readable rerun recording (.rrd): {reason}", source=source
         ) from None
-    return [_Batch(c.entity_path.lstrip("/"), c.is_static, c.to_record_batch()) for c in chunks]
+    while len(_READ) >= _READ_KEEP:
+        del _READ[next(iter(_READ))]
+    _READ[key] = batches
+    return batches
 
 
 def entity_paths(path: Path | str) -> set[str]:
@@ -192,61 +326,46 @@ def read_stages(path: Path | str) -> list[Stage]:
     """Every stage of a recording, by index.
 
     Raises:
-        InputError: the file is missing or not an ``.rrd``, or holds no legws telemetry.
+        InputError: the file is missing, not an ``.rrd`` or damaged, holds no legws
+            telemetry, or a stage document that does not validate (naming the field).
     """
     p = Path(path)
-    docs: dict[int, dict[str, Any]] = {}
+    docs: dict[int, tuple[StageDoc, dict[str, Any], str]] = {}
     for batch in _batches(p, GOALS_DOC, STAGES_DOC):
-        for text in batch.column("TextDocument:text"):
+        texts = batch.column("TextDocument:text", _TEXT, (0, 1))
+        ticks = batch.ticks() or [None] * len(texts)
+        for text, tick in zip(texts, ticks, strict=True):
             if text:
-                doc = _parse_doc(text[0], p)
-                docs[doc["stage_index"]] = doc
+                where = f"{p}: {batch.entity}" + ("" if tick is None else f" (tick {tick})")
+                doc, data = parse_stage_doc(text[0], where, TELEMETRY_FORMAT)
+                docs[doc.stage_index] = (doc, data, where)
     if not docs:
         raise InputError(f"no legws telemetry ({GOALS_DOC}) in the recording", source=str(p))
-    return [_stage(docs[i], p) for i in sorted(docs)]
+    return [_stage(*docs[i]) for i in sorted(docs)]
 
 
-def _parse_doc(text: str, path: Path) -> dict[str, Any]:
-    where = {"source": str(path), "field": GOALS_DOC}
-    try:
-        doc = json.loads(text)
-    except ValueError as exc:
-        raise InputError(f"not legws telemetry (not JSON: {exc})", **where) from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("stage_index"), int):
-        raise InputError("not legws telemetry (no stage_index)", **where)
-    version = doc.get("legws_telemetry")
-    if not isinstance(version, int) or version > TELEMETRY_FORMAT:
-        raise InputError(
-            f"telemetry format {version!r} is not supported (this legws reads up to "
-            f"{TELEMETRY_FORMAT})",
-            **where,
-        )
-    return doc
-
-
-def _stage(doc: dict[str, Any], path: Path) -> Stage:
-    source = f"{path} ({GOALS_DOC} stage {doc['stage_index']})"
+def _stage(doc: StageDoc, data: dict[str, Any], where: str) -> Stage:
+    source = f"{where} stage {doc.stage_index}"
     goals: GoalSet | None = None
-    if doc.get("inference", True):
-        goals, params = goalset_from_data(doc, source)
-        candidates = goals.names
-    else:  # a decision without inference: its candidates' names and the parameters
-        names = doc.get("candidates")
-        if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
-            raise InputError("expected the candidates' names", source=source, field="candidates")
-        candidates = tuple(names)
-        schema = validate(ParamsSchema, doc.get("params") or {}, source)
-        params = params_from_schema(schema, source)
-    objects = doc.get("goal_objects") or {}
+    try:
+        if doc.inference:
+            goals, params = goalset_from_data(data, source)
+            candidates = goals.names
+        else:  # a decision without inference: its candidates' names and the parameters
+            assert doc.candidates is not None  # StageDoc requires them
+            candidates = tuple(doc.candidates)
+            params = params_from_schema(doc.params, source)
+    except InputError as err:
+        raise one_line(err) from None
     return Stage(
-        index=doc["stage_index"],
-        name=doc.get("stage"),
+        index=doc.stage_index,
+        name=doc.stage,
         goals=goals,
         params=params,
-        p_thresh=float(doc.get("p_thresh", params.p_thresh)),
-        scene=doc.get("scene"),
-        robot=doc.get("robot"),
-        goal_objects={str(k): str(v) for k, v in objects.items()},
+        p_thresh=params.p_thresh if doc.p_thresh is None else doc.p_thresh,
+        scene=doc.scene,
+        robot=doc.robot,
+        goal_objects=dict(doc.goal_objects),
         candidates=tuple(candidates),
     )
 
@@ -347,6 +466,88 @@ def _stage_index(path: Path, stage: StageKey) -> int | None:
     return select_stage(read_stages(path), stage, str(path)).index
 
 
+class _EeRow(NamedTuple):
+    """One EE sample as recorded (``None``: the chunk lacks the component)."""
+
+    tick: int
+    stage: int
+    t: float | None
+    position: list[float] | None
+    quaternion: list[float] | None
+    deflection: list[float] | None
+    mode: str | None
+
+
+def _ee_rows(path: Path) -> list[_EeRow]:
+    """Every EE sample of ``world/ee`` with a tick and a stage, each value validated: a
+    position in the cell, a quaternion of a non-zero norm, finite times and deflections, a
+    stage index in -1..MAX_STAGE, a mode's name."""
+    rows: list[_EeRow] = []
+    for batch in _batches(path, EE_PATH):
+        if batch.static:
+            continue
+        ticks = batch.ticks()
+        if not ticks:
+            continue
+        a = EE_ARCHETYPE
+        stages = batch.column(f"{a}:stage", _INT, (1,))
+        positions = batch.column(f"{a}:position", _FLOAT, (3,))
+        quaternions = batch.column(f"{a}:quaternion", _FLOAT, (4,))
+        times = batch.column(f"{a}:t", _FLOAT, (1,))
+        deflections = batch.column(f"{a}:deflection", _FLOAT, (0, 3))
+        modes = batch.column(f"{a}:mode", _TEXT, (1,))
+        for tick, st, pos, quat, t, u, mode in zip(
+            ticks, stages, positions, quaternions, times, deflections, modes, strict=True
+        ):
+            if tick is None or st is None:
+                continue
+            _check_ee(batch, tick, st[0], pos, quat, u, mode)
+            rows.append(
+                _EeRow(tick, st[0], None if t is None else t[0], pos, quat, u,
+                       None if mode is None else mode[0])
+            )  # fmt: skip
+    return rows
+
+
+def _check_ee(
+    batch: _Batch,
+    tick: int,
+    stage: int,
+    pos: list[float] | None,
+    quat: list[float] | None,
+    u: list[float] | None,
+    mode: list[str] | None,
+) -> None:
+    a = EE_ARCHETYPE
+    if not -1 <= stage <= MAX_STAGE:
+        raise batch.error(f"{a}:stage", f"expected a stage index in -1..{MAX_STAGE}, got {stage}",
+                          tick)  # fmt: skip
+    if pos is not None and not (
+        abs(pos[0]) <= CELL_XY and abs(pos[1]) <= CELL_XY and CELL_Z[0] <= pos[2] <= CELL_Z[1]
+    ):
+        raise batch.error(
+            f"{a}:position",
+            f"expected a position in the cell (|x|, |y| <= {CELL_XY:g} m, {CELL_Z[0]:g} <= z "
+            f"<= {CELL_Z[1]:g} m), got {pos!r}",
+            tick,
+        )
+    if quat is not None and not 1e-9 <= math.hypot(*quat) <= MAX_QUATERNION_NORM:
+        raise batch.error(f"{a}:quaternion", f"expected a non-zero quaternion, got {quat!r}",
+                          tick)  # fmt: skip
+    if u is not None and any(abs(v) > _MAX_VALUE for v in u):
+        raise batch.error(f"{a}:deflection", f"expected values within +-{_MAX_VALUE:g}, got "
+                          f"{u!r}", tick)  # fmt: skip
+    if mode is not None:
+        _check_name(batch, f"{a}:mode", mode[0], tick)
+
+
+def _check_name(batch: _Batch, name: str, text: str, tick: int | None) -> None:
+    if not 1 <= len(text) <= _MAX_NAME or unsafe_character(text) is not None:
+        shown = printable(text if len(text) <= 40 else text[:37] + "...")
+        raise batch.error(name, f"expected a name of 1 to {_MAX_NAME} printable characters, "
+                          f"got {shown!r}", tick)  # fmt: skip
+
+
 def read_ee_path(path: Path | str, stage: StageKey = None) -> EePath:
     """The exact (float64) EE poses of every tick, of one stage or all, ordered by tick.
 
@@ -356,26 +557,20 @@ def read_ee_path(path: Path | str, stage: StageKey = None) -> EePath:
     """
     p = Path(path)
     want = _stage_index(p, stage)
-    rows: list[tuple[int, int, float, list[float], list[float]]] = []
-    for batch in _batches(p, EE_PATH):
-        if batch.static:
-            continue
-        ticks = batch.column("tick")
-        fields = [batch.column(f"{EE_ARCHETYPE}:{n}") for n in ("position", "quaternion", "t")]
-        stages = batch.column(f"{EE_ARCHETYPE}:stage")
-        if not ticks or not stages or not all(fields):
-            continue
-        for tick, pos, quat, t, st in zip(ticks, *fields, stages, strict=True):
-            if tick is None or not (pos and quat and t and st):
-                continue
-            if want is None or st[0] == want:
-                rows.append((st[0], tick, t[0], pos, quat))
-    rows.sort(key=lambda r: (r[0], r[1]))
+    rows = [
+        r
+        for r in _ee_rows(p)
+        if r.position is not None
+        and r.quaternion is not None
+        and r.t is not None
+        and (want is None or r.stage == want)
+    ]
+    rows.sort(key=lambda r: (r.stage, r.tick))
     return EePath(
-        np.array([r[1] for r in rows], dtype=np.int64),
-        np.array([r[2] for r in rows], dtype=np.float64),
-        np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 3),
-        np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, 4),
+        np.array([r.tick for r in rows], dtype=np.int64),
+        np.array([r.t for r in rows], dtype=np.float64),
+        np.array([r.position for r in rows], dtype=np.float64).reshape(-1, 3),
+        np.array([r.quaternion for r in rows], dtype=np.float64).reshape(-1, 4),
     )
 
 
@@ -399,72 +594,92 @@ class Teleoperation(NamedTuple):
 
 def read_teleoperation(path: Path | str) -> Teleoperation:
     """:class:`Teleoperation` of a recording (what ``legws operator trace`` reads)."""
-    p = Path(path)
-    rows: list[tuple[int, int, list[float], list[float], str]] = []
-    for batch in _batches(p, EE_PATH):
+    rows = [
+        r
+        for r in _ee_rows(Path(path))
+        if r.position is not None and r.mode is not None and r.deflection is not None
+    ]
+    rows.sort(key=lambda r: (r.tick, r.stage))
+    return Teleoperation(
+        np.array([r.tick for r in rows], dtype=np.int64),
+        np.array([r.stage for r in rows], dtype=np.int64),
+        np.array([r.position for r in rows], dtype=np.float64).reshape(-1, 3),
+        np.array(
+            [r.deflection if r.deflection else [math.nan] * 3 for r in rows], dtype=np.float64
+        ).reshape(-1, 3),
+        tuple(r.mode or "" for r in rows),
+    )
+
+
+class _TextRow(NamedTuple):
+    tick: int
+    row_id: bytes
+    seconds: float | None
+    level: str
+    text: str
+    stage: int | None
+
+
+def _text_log(path: Path) -> list[_TextRow]:
+    """Every row of the ``log`` entity with a tick and a text, in logging order (by tick,
+    then row id: TUIDs are in logging order), each validated: a text of at most
+    :data:`MAX_ROW` characters without control characters, a level's name, a stage index."""
+    rows: list[_TextRow] = []
+    for batch in _batches(path, TEXT_LOG):
         if batch.static:
             continue
-        ticks = batch.column("tick")
-        positions = batch.column(f"{EE_ARCHETYPE}:position")
-        stages = batch.column(f"{EE_ARCHETYPE}:stage")
-        deflections = batch.column(f"{EE_ARCHETYPE}:deflection")
-        modes = batch.column(f"{EE_ARCHETYPE}:mode")
-        if not (ticks and positions and stages and deflections and modes):
+        ticks = batch.ticks()
+        texts = batch.lists("TextLog:text", _TEXT, (0, 1))
+        if not ticks or not texts:
             continue
-        for tick, pos, st, u, mode in zip(
-            ticks, positions, stages, deflections, modes, strict=True
+        row_ids = batch.row_ids()
+        times = batch.seconds() or [None] * len(ticks)
+        levels = batch.column("TextLog:level", _TEXT, (0, 1))
+        stages = batch.column(f"{STAGE_ARCHETYPE}:stage", _INT, (0, 1))
+        for tick, row_id, t, level, text, st in zip(
+            ticks, row_ids, times, levels, texts, stages, strict=True
         ):
-            if tick is None or not (pos and st and mode) or u is None:
+            if tick is None or not text:
                 continue
-            deflection = list(u) if len(u) == 3 else [math.nan] * 3
-            rows.append((tick, st[0], list(pos), deflection, str(mode[0])))
-    rows.sort(key=lambda r: (r[0], r[1]))
-    return Teleoperation(
-        np.array([r[0] for r in rows], dtype=np.int64),
-        np.array([r[1] for r in rows], dtype=np.int64),
-        np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 3),
-        np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 3),
-        tuple(r[4] for r in rows),
-    )
+            _check_row(batch, tick, text[0])
+            if level:
+                _check_name(batch, "TextLog:level", level[0], tick)
+            stage = st[0] if st else None
+            if stage is not None and not -1 <= stage <= MAX_STAGE:
+                raise batch.error(f"{STAGE_ARCHETYPE}:stage", f"expected a stage index in "
+                                  f"-1..{MAX_STAGE}, got {stage}", tick)  # fmt: skip
+            rows.append(_TextRow(tick, row_id, t, level[0] if level else "", text[0], stage))
+    rows.sort(key=lambda r: (r.tick, r.row_id))
+    return rows
+
+
+def _check_row(batch: _Batch, tick: int, text: str) -> None:
+    if len(text) > MAX_ROW:
+        raise batch.error("TextLog:text", f"a row of {len(text)} characters, more than "
+                          f"{MAX_ROW}", tick)  # fmt: skip
+    bad = unsafe_character(text)
+    if bad is not None:
+        raise batch.error(
+            "TextLog:text",
+            f"holds the control character U+{ord(bad):04X}; text may not hold control or "
+            "bidirectional characters",
+            tick,
+        )
 
 
 def read_text_lines(path: Path | str) -> list[tuple[int, int | None, str]]:
     """``(tick, stage index, text)`` of every row of the ``log`` entity, in logging order."""
-    p = Path(path)
-    rows: list[tuple[int, bytes, int | None, str]] = []
-    for batch in _batches(p, TEXT_LOG):
-        ticks, texts = batch.column("tick"), batch.column("TextLog:text")
-        if batch.static or not ticks or not texts:
-            continue
-        row_ids = batch.column("rerun.controls.RowId")
-        stages = batch.column(f"{STAGE_ARCHETYPE}:stage") or [None] * len(ticks)
-        for tick, row_id, text, st in zip(ticks, row_ids, texts, stages, strict=True):
-            if tick is not None and text:
-                rows.append((tick, row_id, st[0] if st else None, text[0]))
-    rows.sort(key=lambda r: (r[0], r[1]))
-    return [(tick, st, text) for tick, _, st, text in rows]
+    return [(r.tick, r.stage, r.text) for r in _text_log(Path(path))]
 
 
 def _text_rows(path: Path, stage: StageKey) -> list[tuple[int, float | None, str, str]]:
     """``(tick, seconds, level, text)`` of the ``log`` entity, in logging order."""
     want = _stage_index(path, stage)
-    rows: list[tuple[int, bytes, float | None, str, str]] = []
-    for batch in _batches(path, TEXT_LOG):
-        ticks, texts = batch.column("tick"), batch.column("TextLog:text")
-        if batch.static or not ticks or not texts:
-            continue
-        row_ids = batch.column("rerun.controls.RowId")
-        times = batch.seconds() or [None] * len(ticks)
-        levels = batch.column("TextLog:level") or [None] * len(ticks)
-        stages = batch.column(f"{STAGE_ARCHETYPE}:stage") or [None] * len(ticks)
-        for tick, row_id, t, level, text, st in zip(
-            ticks, row_ids, times, levels, texts, stages, strict=True
-        ):
-            if tick is None or not text or (want is not None and (not st or st[0] != want)):
-                continue
-            rows.append((tick, row_id, t, level[0] if level else "", text[0]))
-    rows.sort(key=lambda r: (r[0], r[1]))  # row ids (TUIDs) are in logging order
-    return [(tick, t, level, text) for tick, _, t, level, text in rows]
+    return [
+        (r.tick, r.seconds, r.level, r.text)
+        for r in _text_log(path)
+        if want is None or r.stage == want
+    ]
 
 
 def read_text_log(path: Path | str, stage: StageKey = None) -> list[tuple[int, str, str]]:
@@ -478,12 +693,15 @@ def read_commits(path: Path | str, stage: StageKey = None) -> list[tuple[int, st
 
 
 def read_recorded_commits(path: Path | str, stage: StageKey = None) -> list[RecordedCommit]:
-    """Every commit line of the text log with its time and how it came, in logging order."""
+    """Every commit line of the text log with its time and how it came, in logging order
+    (its goal a name, its ``p`` in [0, 1]: :class:`~.recording_doc.CommitRow`)."""
+    p = Path(path)
     out = []
-    for tick, t, _, text in _text_rows(Path(path), stage):
+    for tick, t, _, text in _text_rows(p, stage):
         commit = parse_commit(text)
         if commit is not None:
-            out.append(RecordedCommit(tick, t, commit.goal, commit.p, commit.how))
+            row = commit_row(commit.goal, commit.p, commit.how, f"{p}: {TEXT_LOG} (tick {tick})")
+            out.append(RecordedCommit(tick, t, row.goal, row.p, row.how))
     return out
 
 
@@ -494,7 +712,7 @@ def read_posterior(path: Path | str, stage: StageKey = None) -> Posterior:
     next stage's first EE tick; a stage without EE samples spans none). For ``None``:
     the goals of every stage (in order of first appearance) at every tick. A tick where
     the daemon was not inferring has no row: no value, or a ``NaN`` (which ends a line in
-    the viewer), is not a value.
+    the viewer), is not a value. A value is a probability, in [0, 1].
     """
     p = Path(path)
     stages = read_stages(p)
@@ -504,26 +722,29 @@ def read_posterior(path: Path | str, stage: StageKey = None) -> Posterior:
         "/" + POSTERIOR_PREFIX + rr.escape_entity_path_part(g): j for j, g in enumerate(goals)
     }
     firsts: dict[int, int] = {}
+    for row in _ee_rows(p):
+        if row.stage >= 0:
+            firsts[row.stage] = min(row.tick, firsts.get(row.stage, row.tick))
     values: dict[int, dict[int, float]] = {}
     times: dict[int, float] = {}
-    for batch in _batches(p, EE_PATH, POSTERIOR_PREFIX + "**"):
-        if batch.static:
-            continue
-        ticks = batch.column("tick")
-        if batch.entity == EE_PATH:
-            for tick, st in zip(ticks, batch.column(f"{EE_ARCHETYPE}:stage"), strict=False):
-                if tick is not None and st and st[0] >= 0:
-                    firsts[st[0]] = min(tick, firsts.get(st[0], tick))
-            continue
+    for batch in _batches(p, POSTERIOR_PREFIX + "**"):
         j = column.get("/" + batch.entity)
-        scalars = batch.column("Scalars:scalars")
-        if j is None or not ticks or not scalars:
+        if batch.static or j is None:
             continue
-        for tick, t, v in zip(ticks, batch.seconds() or [None] * len(ticks), scalars, strict=True):
-            if tick is not None and v and v[0] is not None and math.isfinite(v[0]):
-                values.setdefault(tick, {})[j] = float(v[0])
-                if t is not None:
-                    times[tick] = t
+        ticks = batch.ticks()
+        scalars = batch.lists("Scalars:scalars", _FLOAT, (0, 1), nan=True)
+        if not ticks or not scalars:
+            continue
+        seconds = batch.seconds() or [None] * len(ticks)
+        for tick, t, scalar in zip(ticks, seconds, scalars, strict=True):
+            if tick is None or not scalar or math.isnan(scalar[0]):
+                continue
+            if not 0.0 <= scalar[0] <= 1.0:
+                raise batch.error("Scalars:scalars", f"expected a probability in [0, 1], got "
+                                  f"{scalar[0]!r}", tick)  # fmt: skip
+            values.setdefault(tick, {})[j] = float(scalar[0])
+            if t is not None:
+                times[tick] = t
     if stage is not None:
         lo, hi = _span(firsts, chosen[0].index)
         values = {t: v for t, v in values.items() if lo <= t < hi}

@@ -76,7 +76,7 @@ from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_f
 from legws_daemon.formats.log_lines import How, parse_commit
 from legws_daemon.formats.log_lines import commit_text as commit_text
 from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text
-from legws_daemon.formats.validation import validate
+from legws_daemon.formats.validation import parse_json, validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.telemetry import rrd_file
@@ -360,14 +360,16 @@ def _md(text: str | None) -> str:
 
 def _probe(path: Path) -> Path:
     """Check that a ``save:`` file can be created and written (one byte, which rerun's
-    writer then replaces); one-line :class:`InputError` otherwise."""
+    writer then replaces); one-line :class:`InputError` otherwise. Returns the file written:
+    ``path``, or the target of a symbolic link (written and finished in its own folder; the
+    link stays a link)."""
     if not path.parent.is_dir():
         what = "is not a folder" if path.parent.exists() else "does not exist"
         raise InputError(f"folder {path.parent} {what}", field="--rerun")
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected a file path", field="--rerun")
     try:
-        output_path(path)  # a device, FIFO or socket there is refused, never written to
+        path = output_path(path)  # a device, FIFO or socket there is refused, never written to
     except InputError as err:
         raise InputError(str(err), field="--rerun") from None
     try:
@@ -422,11 +424,14 @@ def _disk_note(path: Path) -> str:
 
 
 def parse_params_json(params_json: str) -> Params:
-    """The :class:`Params` of a JSON object of its fields (as ``Params.as_dict()`` gives)."""
-    try:
-        data = json.loads(params_json)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"expected a JSON object: {exc}", field="params_json") from None
+    """The :class:`Params` of a JSON object of its fields (as ``Params.as_dict()`` gives),
+    parsed as any JSON text legws reads (:func:`~legws_daemon.formats.validation.parse_json`:
+    a key given twice, a control character, too deep a nesting are refused)."""
+    if not isinstance(params_json, str):
+        raise InputError(
+            f"expected a JSON object, got {type(params_json).__name__}", field="params_json"
+        )
+    data = parse_json(params_json, "params_json", None)
     return params_from_schema(validate(ParamsSchema, data, "params_json"), "params_json")
 
 

@@ -31,7 +31,7 @@ def _raw(path: Path) -> Path:
 
 
 def _content(path: Path) -> tuple[object, ...]:
-    stages = [(s.index, s.name, s.scene, s.goals.names) for s in read_stages(path)]
+    stages = [(s.index, s.name, s.scene, s.candidates) for s in read_stages(path)]
     ee = read_ee_path(path)
     return stages, ee.ticks.tolist(), ee.positions.round(9).tolist(), read_commits(path)
 
@@ -66,7 +66,9 @@ def test_a_raw_file_lacks_the_footer_until_finished_and_the_data_is_unchanged(
     assert _content(path) == before
 
 
-def test_a_file_cut_off_by_a_crash_is_finished_up_to_where_it_ends(tmp_path: Path) -> None:
+def test_a_file_cut_off_by_a_crash_is_kept_and_its_whole_messages_can_be_recovered(
+    tmp_path: Path,
+) -> None:
     full = _raw(tmp_path / "full.rrd")  # the first stage flushed before the second
     data = full.read_bytes()
     all_ticks = read_ee_path(full).ticks.tolist()
@@ -74,9 +76,16 @@ def test_a_file_cut_off_by_a_crash_is_finished_up_to_where_it_ends(tmp_path: Pat
     for fraction in (0.45, 0.7, 0.95):
         cut = tmp_path / f"cut{fraction}.rrd"
         cut.write_bytes(data[: int(len(data) * fraction)])  # a kill in the middle of a message
-        assert rrd_file.finish(cut, tolerant=True) is None
-        assert verify(cut).returncode == 0
-        ticks = read_ee_path(cut).ticks.tolist()
+        problem = rrd_file.finish(cut)
+        assert problem is not None and "cannot be finished whole" in problem, problem
+        assert "recoverable" in problem and "--out" in problem
+        assert cut.read_bytes() == data[: int(len(data) * fraction)]  # never shrunk
+        out = tmp_path / f"recovered{fraction}.rrd"
+        done = rrd_file.finish_recording(cut, out=out)
+        assert not done.whole and done.written == out and 0 < done.chunks <= done.of
+        assert cut.read_bytes() == data[: int(len(data) * fraction)]
+        assert verify(out).returncode == 0
+        ticks = read_ee_path(out).ticks.tolist()
         assert ticks == all_ticks[: len(ticks)]
         kept.append(len(ticks))
     assert 0 < kept[0] < len(all_ticks)  # the first stage is there, the second is lost
