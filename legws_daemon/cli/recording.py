@@ -22,6 +22,7 @@ import click
 
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import echo
 from legws_daemon.telemetry.rerun_log import GOALS_DOC
 from legws_daemon.telemetry.rrd_file import FINISH_TIMEOUT, finish_recording
 
@@ -67,17 +68,17 @@ def finish_cmd(file: Path, timeout: float, out: Path | None) -> int:
     done = finish_recording(file, timeout, out=out, needs=LEGWS_ENTITIES)
     name = f"{file} (-> {done.source})" if os.path.islink(file) else str(file)
     if done.written is None:
-        click.echo(f"{name}: already finished ({_mib(done.before)}); left as it is")
+        echo(f"{name}: already finished ({_mib(done.before)}); left as it is")
     elif done.whole and out is None:
-        click.echo(f"{name}: finished ({_mib(done.before)} -> {_mib(done.after)})")
+        echo(f"{name}: finished ({_mib(done.before)} -> {_mib(done.after)})")
     elif done.whole:
-        click.echo(
+        echo(
             f"{name}: finished into {out} ({_mib(done.before)} -> {_mib(done.after)}); "
             f"{file} is left as it is"
         )
     else:
         upto = "" if done.seconds is None else f", up to time {done.seconds:.2f} s"
-        click.echo(
+        echo(
             f"{name}: damaged ({done.damage}); wrote what could be recovered, {done.chunks} "
             f"of {done.of} chunks{upto}, to {out} ({_mib(done.after)}); {file} is left as it is"
         )

@@ -58,6 +58,7 @@ from legws_daemon.core.observer import IntentObserver
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path, write_atomic
+from legws_daemon.formats.printable import echo
 from legws_daemon.telemetry.recording import (
     EePath,
     Posterior,
@@ -621,4 +622,7 @@ def replay_cmd(
     }
     if plot is not None:
         write_atomic(plot, plot_png(recording, replays))
-    click.echo(json.dumps(report, allow_nan=False) if as_json else render_text(report))
+    if as_json:  # json.dumps writes every character outside printable ASCII as an escape
+        click.echo(json.dumps(report, allow_nan=False))
+    else:
+        echo(render_text(report), limit=None)

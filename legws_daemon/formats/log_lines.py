@@ -43,10 +43,12 @@ def parse_commit(text: str) -> CommitLine | None:
 
 # --- calibration (legws operator calibrate, method.md §10) ---------------------------------
 
+# at most 9 digits: an index a line of any length can hold stays an ordinary integer
 _REACH = re.compile(
-    r"^calibration reach=(?P<i>\d+) of=(?P<n>\d+) target=(?P<x>\S+),(?P<y>\S+),(?P<z>\S+)$"
+    r"^calibration reach=(?P<i>\d{1,9}) of=(?P<n>\d{1,9}) "
+    r"target=(?P<x>\S{1,64}),(?P<y>\S{1,64}),(?P<z>\S{1,64})$"
 )
-_REACHED = re.compile(r"^calibration reach=(?P<i>\d+) done$")
+_REACHED = re.compile(r"^calibration reach=(?P<i>\d{1,9}) done$")
 
 
 class ReachLine(NamedTuple):

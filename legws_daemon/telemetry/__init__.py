@@ -9,6 +9,9 @@ import os
 # that a file without a footer is being written — the daemon's choice, the footer is added
 # at close (:mod:`.rrd_file`). Other warnings stay; a RUST_LOG set by the user wins.
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+# rerun writes its own lines in colour even into a pipe or a file; a NO_COLOR the user set
+# wins
+os.environ.setdefault("NO_COLOR", "1")
 
 from legws_daemon.telemetry.rerun_log import RerunLog, commit_text, parse_target
 
