@@ -1024,8 +1024,11 @@ def _first_line(err: BaseException) -> str:
 
 
 def _fail(message: str) -> int:
-    """One line on stderr, exit code 2."""
-    print(f"intera_bridge.py: error: {message}", file=sys.stderr)
+    """One line on stderr, exit code 2; a character a terminal would act on (an escape, a
+    line break, a bidirectional control: from a path or a library's message) is written as
+    Python escapes it (the script stands alone: legws's own helper is not here)."""
+    safe = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+    print(f"intera_bridge.py: error: {safe}", file=sys.stderr)
     return 2
 
 
