@@ -245,7 +245,8 @@ class OperatorChanged(Event):
     kind: ClassVar[EventKind] = "operator"
     operator: dict[str, str | None] | None
     previous: dict[str, str | None] | None
-    reason: str  # first_input | resumed | goodbye | timeout | release | take_control
+    #: first_input | resumed | goodbye | timeout | stall | release | take_control
+    reason: str
 
     def text(self) -> str:
         who = _who(self.operator) if self.operator else "nobody"
@@ -264,7 +265,8 @@ class Deadman(Event):
 
 @dataclass(frozen=True, slots=True)
 class InputRejected(Event):
-    """Joystick messages were rejected for ``reason`` (invalid | stale_seq | not_operator):
+    """Joystick messages were rejected for ``reason`` (invalid | auth | stale_seq |
+    not_operator):
     ``count`` since the last such event (at most one per reason every few seconds),
     ``total`` so far; the last one's sender and error."""
 
@@ -275,6 +277,26 @@ class InputRejected(Event):
     source: str | None
     session: str | None
     error: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class Stall(Event):
+    """The daemon itself stood still for ``seconds`` between two ticks (the process was
+    paused: SIGSTOP, a swap storm, a debugger), longer than ``threshold``: it stopped the
+    robot, dropped the input heard before (stale now) and the operator lease as after a
+    timeout, and measures the robot side's heartbeat from its resume (its own pause is not
+    the bridge's silence). ``stalls``: how many so far."""
+
+    kind: ClassVar[EventKind] = "stall"
+    seconds: float
+    threshold: float
+    stalls: int
+
+    def text(self) -> str:
+        return (
+            f"stall seconds={self.seconds:.3f}: the daemon stood still (paused?) longer than "
+            f"{self.threshold:g} s; robot stopped, input and lease dropped (stalls={self.stalls})"
+        )
 
 
 def _who(key: dict[str, str | None] | None) -> str:

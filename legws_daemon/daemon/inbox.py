@@ -5,10 +5,17 @@ asks :meth:`JoystickInbox.poll` once per tick. A payload is *rejected* — never
 does not refresh the deadman — for one of :data:`REJECTIONS`:
 
 - ``invalid``: it does not validate (the field is in :attr:`JoystickInbox.last_error`);
+- ``auth``: its session is keyed (:meth:`JoystickInbox.hello`, :mod:`.session_keys`) and
+  its ``auth`` tag is missing or wrong, or it carries a tag for a session this daemon gave
+  no key — checked first: such a message changes nothing, not even the session's ``seq``;
 - ``stale_seq``: its ``seq`` is not above the last one of its session (out of order, or
   replayed). A publisher without a ``session`` id that starts over at ``seq`` 0 is a
   restart and accepted;
 - ``not_operator``: another session holds the operator lease (:mod:`.lease`).
+
+A session that never asked for a key (a schema-1 sender written elsewhere) is taken as
+before: its id and ``seq`` are all it has, and anyone who sees its messages can copy them.
+legws's own publishers key every session.
 
 What the loop gets is the lease holder's newest sample if it arrived within the deadman
 timeout and the holder holds the enable button; else nothing, and the robot stands still.
@@ -27,11 +34,17 @@ import numpy as np
 
 from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.daemon.lease import Lease, LeaseChange, SessionKey
+from legws_daemon.daemon.session_keys import SessionKeys
 from legws_daemon.errors import InputError
-from legws_daemon.formats.messages import JoystickMessage, parse
+from legws_daemon.formats.messages import (
+    JoystickMessage,
+    parse,
+    public_session_id,
+    tag_matches,
+)
 
 #: Why a joystick message was not used.
-Rejection = Literal["invalid", "stale_seq", "not_operator"]
+Rejection = Literal["invalid", "auth", "stale_seq", "not_operator"]
 REJECTIONS: tuple[Rejection, ...] = get_args(Rejection)
 #: Why no input reaches the controller this tick.
 NoInput = Literal["no_operator", "no_input", "enable_released"]
@@ -63,7 +76,7 @@ class Sample:
 @dataclass(slots=True)
 class RejectionTally:
     """Rejections of one reason since the last report: how many, and the last one's
-    sender and error."""
+    sender (``session``: its public id) and error."""
 
     count: int = 0
     source: str | None = None
@@ -104,6 +117,7 @@ class JoystickInbox:
         self._sample: Sample | None = None
         self._last_seq: OrderedDict[SessionKey, int] = OrderedDict()
         self.lease = Lease(timeout, grace)
+        self.keys = SessionKeys()
         self.accepted = 0  # the operator's messages taken (a goodbye included)
         self.ignored = 0  # valid, nobody's input: the lease free and the message not steering
         self.reasons: Counter[Rejection] = Counter()
@@ -135,8 +149,12 @@ class JoystickInbox:
                 self._reject("invalid", None, str(err))
                 self.invalid_fields[err.field or "payload"] += 1
             return None
-        key = SessionKey(message.session, message.source)
         with self._lock:
+            key = SessionKey(message.session, message.source)
+            refused = self._unauthentic(message)
+            if refused is not None:
+                self._reject("auth", key, refused)
+                return None
             last = self._last_seq.get(key)
             restart = message.session is None and message.seq == 0
             if last is not None and message.seq <= last and not restart:
@@ -192,9 +210,37 @@ class JoystickInbox:
             self._sample = None
         return change
 
+    def hello(self, session: str) -> tuple[bytes, str]:
+        """The ``hello`` command: a fresh key for ``session`` and its public id (the reply
+        goes to the asker only).
+
+        Raises:
+            InputError: the session has a key already, holds the lease, or was heard from
+                (:meth:`SessionKeys.issue <.session_keys.SessionKeys.issue>`).
+        """
+        with self._lock:
+            holder = self.lease.holder
+            heard = SessionKey(session, "") in self._last_seq
+            key = self.keys.issue(
+                session, holder=holder.session if holder is not None else None, heard=heard
+            )
+            return key, public_session_id(session)
+
+    def stalled(self, now: float) -> LeaseChange | None:
+        """The daemon stood still until ``now``: what it heard before is stale (the sample
+        is dropped) and the holder loses the lease as to silence (``stall``; it takes it
+        back with its next message that is input)."""
+        with self._lock:
+            self._sample = None
+            change = self.lease.stall(now)
+            if change is not None:
+                self._changed([change])
+        return change
+
     def take_control(self, session: str, now: float) -> LeaseChange | None:
-        """The ``take_control`` command: the session with this id holds the lease — a
-        publisher's ``session``, or the ``source`` of one that sends no session id."""
+        """The ``take_control`` command: the session named holds the lease — by a
+        publisher's ``session`` id, its public id (what status shows), or the ``source`` of
+        one that sends no session id."""
         with self._lock:
             change = self.lease.take(self._known(session), now)
             if change is not None:
@@ -203,7 +249,7 @@ class JoystickInbox:
         return change
 
     def operator(self) -> dict[str, str | None] | None:
-        """The lease holder (``source``, ``session``), or ``None``."""
+        """The lease holder (``source``, ``session``: its public id), or ``None``."""
         with self._lock:
             holder = self.lease.holder
         return None if holder is None else dict(holder.describe())
@@ -225,13 +271,33 @@ class JoystickInbox:
             self._sample = None
 
     # --- under the lock ------------------------------------------------------------------
+    def _unauthentic(self, message: JoystickMessage) -> str | None:
+        """Why ``message`` is not its session's own (``auth``), or ``None``."""
+        session = message.session
+        if session is None:
+            return None if message.auth is None else "a tag without a session id"
+        key = self.keys.key(session)
+        if key is None:
+            if message.auth is None and not self.keys.unknown(session):
+                return None  # a session without a key: taken as before
+            self.keys.mark_unknown(session)
+            return "a tag for a session this daemon gave no key (restarted? forged?)"
+        if message.auth is None:
+            return "no tag: the session is keyed"
+        if not tag_matches(key, message):
+            return "wrong tag"
+        return None
+
     def _known(self, ident: str) -> SessionKey:
-        """The session with id ``ident``, else the id-less one with that ``source``, else a
-        session not heard from yet."""
+        """The session with id (or public id) ``ident`` — heard from, or keyed and not heard
+        yet — else the id-less one with that ``source``, else a session not heard yet."""
         heard = list(reversed(self._last_seq))
         for key in heard:
-            if key.session == ident:
+            if key.session is not None and ident in (key.session, key.public_id):
                 return key
+        for session in reversed(self.keys.sessions()):
+            if ident in (session, public_session_id(session)):
+                return SessionKey(session, NOT_HEARD)
         for key in heard:
             if key.session is None and key.source == ident:
                 return key
@@ -244,7 +310,7 @@ class JoystickInbox:
         tally.count += 1
         tally.error = error
         tally.source = key.source if key is not None else None
-        tally.session = key.session if key is not None else None
+        tally.session = key.public_id if key is not None else None
 
     def _remember(self, key: SessionKey, seq: int) -> None:
         self._last_seq[key] = seq

@@ -3,6 +3,10 @@
 Every joystick publisher is a *session*: the random ``session`` id its messages carry
 (chosen at each publisher start), or — for a publisher that sends none — its ``source``
 label. At most one session holds the operator *lease*; only its messages move the robot.
+A session id is no secret (every message shows it): what makes a session the publisher's
+own is its key (:mod:`.session_keys`), checked before the lease sees a message. Status and
+events name a session by its public id (:func:`~legws_daemon.formats.messages.
+public_session_id`), never by its id.
 
 - The lease is free at start. The first session that **steers** takes it: a message with
   the enable button held (even with the stick centred), or — from a publisher without an
@@ -12,9 +16,11 @@ label. At most one session holds the operator *lease*; only its messages move th
   the stick says (an operator resting with enable released still holds it).
 - It ends when the holder says goodbye (``bye``: a publisher that stops), when the holder
   has not been heard for the deadman timeout plus a grace period (a publisher that died),
-  or on the ``release`` command. A holder that lost it to silence takes it back with any
-  message that is input (``resumed``: a network hiccup, the stick centred while the arm
-  works) as long as nobody else took it meanwhile.
+  when the daemon itself stood still (``stall``: the process was paused; what it heard
+  before is stale), or on the ``release`` command. A holder that lost it to silence takes
+  it back with any message that is input (``resumed``: a network hiccup, the stick
+  centred while the arm works, the daemon's own stall) as long as nobody else took it
+  meanwhile.
 - The ``take_control`` command hands it to a named session at once (heard from yet or
   not; a session never heard from loses it after the timeout plus the grace).
 
@@ -26,8 +32,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from legws_daemon.formats.messages import public_session_id
+
 #: Why the lease changed hands.
-LeaseReason = Literal["first_input", "resumed", "goodbye", "timeout", "release", "take_control"]
+LeaseReason = Literal[
+    "first_input", "resumed", "goodbye", "timeout", "stall", "release", "take_control"
+]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -48,9 +58,14 @@ class SessionKey:
     def __hash__(self) -> int:
         return hash(self.ident)
 
+    @property
+    def public_id(self) -> str | None:
+        """The session as status and events name it (``None``: it has no session id)."""
+        return None if self.session is None else public_session_id(self.session)
+
     def describe(self) -> dict[str, str | None]:
-        """The wire form: ``{"source": ..., "session": ...}``."""
-        return {"source": self.source, "session": self.session}
+        """The wire form: ``{"source": ..., "session": <public id>}``."""
+        return {"source": self.source, "session": self.public_id}
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +132,16 @@ class Lease:
         if bye:
             changes.append(self._set(None, now, "goodbye"))
         return True, changes
+
+    def stall(self, now: float) -> LeaseChange | None:
+        """The daemon stood still (``stall``): the holder loses the lease as to silence — it
+        takes it back with its next message that is input, unless someone else did first."""
+        if self.holder is None:
+            return None
+        holder = self.holder
+        change = self._set(None, now, "stall")
+        self.lapsed = holder
+        return change
 
     def release(self, now: float) -> LeaseChange | None:
         """The ``release`` command: nobody holds it; the next session that steers takes it."""

@@ -9,7 +9,8 @@ answered ``busy``), the loop takes up at most :data:`COMMANDS_PER_TICK` per tick
 (``load_scene``, ``load_taskgraph``: files, a new MuJoCo world, a plan) is prepared on its
 own thread while the robot goes on, then swapped in at the start of a tick (the robot stops
 there, as for any load); the replaced world is freed off the loop too. A ``stop`` cancels
-the loads before it.
+the loads before it. ``status`` and ``hello`` (a joystick session's key, in the reply to the
+asker alone: :mod:`.session_keys`) are answered on the zenoh thread at once.
 
 On SIGINT/SIGTERM (or ``--duration``) the loop stops within one period; the robot is
 sent zero velocity and disconnected, the recording is flushed and closed, the zenoh
@@ -21,6 +22,11 @@ Faults that do not end the run:
 - the adapter raises anything (a bug in an adapter, a library error): it is a
   :class:`~legws_daemon.errors.HardwareError` (:class:`GuardedAdapter`), so the controller
   makes its safe stop — zero velocity, one ``fault`` event, status keeps publishing;
+- the daemon itself stood still (its process paused: SIGSTOP, a swap storm, a debugger;
+  two ticks more than :func:`~.ticker.stall_threshold` apart): a ``stall`` event, zero
+  velocity, the input heard before and the lease dropped as after a timeout, and the
+  adapter told (:meth:`~legws_daemon.hardware.base.Adapter.paused`) so that the bridge's
+  heartbeat counts from the resume — the daemon's pause is not the bridge's silence;
 - the recording fails (disk full, a viewer gone, a logging call raising): control goes
   on; the worker counts the problem and the loop reports it as a ``warning`` event
   ``{"telemetry": ...}`` (the first at once, then at most every
@@ -72,6 +78,7 @@ from legws_daemon.autonomy.events import (
     Overrun,
     RealtimeRefused,
     Shutdown,
+    Stall,
     Started,
     TelemetryProblem,
     TraceFailed,
@@ -93,10 +100,12 @@ from legws_daemon.formats.files import LineFile
 from legws_daemon.formats.messages import (
     CommandRequest,
     EventMessage,
+    HelloRequest,
     ObjectsMessage,
     StatusMessage,
     dump,
     parse,
+    parse_request,
 )
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.profile import ProfileSpec
@@ -115,7 +124,7 @@ from legws_daemon.transport.session import keys, open_session, payload_bytes
 
 log = logging.getLogger("legws.daemon")
 #: Rerun text-log level of each event kind (INFO when not listed).
-_SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN"}
+_SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN", "stall": "WARN"}
 
 #: A command not taken up by the loop within this long is answered ``busy`` (nothing was
 #: done), seconds.
@@ -151,6 +160,21 @@ WAITING: dict[str, str] = {
     "moves home only while it arrives with enable held",
     "enable_released": "the enable button: the arm moves home only while it is held",
 }
+
+
+def answer_hello(
+    inbox: JoystickInbox, request: HelloRequest, started: float | None
+) -> tuple[bool, bytes]:
+    """The reply to ``hello`` (docs/messages.md): whether it is a key, and the body —
+    ``{"ok": true, "command": "hello", "session": <public id>, "key": <64 hex digits>,
+    "started": <the daemon's start>}``, or ``{"ok": false, ...}`` with the reason."""
+    try:
+        key, public = inbox.hello(request.argument)
+    except InputError as err:
+        return False, json.dumps({"ok": False, "command": "hello", "error": str(err)}).encode()
+    reply = {"ok": True, "command": "hello", "session": public, "key": key.hex(),
+             "started": started}  # fmt: skip
+    return True, json.dumps(reply).encode()
 
 
 def _waiting(why: str | None) -> str | None:
@@ -298,6 +322,9 @@ class GuardedAdapter(Adapter):
 
     def halt(self) -> None:
         self._call("halt", self.inner.halt)
+
+    def paused(self, resumed: float) -> None:
+        self._call("paused", self.inner.paused, resumed)
 
     def grip(self, closed: bool) -> None:
         self._call("grip", self.inner.grip, closed)
@@ -633,7 +660,7 @@ class DaemonService:
         self.gate.wait()  # validated and answered between ticks: a burst shares no tick
         try:
             payload = payload_bytes(query.payload, self.keys["command"])
-            request = parse(CommandRequest, payload, self.keys["command"])
+            request = parse_request(payload, self.keys["command"])
         except InputError as err:
             query.reply_err(json.dumps({"ok": False, "error": str(err)}).encode())
             return
@@ -641,6 +668,9 @@ class DaemonService:
             with self._status_lock:
                 status = self._status_bytes
             query.reply(self.keys["command"], status)
+            return
+        if isinstance(request, HelloRequest):
+            self._hello(query, request)
             return
         key = self.keys["command"]
 
@@ -662,6 +692,16 @@ class DaemonService:
         except queue.Full:
             busy = f"busy: {COMMAND_QUEUE} commands are waiting; nothing was done"
             pending.finish({"ok": False, "command": request.command, "error": busy})
+
+    def _hello(self, query: zenoh.Query, request: HelloRequest) -> None:
+        """zenoh thread: ``hello`` — a key for the session named, in the reply to the asker
+        alone (a query's reply never reaches other subscribers); status and events show the
+        session's public id only."""
+        ok, body = answer_hello(self.inbox, request, self.started_at)
+        if ok:
+            query.reply(self.keys["command"], body)
+        else:
+            query.reply_err(body)
 
     def _on_joystick(self, sample: zenoh.Sample) -> None:
         """zenoh thread: a joystick payload to the inbox (its size read before its bytes)."""
@@ -1143,6 +1183,9 @@ class DaemonService:
             # ~1-2 ms; together they would make the longest ticks)
             commands = self._run_commands(now, install=(c.ticks + 1) % status_every != 0)
             self._apply_objects()
+            gap = ticker.standstill()  # right before the robot is read
+            if gap is not None:
+                now = self._stalled(gap)
             sample, why = self.inbox.poll(now)
             rec = c.tick(sample.operator if sample is not None else None)
             self._report_input(now, why)
@@ -1166,6 +1209,19 @@ class DaemonService:
             if c.calibration is not None and c.calibration.finished:
                 log.info("calibration: all %d targets reached", c.calibration.count)
                 break  # the shutdown's last status says idle: the publishers see the end
+
+    def _stalled(self, gap: float) -> float:
+        """The loop stood still for ``gap`` s (the process was paused): stop, drop the stale
+        input and the lease (as after a timeout), judge the bridge's heartbeat from now, say
+        so. Returns the time of the resume (the tick's time from here on)."""
+        c = self.controller
+        assert c is not None
+        now = time.monotonic()
+        self.inbox.stalled(now)  # no input this tick: the controller commands zero
+        with contextlib.suppress(LegwsError):  # (only a guarded adapter's bug raises here)
+            c.adapter.paused(now)
+        self._emit(Stall(round(gap, 3), self.ticker.stall_after, self.ticker.stalls))
+        return now
 
     def _publish_status(self, pub: Any, rec: TickRecord | None, slack: float | None) -> None:
         data = dump(self._status(rec, slack))

@@ -1,4 +1,10 @@
-"""A fixed-rate loop timer that reports overruns and keeps tick-time statistics."""
+"""A fixed-rate loop timer that reports overruns and stalls and keeps tick-time statistics.
+
+A *stall* is the loop standing still far longer than any tick takes: the process was paused
+(SIGSTOP, a swap storm, a debugger). :meth:`Ticker.standstill`, called once per tick right
+before the robot is read, tells one from the time since its previous call: more than
+:func:`stall_threshold` (:data:`STALL_PERIODS` periods and :data:`STALL_SECONDS`).
+"""
 
 from __future__ import annotations
 
@@ -8,12 +14,23 @@ from collections.abc import Callable
 
 import numpy as np
 
+#: A stall is a gap between two ticks of more than this many control periods ...
+STALL_PERIODS = 10
+#: ... and more than this many seconds (the default heartbeat timeout).
+STALL_SECONDS = 0.5
+
+
+def stall_threshold(period: float) -> float:
+    """The longest gap between two ticks that is not a stall, s."""
+    return max(STALL_PERIODS * period, STALL_SECONDS)
+
 
 class Ticker:
     """Deadline scheduling at ``rate_hz``: tick ``k`` starts at ``start + k / rate_hz``.
 
     A tick whose work ends after its successor's deadline is an *overrun*: the schedule is
-    re-anchored at the current time (ticks are skipped, never bunched up to catch up).
+    re-anchored at the current time (ticks are skipped, never bunched up to catch up). A
+    *stall* (:meth:`standstill`) re-anchors it too, and is not an overrun.
 
     Args:
         rate_hz: loop rate.
@@ -41,10 +58,34 @@ class Ticker:
         self._durations: deque[float] = deque(maxlen=window)
         self._next = clock()
         self._started: float | None = None
+        #: gaps between two ticks longer than this are stalls, s
+        self.stall_after = stall_threshold(self.period)
+        self.stalls = 0
+        self.last_stall: float | None = None  # the latest stall's gap, s
+        self._alive: float | None = None  # the last standstill() call
 
     def restart(self) -> None:
         """Start the schedule now (call right before the first tick)."""
         self._next = self._clock()
+        self._alive = None
+
+    def standstill(self) -> float | None:
+        """Call once per tick, right before the robot is read: the gap since the previous
+        call if it is a stall (longer than :attr:`stall_after`), else ``None``.
+
+        After a stall the schedule and the tick's work start from now (a stall is no
+        overrun). Wherever the pause fell — in the sleep, in this tick before this call, in
+        the previous tick after it — the gap holds it.
+        """
+        now = self._clock()
+        last, self._alive = self._alive, now
+        if last is None or now - last <= self.stall_after:
+            return None
+        self.stalls += 1
+        self.last_stall = now - last
+        self._next = now
+        self._started = now
+        return self.last_stall
 
     def begin(self) -> float:
         """Mark the start of a tick's work; returns the time."""

@@ -8,6 +8,8 @@ message counts as no input (the deadman then stops the robot), never as a guess.
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
 import math
 from typing import Annotated, Any, Literal, TypeVar
@@ -38,6 +40,13 @@ Seq = Annotated[int, Strict(), Field(ge=0, le=2**63 - 1)]
 Label = Annotated[str, Field(min_length=1, max_length=64)]
 #: A publisher session: 1 to 64 characters of letters, digits, ``-``, ``_``, ``.``, ``:``.
 SessionId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
+#: A session key the daemon gives a publisher (``hello``): this many random bytes.
+SESSION_KEY_BYTES = 32
+#: The ``auth`` tag of a joystick message: HMAC-SHA256 truncated to this many hex digits.
+AUTH_DIGITS = 32
+#: How many hex digits of a session's public id status and events show.
+PUBLIC_ID_DIGITS = 12
+AuthTag = Annotated[str, Field(pattern=rf"^[0-9a-f]{{{AUTH_DIGITS}}}$")]
 
 
 class _Message(BaseModel):
@@ -76,6 +85,9 @@ class JoystickMessage(_Message):
     session: SessionId | None = None
     #: the publisher's last message (it stops): no input, and its operator lease ends now
     bye: StrictBool = False
+    #: a keyed session's tag (:func:`auth_tag`): HMAC-SHA256 with the key of its ``hello``
+    #: over :func:`canonical_bytes`; the daemon refuses a keyed session's message without it
+    auth: AuthTag | None = None
 
     @model_validator(mode="after")
     def _norm(self) -> JoystickMessage:
@@ -83,6 +95,33 @@ class JoystickMessage(_Message):
         if norm > 1.0 + 1e-6:
             raise field_error(("axes",), f"deflection must have norm <= 1, got {norm:.4f}")
         return self
+
+
+def canonical_bytes(message: JoystickMessage) -> bytes:
+    """What a joystick message's ``auth`` tag covers: every field but ``auth`` as the
+    daemon reads the message (defaults filled in), JSON with sorted keys, no spaces,
+    ASCII only — the same bytes on both sides whatever the sender's JSON looked like."""
+    data = message.model_dump(mode="json", by_alias=True, exclude={"auth"})
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return text.encode("ascii")
+
+
+def auth_tag(key: bytes, message: JoystickMessage) -> str:
+    """The ``auth`` tag of ``message`` under a session key: HMAC-SHA256 of
+    :func:`canonical_bytes`, its first 128 bits in lowercase hex."""
+    digest = hmac.new(key, canonical_bytes(message), hashlib.sha256).hexdigest()
+    return digest[:AUTH_DIGITS]
+
+
+def tag_matches(key: bytes, message: JoystickMessage) -> bool:
+    """Whether ``message`` carries the right tag for ``key`` (compared in constant time)."""
+    return message.auth is not None and hmac.compare_digest(auth_tag(key, message), message.auth)
+
+
+def public_session_id(session: str) -> str:
+    """How status and events name a session: the first 12 hex digits of SHA-256 of its id
+    (the id cannot be read back from it; a session's key has no part in it)."""
+    return hashlib.sha256(session.encode()).hexdigest()[:PUBLIC_ID_DIGITS]
 
 
 class Pose(BaseModel):
@@ -226,9 +265,10 @@ class StatusMessage(_Message):
     tick: Seq = 0
     overruns: Seq = 0  # control ticks that ran past their period
     rejected: Seq = 0  # joystick messages not used, all reasons (the sum of ``rejections``)
-    #: joystick messages not used, by reason: invalid, stale_seq, not_operator
-    rejections: dict[Literal["invalid", "stale_seq", "not_operator"], Seq] = {}
-    operator: OperatorInfo | None = None  # the session holding the operator lease
+    #: joystick messages not used, by reason: invalid, auth, stale_seq, not_operator
+    rejections: dict[Literal["invalid", "auth", "stale_seq", "not_operator"], Seq] = {}
+    #: the session holding the operator lease (its public id: :func:`public_session_id`)
+    operator: OperatorInfo | None = None
     slack: Finite | None = None  # certificate seen from the current EE pose
     decision: Seq = 0  # counts the decisions of the run (a new stage, or a restart)
     targets: dict[Label, Vec3] = {}  # goal positions of the current decision (base frame, m)
@@ -270,6 +310,7 @@ EventKind = Literal[
     "reach",
     "reached",
     "operator_inside",
+    "stall",
 ]
 
 
@@ -285,7 +326,8 @@ class CommandRequest(_Message):
     command: Literal[
         "status", "reset", "stop", "load_scene", "load_taskgraph", "release", "take_control"
     ]
-    #: ``load_scene``/``load_taskgraph``: a catalog name; ``take_control``: a session id
+    #: ``load_scene``/``load_taskgraph``: a catalog name; ``take_control``: a session (its
+    #: id, its public id, or the ``source`` of one without an id)
     argument: Label | None = None
     #: ``load_taskgraph`` only: ``"auto"`` the graph's cached plan (``legws plan``), refused
     #: without one; ``"none"`` the shipped layout; left out: the cached plan when there is
@@ -302,6 +344,25 @@ class CommandRequest(_Message):
         if self.plan is not None and self.command != "load_taskgraph":
             raise field_error(("plan",), "only with 'load_taskgraph'")
         return self
+
+
+class HelloRequest(_Message):
+    """``hello`` on the command key: a key for the joystick session ``argument`` (a query:
+    the reply goes to the asker alone)."""
+
+    command: Literal["hello"]
+    argument: SessionId
+
+
+class HelloReply(BaseModel):
+    """The daemon's answer to ``hello`` (to the asker only): the session's key."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    ok: Literal[True]
+    session: Annotated[str, Field(pattern=rf"^[0-9a-f]{{{PUBLIC_ID_DIGITS}}}$")]  # public id
+    key: Annotated[str, Field(pattern=rf"^[0-9a-f]{{{2 * SESSION_KEY_BYTES}}}$")]
+    started: Finite | None = None  # the daemon's start (status ``started``): which daemon
 
 
 class ObjectsMessage(_Message):
@@ -321,6 +382,19 @@ M = TypeVar("M", bound=_Message)
 
 def parse(model: type[M], payload: bytes | str, source: str) -> M:
     """Validate one payload; any problem is an :class:`InputError` naming the field."""
+    return validate(model, _load(payload, source), source)
+
+
+def parse_request(payload: bytes | str, source: str) -> CommandRequest | HelloRequest:
+    """A payload on the command key: a ``hello`` or one of the commands (parsed once)."""
+    data = _load(payload, source)
+    if isinstance(data, dict) and data.get("command") == "hello":
+        return validate(HelloRequest, data, source)
+    return validate(CommandRequest, data, source)
+
+
+def _load(payload: bytes | str, source: str) -> Any:
+    """The JSON of one payload, checked for size, duplicate keys, schema and text."""
     if len(payload) > MAX_PAYLOAD:
         raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}", source=source)
     try:
@@ -342,7 +416,7 @@ def parse(model: type[M], payload: bytes | str, source: str) -> M:
             field="schema",
         )
     check_text(data, source)  # labels and reasons are printed: no terminal controls
-    return validate(model, data, source)
+    return data
 
 
 def dump(message: _Message) -> bytes:

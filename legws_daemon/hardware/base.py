@@ -165,6 +165,12 @@ class Adapter(ABC):
         stop until :meth:`resume` (the stand-in has no robot side: halting is all)."""
         self.halt()
 
+    def paused(self, resumed: float) -> None:
+        """The daemon stood still until ``resumed`` (monotonic s; the process was paused):
+        an adapter that judges the robot side by what it heard measures its silence from
+        then — nothing was heard while the daemon did not run (the stand-in hears nothing)."""
+        return
+
     def resume(self) -> None:
         """Clear the robot side's stop (or a latched implausible state) before a reset.
 

@@ -155,6 +155,9 @@ class SawyerAdapter(Adapter):
         self.implausible: str | None = None
         self._lock = threading.Lock()
         self._latest: tuple[BridgeState, float] | None = None  # (message, monotonic receipt)
+        #: the daemon's resume after its last stall (:meth:`paused`): the heartbeat's age
+        #: counts from it — the daemon heard nothing while it stood still
+        self._awake = -np.inf
         self._first = threading.Event()
         self._subscriber: zenoh.Subscriber[None] | None = None
         self._publisher: zenoh.Publisher | None = None
@@ -278,7 +281,7 @@ class SawyerAdapter(Adapter):
         if latest is None:
             raise HardwareError(f"no joint state received on '{self.state_key}'")
         msg, received = latest
-        age = time.monotonic() - received
+        age = time.monotonic() - max(received, self._awake)
         limit = self.profile.sawyer.heartbeat_timeout
         if age > limit:
             raise HardwareError(
@@ -370,6 +373,12 @@ class SawyerAdapter(Adapter):
             {"schema": 1, "stamp": time.time(), "source": by[:64], "reason": None}
         )
         self._stopper.put(dump(message))
+
+    def paused(self, resumed: float) -> None:
+        """The daemon stood still until ``resumed``: the bridge's heartbeat is judged from
+        then (states it sent meanwhile arrive after the resume, or it is silent and faults
+        ``heartbeat_timeout`` after it)."""
+        self._awake = max(self._awake, resumed)
 
     def resume(self) -> None:
         """Believe the bridge again and have it clear its stop; waits up to

@@ -9,12 +9,24 @@ operator lease at the daemon at once. Every message it puts can also be appended
 recording, one :func:`~legws_daemon.formats.messages.dump` per line, which
 ``legws joystick replay`` reads back.
 
+Every session is *keyed* (docs/messages.md, ``hello``): before its first message the
+publisher asks the daemon for a key for its session id — a zenoh query, whose reply only
+the asker gets — and tags every message with it (``auth``). Then nobody who sees its
+messages can steer as its session: the daemon refuses a keyed session's message without the
+right tag. When no daemon answers yet, the messages go untagged and the publisher asks again
+(at most every :data:`HELLO_RETRY` s); once a daemon answers, a session whose id has already
+been seen untagged is not keyed — the publisher says goodbye on it and goes on in a fresh,
+keyed session (``seq`` from 0; ``take_control`` again if it was asked for). The same when the
+daemon's status shows another daemon (its ``started``) than the one that keyed the session: a
+restarted daemon knows no key.
+
 The daemon's profile *listens* on its endpoints; a publisher must *connect* to them:
 :func:`dial_spec` turns the profile's transport table into the publisher's.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -32,10 +44,24 @@ import zenoh
 
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.files import LineFile, open_output
-from legws_daemon.formats.messages import SCHEMA_VERSION, Buttons, JoystickMessage, dump
+from legws_daemon.formats.messages import (
+    SCHEMA_VERSION,
+    Buttons,
+    HelloReply,
+    JoystickMessage,
+    auth_tag,
+    dump,
+    public_session_id,
+)
 from legws_daemon.formats.profile import ProfileSpec, TransportSpec
 from legws_daemon.formats.validation import validate
-from legws_daemon.transport.session import config_from_file, config_from_spec, keys, open_session
+from legws_daemon.transport.session import (
+    config_from_file,
+    config_from_spec,
+    keys,
+    open_session,
+    payload_bytes,
+)
 
 #: A deflection (x, y, z) in the robot base frame.
 Axes = tuple[float, float, float]
@@ -49,6 +75,11 @@ ZERO: Axes = (0.0, 0.0, 0.0)
 CLAIM_WAIT = 3.0
 #: Highest publishing rate accepted, Hz (the profile's control rate has the same bound).
 MAX_RATE = 1000.0
+#: How long a ``hello`` waits for the daemon's key at most, s (a daemon answers in ms; with
+#: no daemon the query ends at once).
+HELLO_TIMEOUT = 2.0
+#: A session without a key asks for one again at most this often, s.
+HELLO_RETRY = 0.5
 
 
 def clip_norm(axes: Sequence[float]) -> Axes:
@@ -120,6 +151,12 @@ class Publisher:
 
     The session and the recording are opened by ``with`` and closed on leaving it.
     :meth:`publish` may be called from any thread.
+
+    Attributes:
+        session_id: this session as the daemon's status and events name it (its public
+            id: :func:`~legws_daemon.formats.messages.public_session_id`).
+        wire_session: the ``session`` id its messages carry.
+        keyed: whether the daemon gave the session a key (its messages are tagged).
     """
 
     def __init__(
@@ -137,8 +174,10 @@ class Publisher:
             raise InputError("must not be empty", field="key")
         self.config = config
         self.key = key
-        #: the daemon's command key (``take_control``), next to the joystick key
+        #: the daemon's command key (``hello``, ``take_control``) and status key, next to
+        #: the joystick key
         self.command_key = key.rsplit("/", 1)[0] + "/command"
+        self.status_key = key.rsplit("/", 1)[0] + "/status"
         self.source = source
         self.record_path = record
         self.claim = take_control
@@ -148,7 +187,11 @@ class Publisher:
         self._session: zenoh.Session | None = None
         self._publisher: zenoh.Publisher | None = None
         self._record: LineFile | None = None
-        self.session_id = new_session_id()
+        self._wire = new_session_id()
+        self._key: bytes | None = None
+        self._key_started: float | None = None  # the ``started`` of the daemon that keyed it
+        self._daemon_started: float | None = None  # the newest status's ``started``
+        self._asked = -math.inf  # when the last hello went out (monotonic)
 
     @classmethod
     def for_profile(
@@ -175,8 +218,10 @@ class Publisher:
                 self._record = stack.enter_context(_open_record(self.record_path))
             self._session = stack.enter_context(open_session(self.config))
             self._publisher = self._session.declare_publisher(self.key)
-            self.session_id = new_session_id()  # each opening is a new session, seq from 0
-            self._seq = 0
+            with self._lock:  # each opening is a new session, seq from 0, keyed afresh
+                self._wire, self._key, self._key_started = new_session_id(), None, None
+                self._daemon_started, self._asked, self._seq = None, -math.inf, 0
+            self._session.declare_subscriber(self.status_key, self._on_status)
             if self.claim:
                 self.wait_matched(CLAIM_WAIT)
                 self.take_control()
@@ -203,8 +248,23 @@ class Publisher:
 
     @property
     def seq(self) -> int:
-        """The ``seq`` the next message will carry (= number of messages published)."""
+        """The ``seq`` the next message will carry (= messages published in the session)."""
         return self._seq
+
+    @property
+    def session_id(self) -> str:
+        """This session as the daemon's status and events name it (its public id)."""
+        return public_session_id(self._wire)
+
+    @property
+    def wire_session(self) -> str:
+        """The ``session`` id the messages carry."""
+        return self._wire
+
+    @property
+    def keyed(self) -> bool:
+        """Whether the daemon keyed this session (its messages carry ``auth``)."""
+        return self._key is not None
 
     @property
     def session(self) -> zenoh.Session:
@@ -232,12 +292,18 @@ class Publisher:
 
     def take_control(self, timeout: float = 5.0) -> dict[str, Any]:
         """Ask the daemon to give this session the operator lease (the ``take_control``
-        command with :attr:`session_id`); returns the reply.
+        command with :attr:`wire_session`); returns the reply. The session is keyed first
+        (the command shows its id).
 
         Raises :class:`LegwsError` with the daemon's reason when it refuses, and when no
         reply comes (no daemon, or its access control refuses commands from this identity).
         """
-        body = {"schema": SCHEMA_VERSION, "command": "take_control", "argument": self.session_id}
+        with self._lock:
+            self._ensure_key(time.monotonic())
+        return self._take_control(timeout)
+
+    def _take_control(self, timeout: float = 5.0) -> dict[str, Any]:
+        body = {"schema": SCHEMA_VERSION, "command": "take_control", "argument": self._wire}
         for reply in self.session.get(
             self.command_key, payload=json.dumps(body).encode(), timeout=timeout
         ):
@@ -251,6 +317,78 @@ class Publisher:
             f"{self.command_key}: no reply to take_control within {timeout:g} s (is the daemon "
             "running, and does its access control let this identity send commands?)"
         )
+
+    # -- the session's key ----------------------------------------------------------------
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        """zenoh thread: note which daemon runs (status ``started``); nothing else."""
+        try:
+            data = json.loads(payload_bytes(sample.payload, self.status_key))
+        except (InputError, ValueError, RecursionError):
+            return
+        started = data.get("started") if isinstance(data, dict) else None
+        if isinstance(started, float) and math.isfinite(started):
+            self._daemon_started = started
+
+    def _key_due(self, now: float) -> bool:
+        """Whether to ask for a key now: none yet, or a status names another daemon than the
+        one that gave it (at most every :data:`HELLO_RETRY` s)."""
+        if now - self._asked < HELLO_RETRY:
+            return False
+        started = self._daemon_started
+        return self._key is None or (started is not None and started != self._key_started)
+
+    def _ensure_key(self, now: float) -> None:
+        """Under the lock, before a message: key the session if it is due (module
+        docstring); a new session if the current one's id is out already."""
+        if not self._key_due(now):
+            return
+        self._asked = now
+        fresh = self._seq > 0 or self._key is not None  # its id was seen, or keyed elsewhere
+        wire = new_session_id() if fresh else self._wire
+        reply, refused = self._hello(wire)
+        if reply is None:
+            if refused and not fresh:
+                self._wire = new_session_id()  # someone asked for this id first: another one
+            return
+        key = bytes.fromhex(reply.key)
+        if self._key is not None and reply.started == self._key_started:
+            self._daemon_started = self._key_started  # the same daemon: the status was not its
+            return
+        if fresh and self._seq > 0:
+            self._put(ZERO, Buttons(enable=False), bye=True)  # the old session ends
+        self._wire, self._key, self._key_started = wire, key, reply.started
+        if self._daemon_started is None:
+            self._daemon_started = reply.started
+        if fresh:
+            self._seq = 0
+            if self.claim:
+                with contextlib.suppress(LegwsError):  # refused: it takes the lease by steering
+                    self._take_control()
+
+    def _hello(self, wire: str) -> tuple[HelloReply | None, bool]:
+        """Ask the daemon for a key for session ``wire``: its reply (``None``: none came,
+        or it was refused — then the flag is set)."""
+        body = {"schema": SCHEMA_VERSION, "command": "hello", "argument": wire}
+        refused = False
+        try:
+            replies = self.session.get(
+                self.command_key, payload=json.dumps(body).encode(), timeout=HELLO_TIMEOUT
+            )
+            for reply in replies:
+                if reply.ok is None:
+                    refused = True
+                    continue
+                try:
+                    data = json.loads(payload_bytes(reply.ok.payload, self.command_key))
+                    answer = validate(HelloReply, data, self.command_key)
+                except (InputError, ValueError, RecursionError):
+                    continue  # not the daemon's answer
+                if answer.session == public_session_id(wire):
+                    return answer, False
+        except Exception:  # zenoh raises its own error types (a session closing)
+            return None, refused
+        return None, refused
 
     # -- publishing -----------------------------------------------------------------------
 
@@ -266,26 +404,35 @@ class Publisher:
         with self._lock:
             if self._publisher is None:
                 raise LegwsError("publisher is not open (use it in a with block)")
-            data = {
-                "schema": SCHEMA_VERSION,
-                "seq": self._seq,
-                "stamp": time.time(),
-                "axes": [float(a) for a in axes],
-                "buttons": buttons if buttons is not None else Buttons(),
-                "source": self.source,
-                "session": self.session_id,
-                "bye": bye,
-            }
-            message = validate(JoystickMessage, data, self.key)
-            payload = dump(message)
-            try:
-                self._publisher.put(payload)
-            except Exception as err:  # zenoh raises its own error types
-                raise LegwsError(f"{self.key}: cannot publish: {err}") from None
-            self._seq += 1
-            if self._record is not None and not self._record.closed:  # closed: the disk
-                self._record.write(payload.decode() + "\n")  # filled (said once)
-            return message
+            if not bye:
+                self._ensure_key(time.monotonic())
+            return self._put(axes, buttons, bye=bye)
+
+    def _put(self, axes: Sequence[float], buttons: Buttons | None, *, bye: bool) -> JoystickMessage:
+        """Under the lock: validate, tag, put, record one message of the current session."""
+        assert self._publisher is not None
+        data = {
+            "schema": SCHEMA_VERSION,
+            "seq": self._seq,
+            "stamp": time.time(),
+            "axes": [float(a) for a in axes],
+            "buttons": buttons if buttons is not None else Buttons(),
+            "source": self.source,
+            "session": self._wire,
+            "bye": bye,
+        }
+        message = validate(JoystickMessage, data, self.key)
+        if self._key is not None:
+            message = message.model_copy(update={"auth": auth_tag(self._key, message)})
+        payload = dump(message)
+        try:
+            self._publisher.put(payload)
+        except Exception as err:  # zenoh raises its own error types
+            raise LegwsError(f"{self.key}: cannot publish: {err}") from None
+        self._seq += 1
+        if self._record is not None and not self._record.closed:  # closed: the disk
+            self._record.write(payload.decode() + "\n")  # filled (said once)
+        return message
 
     def publish_zero(self) -> JoystickMessage:
         """Publish zero deflection with no button pressed (enable held: a still stick)."""

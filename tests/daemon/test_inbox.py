@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from legws_daemon.daemon.inbox import MAX_SESSIONS, JoystickInbox
+from legws_daemon.formats.messages import public_session_id as public
 
 
 def payload(seq: int = 0, axes: object = (0.1, 0.0, 0.0), **extra: object) -> bytes:
@@ -57,7 +58,7 @@ def test_malformed_messages_are_counted_and_never_used(bad: bytes) -> None:
     assert box.offer(bad, now=1.0) is None
     assert box.rejected == 1
     assert box.latest(1.0) is None
-    assert box.counts() == {"invalid": 1, "stale_seq": 0, "not_operator": 0}
+    assert box.counts() == {"invalid": 1, "auth": 0, "stale_seq": 0, "not_operator": 0}
     assert box.last_error is not None
     assert "\n" not in box.last_error
 
@@ -101,10 +102,10 @@ def test_the_first_session_that_steers_holds_the_lease_and_others_are_not_operat
     assert box.poll(0.0) == (None, "no_operator")
     assert box.operator() is None and box.rejected == 0
     assert box.offer(session("a", 0), now=0.01) is not None
-    assert box.operator() == {"source": "pub-a", "session": "a"}
+    assert box.operator() == {"source": "pub-a", "session": public("a")}
     assert box.offer(session("b", 0, axes=[0, -0.9, 0]), now=0.02) is None
     assert box.offer(session("idle", 1, axes=[0, 0, 0]), now=0.02) is None
-    assert box.counts() == {"invalid": 0, "stale_seq": 0, "not_operator": 2}
+    assert box.counts() == {"invalid": 0, "auth": 0, "stale_seq": 0, "not_operator": 2}
     s = box.latest(0.03)
     assert s is not None and s.message.session == "a"
     report = box.take_report()
@@ -112,7 +113,7 @@ def test_the_first_session_that_steers_holds_the_lease_and_others_are_not_operat
         ("a", "first_input")
     ]
     assert report.rejections["not_operator"].count == 2
-    assert report.rejections["not_operator"].session == "idle"
+    assert report.rejections["not_operator"].session == public("idle")
     assert box.take_report().changes == []
 
 
@@ -122,7 +123,7 @@ def test_holding_the_enable_button_claims_a_free_lease_with_the_stick_centred() 
     assert box.offer(session("nobutton", 0, axes=[0, 0, 0]), now=0.0) is None  # no claim
     held = session("pad", 0, axes=[0, 0, 0], buttons={"enable": True})
     assert box.offer(held, now=0.1) is not None
-    assert box.operator() == {"source": "pub-pad", "session": "pad"}
+    assert box.operator() == {"source": "pub-pad", "session": public("pad")}
     assert box.poll(0.1)[0] is not None
 
 
@@ -131,7 +132,7 @@ def test_the_lease_passes_after_the_timeout_plus_the_grace() -> None:
     box.offer(session("a", 0), now=0.0)
     assert box.offer(session("b", 0), now=0.74) is None  # 0.74 s of silence: still a's
     assert box.offer(session("b", 1), now=0.76) is not None  # 0.76 > 0.75: b takes it
-    assert box.operator() == {"source": "pub-b", "session": "b"}
+    assert box.operator() == {"source": "pub-b", "session": public("b")}
     reasons = [c.reason for c in box.take_report().changes]
     assert reasons == ["first_input", "timeout", "first_input"]
     # the control loop's poll ends a silent lease too
@@ -164,7 +165,7 @@ def test_enable_released_is_no_input_but_keeps_the_lease() -> None:
     for i in range(2, 20):  # resting with enable released for 2 s
         box.offer(session("a", i, axes=[0, 0, 0], buttons={"enable": False}), now=0.1 * i)
     assert box.offer(session("b", 0), now=2.0) is None
-    assert box.operator() == {"source": "pub-a", "session": "a"}
+    assert box.operator() == {"source": "pub-a", "session": public("a")}
 
 
 def test_release_and_take_control() -> None:
@@ -175,7 +176,7 @@ def test_release_and_take_control() -> None:
     assert box.latest(0.1) is None  # a's sample is not b's input
     assert box.offer(session("a", 1), now=0.15) is None
     assert box.offer(session("b", 0), now=0.2) is not None
-    assert box.operator() == {"source": "pub-b", "session": "b"}
+    assert box.operator() == {"source": "pub-b", "session": public("b")}
     assert box.take_control("b", now=0.3) is None  # already b's
     release = box.release(now=0.4)
     assert release is not None and release.reason == "release"

@@ -6,6 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from legws_daemon.daemon.lease import Lease, SessionKey
+from legws_daemon.formats.messages import public_session_id
 
 KEYS = [
     SessionKey("a", "pad"),
@@ -17,7 +18,7 @@ KEYS = [
 Step = tuple[str, int, bool, bool, float]
 steps = st.lists(
     st.tuples(
-        st.sampled_from(["msg", "msg", "msg", "release", "take", "tick"]),
+        st.sampled_from(["msg", "msg", "msg", "release", "take", "tick", "stall"]),
         st.integers(0, len(KEYS) - 1),
         st.booleans(),  # steering
         st.booleans(),  # bye
@@ -63,6 +64,11 @@ def test_one_holder_and_every_change_is_accounted_for(sequence: list[Step]) -> N
         elif what == "take":
             changes = [c for c in [lease.take(KEYS[k], now)] if c is not None]
             assert lease.holder == KEYS[k]
+        elif what == "stall":
+            changes = [c for c in [lease.stall(now)] if c is not None]
+            assert lease.holder is None
+            if before is not None:
+                assert lease.lapsed == before  # it takes it back as after a timeout
         else:
             changes = [c for c in [lease.expire(now)] if c is not None]
         # the changes chain from the holder before to the holder after
@@ -74,7 +80,7 @@ def test_one_holder_and_every_change_is_accounted_for(sequence: list[Step]) -> N
                 assert change.previous is None and steering and not bye
             if change.reason == "resumed":  # the one that lapsed, and nobody had it since
                 assert change.previous is None and lapsed == change.operator and not bye
-            if change.reason == "timeout":
+            if change.reason in ("timeout", "stall"):
                 assert change.operator is None
             if change.reason == "timeout":
                 lapsed = change.previous  # (an expiry inside this step)
@@ -109,3 +115,25 @@ def test_a_holder_that_lapsed_takes_it_back_unless_someone_else_had_it() -> None
     lease.expire(3.0)
     mine, _ = lease.offer(a, 3.1, steering=False, bye=False)
     assert not mine and lease.holder is None
+
+
+def test_a_stall_ends_the_lease_and_the_holder_takes_it_back_with_its_next_input() -> None:
+    lease = Lease(timeout=0.25, grace=0.5)
+    a, b = KEYS[0], KEYS[1]
+    lease.offer(a, 0.0, steering=True, bye=False)
+    change = lease.stall(2.0)
+    assert change is not None and (change.previous, change.operator) == (a, None)
+    assert lease.stall(2.0) is None
+    mine, changes = lease.offer(a, 2.05, steering=False, bye=False)
+    assert mine and [c.reason for c in changes] == ["resumed"]
+    # as after a timeout, another session that steers first takes it
+    lease.stall(3.0)
+    assert lease.offer(b, 3.01, steering=True, bye=False)[0]
+    assert not lease.offer(a, 3.02, steering=False, bye=False)[0]
+
+
+def test_status_names_a_session_by_its_public_id() -> None:
+    assert SessionKey("abc", "pad").describe() == {
+        "source": "pad", "session": public_session_id("abc")
+    }  # fmt: skip
+    assert SessionKey(None, "legacy").describe() == {"source": "legacy", "session": None}

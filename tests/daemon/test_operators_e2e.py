@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from legws_daemon.formats.messages import public_session_id as public
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.joystick.publisher import Publisher
 from legws_daemon.transport.session import config_from_spec
@@ -135,7 +136,7 @@ def test_two_publishers_the_daemon_follows_the_first_and_a_restart_steers_at_onc
             time.sleep(2.0)
             s1 = m.latest()
             assert s1 is not None
-            assert s1["operator"] == {"source": "operator-pad", "session": first.id}
+            assert s1["operator"] == {"source": "operator-pad", "session": public(first.id)}
             assert s1["rejections"]["not_operator"] >= 100  # ~2 s at 100 Hz
             assert s1["mode"] == "teleop"
             intruder.goodbye()
@@ -149,7 +150,9 @@ def test_two_publishers_the_daemon_follows_the_first_and_a_restart_steers_at_onc
             assert 0.0 < commit["seconds"] < 60.0
             at_commit = m.latest()
             assert at_commit is not None
-            assert at_commit["operator"] == {"source": "operator-pad", "session": restarted.id}
+            assert at_commit["operator"] == {
+                "source": "operator-pad", "session": public(restarted.id)
+            }  # fmt: skip
             assert m.wait_for(lambda m: "stage_done" in m.kinds(), 60)
             restarted.goodbye()
             assert m.wait_for(lambda m: (m.latest() or {}).get("operator") is None, 5)
@@ -165,12 +168,16 @@ def test_two_publishers_the_daemon_follows_the_first_and_a_restart_steers_at_onc
 
     changes = [(e["detail"]["operator"], e["detail"]["reason"]) for e in events
                if e["kind"] == "operator"]  # fmt: skip
-    expect = [first.id, None, restarted.id, None]
+    expect = [public(first.id), None, public(restarted.id), None]
     assert [(c or {}).get("session") for c, _ in changes] == expect
     assert [r for _, r in changes] == ["first_input", "goodbye", "first_input", "goodbye"]
     rejected = [e["detail"] for e in events if e["kind"] == "input_rejected"]
-    assert any(r["reason"] == "not_operator" and r["session"] == intruder.id for r in rejected)
-    assert any(r["reason"] == "stale_seq" and r["session"] == restarted.id for r in rejected)
+    assert any(
+        r["reason"] == "not_operator" and r["session"] == public(intruder.id) for r in rejected
+    )
+    assert any(
+        r["reason"] == "stale_seq" and r["session"] == public(restarted.id) for r in rejected
+    )
     assert [e["detail"]["on"] for e in events if e["kind"] == "deadman"][:1] == [False]
 
     # the first tick that began after the restarted session's first message used it
@@ -219,7 +226,9 @@ def test_take_control_and_release_move_the_lease_and_a_killed_publisher_loses_it
                 ok, reply = m.command("release")
                 assert ok and reply["operator"] is None
                 # the first session steers on: with the lease free it takes it back
-                assert m.wait_for(lambda m: (operator() or {}).get("session") == holder.id, 5)
+                assert m.wait_for(
+                    lambda m: (operator() or {}).get("session") == public(holder.id), 5
+                )
             # "killed": the holder stops without a goodbye; the lease ends after 0.75 s
             holder._stop.set()
             t0 = time.monotonic()
@@ -228,7 +237,7 @@ def test_take_control_and_release_move_the_lease_and_a_killed_publisher_loses_it
 
             # the command line: a publisher started with --take-control while another steers
             other = Operator(one, "other", 20.0).steer(lambda: [0.0, 0.3, 0.0])
-            assert m.wait_for(lambda m: (operator() or {}).get("session") == other.id, 5)
+            assert m.wait_for(lambda m: (operator() or {}).get("session") == public(other.id), 5)
             recording = tmp_path / "rec.jsonl"
             lines = [
                 {"schema": 1, "seq": i, "stamp": 0.05 * i, "axes": [0.0, -0.2, 0.0]}
@@ -251,7 +260,7 @@ def test_take_control_and_release_move_the_lease_and_a_killed_publisher_loses_it
     assert reasons[5:7] == ["first_input", "take_control"]
     taken = [e["detail"] for e in events if e["kind"] == "operator"][6]
     assert taken["operator"]["source"] == "(not heard yet)"  # asked for before it published
-    assert taken["previous"]["session"] == other.id
+    assert taken["previous"]["session"] == public(other.id)
     holders = [s["operator"] for _, s in statuses if s["operator"]]
     replayer = next(h for h in holders if h["source"].startswith("replay:"))
     assert replayer["session"] == taken["operator"]["session"]
