@@ -108,11 +108,25 @@ class JoystickInbox:
         key: the key expression the samples come from (named in rejection reasons).
         timeout: the deadman timeout, s.
         grace: how much longer a silent operator keeps the lease, s.
+        stall_after: the loop's stall threshold (:func:`~.ticker.stall_threshold`): a
+            message that comes longer than this after the loop's last :meth:`poll` finds the
+            daemon stalled — handled then as :meth:`stalled` (the loop may not have seen it
+            yet), so the holder's silence during the daemon's own pause is never a
+            ``timeout``. ``None``: only :meth:`stalled` says so.
     """
 
-    def __init__(self, key: str = "joystick", timeout: float = 0.25, grace: float = LEASE_GRACE):
+    def __init__(
+        self,
+        key: str = "joystick",
+        timeout: float = 0.25,
+        grace: float = LEASE_GRACE,
+        stall_after: float | None = None,
+    ) -> None:
         self.key = key
         self.timeout = timeout
+        self.stall_after = stall_after
+        self._polled: float | None = None  # the loop's last poll
+        self._stall_seen = False  # a stall was handled since the last poll
         self._lock = threading.Lock()
         self._sample: Sample | None = None
         self._last_seq: OrderedDict[SessionKey, int] = OrderedDict()
@@ -150,6 +164,7 @@ class JoystickInbox:
                 self.invalid_fields[err.field or "payload"] += 1
             return None
         with self._lock:
+            self._notice_stall(now)
             key = SessionKey(message.session, message.source)
             refused = self._unauthentic(message)
             if refused is not None:
@@ -185,6 +200,7 @@ class JoystickInbox:
         """The input for a tick at ``now``: the operator's newest sample if it arrived within
         the timeout and enable is held, else ``None`` and why."""
         with self._lock:
+            self._polled, self._stall_seen = now, False
             change = self.lease.expire(now)
             if change is not None:
                 self._changed([change])
@@ -229,13 +245,14 @@ class JoystickInbox:
     def stalled(self, now: float) -> LeaseChange | None:
         """The daemon stood still until ``now``: what it heard before is stale (the sample
         is dropped) and the holder loses the lease as to silence (``stall``; it takes it
-        back with its next message that is input)."""
+        back with its next message that is input) — unless a message that came after the
+        stall did that already (:meth:`offer`); the sample is dropped all the same (the
+        tick of a stall moves nothing)."""
         with self._lock:
             self._sample = None
-            change = self.lease.stall(now)
-            if change is not None:
-                self._changed([change])
-        return change
+            if self._stall_seen:
+                return None
+            return self._stall(now)
 
     def take_control(self, session: str, now: float) -> LeaseChange | None:
         """The ``take_control`` command: the session named holds the lease — by a
@@ -271,6 +288,22 @@ class JoystickInbox:
             self._sample = None
 
     # --- under the lock ------------------------------------------------------------------
+    def _stall(self, now: float) -> LeaseChange | None:
+        self._stall_seen = True
+        self._sample = None
+        change = self.lease.stall(now)
+        if change is not None:
+            self._changed([change])
+        return change
+
+    def _notice_stall(self, now: float) -> None:
+        """A message at ``now``, long after the loop's last poll: the daemon stood still."""
+        polled = self._polled
+        if self.stall_after is None or polled is None or self._stall_seen:
+            return
+        if now - polled > self.stall_after:
+            self._stall(now)
+
     def _unauthentic(self, message: JoystickMessage) -> str | None:
         """Why ``message`` is not its session's own (``auth``), or ``None``."""
         session = message.session

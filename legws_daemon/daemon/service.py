@@ -93,7 +93,7 @@ from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
 from legws_daemon.daemon.scheduling import current_priority, enter_realtime
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
-from legws_daemon.daemon.ticker import Ticker
+from legws_daemon.daemon.ticker import Ticker, stall_threshold
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import StopMessage, bridge_keys, parse_stop, stop_role
 from legws_daemon.formats.files import LineFile
@@ -418,7 +418,10 @@ class DaemonService:
         self.keys = keys(self.profile.robot)
         control = self.profile.control
         self.inbox = JoystickInbox(
-            self.keys["joystick"], control.deadman_timeout, control.lease_grace
+            self.keys["joystick"],
+            control.deadman_timeout,
+            control.lease_grace,
+            stall_threshold(1.0 / control.rate_hz),
         )
         self._deadman: NoInput | None = "no_operator"  # as last reported (None: input flows)
         self.started_at: float | None = None  # the daemon's wall clock at its start, s

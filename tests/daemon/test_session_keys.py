@@ -229,6 +229,25 @@ def test_a_stall_drops_the_input_and_the_lease_which_the_holder_takes_back() -> 
     assert [c.reason for c in box.take_report().changes] == ["first_input", "stall", "resumed"]
 
 
+def test_a_message_long_after_the_last_poll_finds_the_daemon_stalled() -> None:
+    """After a pause the transport may hand over a message before the loop's first tick:
+    the holder's silence was the daemon's own, so it is a stall there too, never a timeout."""
+    box = JoystickInbox(timeout=0.25, grace=0.5, stall_after=0.5)
+    key = keyed(box, "op")
+    box.poll(0.0)
+    box.offer(signed(key, message("op", 0)), now=0.01)
+    box.poll(0.02)
+    box.offer(signed(key, message("op", 1)), now=0.45)  # 0.43 s: the loop only ran late
+    assert box.operator() is not None
+    assert box.offer(signed(key, message("op", 2)), now=2.0) is not None  # heard after it
+    assert box.stalled(now=2.01) is None  # the loop sees it now: handled already
+    assert box.poll(2.02) == (None, "no_input")  # its tick moves nothing
+    assert box.offer(signed(key, message("op", 3)), now=2.03) is not None
+    assert box.poll(2.04)[0] is not None
+    reasons = [c.reason for c in box.take_report().changes]
+    assert reasons == ["first_input", "stall", "first_input"]  # (it steers: enable claims)
+
+
 def test_the_hello_reply_carries_the_key_to_the_asker() -> None:
     box = JoystickInbox()
     request = parse_request(b'{"schema": 1, "command": "hello", "argument": "abc"}', "cmd")
