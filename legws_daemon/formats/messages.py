@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, model_validator
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.formats.validation import (
     Angle,
     Coordinate,
@@ -28,6 +29,7 @@ from legws_daemon.formats.validation import (
     field_error,
     printable,
     unique_keys,
+    unsafe_character,
     validate,
 )
 
@@ -397,6 +399,8 @@ def _load(payload: bytes | str, source: str) -> Any:
     """The JSON of one payload, checked for size, duplicate keys, schema and text."""
     if len(payload) > MAX_PAYLOAD:
         raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}", source=source)
+    text = payload.decode("utf-8", errors="replace") if isinstance(payload, bytes) else payload
+    check_json_nesting(text, source)
     try:
         data = json.loads(payload, object_pairs_hook=unique_keys)
     except DuplicateKeyError as dup:
@@ -415,7 +419,8 @@ def _load(payload: bytes | str, source: str) -> Any:
             source=source,
             field="schema",
         )
-    check_text(data, source)  # labels and reasons are printed: no terminal controls
+    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
+        check_text(data, source)  # labels and reasons are printed: no terminal controls
     return data
 
 
