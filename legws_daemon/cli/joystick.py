@@ -189,7 +189,7 @@ def watching(
             lambda text: echo(f"legws: {text}", err=True),
         )  # fmt: skip
         with (
-            StatusLine(watch, sys.stderr, pub.session_id, "legws: daemon: ")
+            StatusLine(watch, sys.stderr, lambda: pub.session_id, "legws: daemon: ")
             if line
             else (contextlib.nullcontext())
         ):

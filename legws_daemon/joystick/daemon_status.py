@@ -203,10 +203,16 @@ class StatusLine:
     """
 
     def __init__(
-        self, watch: StatusWatch, stream: TextIO, session: str | None = None, prefix: str = ""
+        self,
+        watch: StatusWatch,
+        stream: TextIO,
+        session: str | Callable[[], str | None] | None = None,
+        prefix: str = "",
     ) -> None:
         self.watch = watch
         self.stream = stream
+        #: the publisher's public session id, or how to read it now (a publisher keys a
+        #: fresh session when a daemon restarts under it)
         self.session = session
         self.prefix = prefix
         self.terminal = stream.isatty()
@@ -231,7 +237,8 @@ class StatusLine:
         status = self.watch.newest
         if status is None:
             return
-        line = safe_text(self.prefix + status_text(status, self.session))
+        session = self.session() if callable(self.session) else self.session
+        line = safe_text(self.prefix + status_text(status, session))
         if self.terminal:
             if line == self._shown:
                 return

@@ -116,3 +116,17 @@ def test_a_terminal_line_is_cut_to_the_terminal_width() -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_the_line_follows_a_publisher_that_keys_a_fresh_session() -> None:
+    # a publisher re-keys when a daemon restarts under it: "(you)" follows its session now
+    watch = StatusWatch("legws/test_robot/status")
+    mine = ["old"]
+    line = StatusLine(watch, Pipe(False), lambda: mine[0])
+    watch.offer(status(1, operator={"source": "keyboard:42", "session": "new"}))
+    line.show()
+    mine[0] = "new"
+    watch.offer(status(2, mode="assist", operator={"source": "keyboard:42", "session": "new"}))
+    line.show()
+    lines = line.stream.getvalue().splitlines()  # type: ignore[attr-defined]
+    assert "(not you)" in lines[0] and "(you)" in lines[1] and "(not you)" not in lines[1]
