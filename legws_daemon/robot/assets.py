@@ -41,6 +41,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.robot.mesh_files import FAST_MESH_DIR, fast_mesh_path, obj_to_msh
 
 ROBOSUITE_VERSION = "1.5.2"
@@ -225,7 +226,11 @@ def _read_marker(marker: Path, st: os.stat_result) -> dict[str, Any]:
     try:
         with marker.open("rb") as f:
             data = f.read(_MAX_MARKER + 1)
-        obj = json.loads(data.decode("utf-8"))
+        text = data.decode("utf-8")
+        check_json_nesting(text, str(marker))
+        obj = json.loads(text)
+    except InputError as err:
+        raise ValueError(f"is not a manifest: {err}") from None
     except OSError as err:
         raise ValueError(f"cannot be read ({err.strerror or err})") from None
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):

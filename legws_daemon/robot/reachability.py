@@ -72,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.files import output_folder, regular_file, write_atomic
+from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.robot.assets import assets_dir, model_digest
 from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
 from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
@@ -363,7 +364,9 @@ class ReachabilityMap:
         try:
             regular_file(path, "reachability map")  # not a FIFO or a device in its place
             with np.load(path, allow_pickle=False) as f:
-                meta: dict[str, Any] = json.loads(str(f["meta"][()]))
+                text = str(f["meta"][()])
+                check_json_nesting(text, str(path))
+                meta: dict[str, Any] = json.loads(text)
                 top, side, flipped = (np.array(f[k]) for k in ("top", "side", "side_flipped"))
             if meta.get("format") != FORMAT_VERSION:
                 raise LegwsError(f"format {meta.get('format')}, expected {FORMAT_VERSION}")
