@@ -244,10 +244,10 @@ class JoystickInbox:
 
     def stalled(self, now: float) -> LeaseChange | None:
         """The daemon stood still until ``now``: what it heard before is stale (the sample
-        is dropped) and the holder loses the lease as to silence (``stall``; it takes it
-        back with its next message that is input) — unless a message that came after the
-        stall did that already (:meth:`offer`); the sample is dropped all the same (the
-        tick of a stall moves nothing)."""
+        is dropped: the tick of a stall moves nothing) and the holder keeps the lease,
+        heard as of the resume (:meth:`Lease.stall`: a lease freed by the daemon's own
+        pause would go to whoever sends first after it). ``None``: the lease does not
+        change hands."""
         with self._lock:
             self._sample = None
             if self._stall_seen:

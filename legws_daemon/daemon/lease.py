@@ -16,11 +16,14 @@ public_session_id`), never by its id.
   the stick says (an operator resting with enable released still holds it).
 - It ends when the holder says goodbye (``bye``: a publisher that stops), when the holder
   has not been heard for the deadman timeout plus a grace period (a publisher that died),
-  when the daemon itself stood still (``stall``: the process was paused; what it heard
-  before is stale), or on the ``release`` command. A holder that lost it to silence takes
-  it back with any message that is input (``resumed``: a network hiccup, the stick
-  centred while the arm works, the daemon's own stall) as long as nobody else took it
-  meanwhile.
+  or on the ``release`` command. A holder that lost it to silence takes it back with any
+  message that is input (``resumed``: a network hiccup, the stick centred while the arm
+  works) as long as nobody else took it meanwhile.
+- When the daemon itself stood still (``stall``: its process was paused) the holder keeps
+  it: the silence was the daemon's, not the holder's, and a lease freed by a pause would
+  go to whoever sends first after it (on a busy machine, an attacker's stream would win
+  the race). The holder is taken as heard at the resume; what it sent before is stale
+  (the inbox drops it: zero velocity until its next message).
 - The ``take_control`` command hands it to a named session at once (heard from yet or
   not; a session never heard from loses it after the timeout plus the grace).
 
@@ -35,9 +38,7 @@ from typing import Literal
 from legws_daemon.formats.messages import public_session_id
 
 #: Why the lease changed hands.
-LeaseReason = Literal[
-    "first_input", "resumed", "goodbye", "timeout", "stall", "release", "take_control"
-]
+LeaseReason = Literal["first_input", "resumed", "goodbye", "timeout", "release", "take_control"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -134,14 +135,12 @@ class Lease:
         return True, changes
 
     def stall(self, now: float) -> LeaseChange | None:
-        """The daemon stood still (``stall``): the holder loses the lease as to silence — it
-        takes it back with its next message that is input, unless someone else did first."""
-        if self.holder is None:
-            return None
-        holder = self.holder
-        change = self._set(None, now, "stall")
-        self.lapsed = holder
-        return change
+        """The daemon stood still (``stall``): the holder keeps the lease, heard as of
+        ``now`` (the resume), so the daemon's own pause never times it out. Returns
+        ``None``: the lease does not change hands (kept for the callers' symmetry)."""
+        if self.holder is not None:
+            self.heard = now
+        return None
 
     def release(self, now: float) -> LeaseChange | None:
         """The ``release`` command: nobody holds it; the next session that steers takes it."""

@@ -156,9 +156,11 @@ class Attacker:
         with self._lock:
             self.heard.append(json.loads(sample.payload.to_bytes()))
 
-    def newest(self) -> dict[str, Any]:
+    def newest(self, session: str | None = None) -> dict[str, Any]:
+        """The last message heard (of ``session``: zenoh delivers a session's own puts to
+        its own subscribers too, so the attacker hears its copies beside the holder's)."""
         with self._lock:
-            return dict(self.heard[-1])
+            return dict(next(h for h in reversed(self.heard) if session in (None, h["session"])))
 
     def put(self, message: dict[str, Any]) -> None:
         self.session.put(KEYS["joystick"], json.dumps(message).encode(),
@@ -200,7 +202,7 @@ def test_a_copy_of_the_holders_session_neither_steers_nor_takes_the_lease(bench:
             assert refused["ok"] is False and "key" not in refused
             sent = {"auth": 0, "stale_seq": 0, "not_operator": 0}
             for i in range(40):  # 2 s at the control rate
-                h = attacker.newest()
+                h = attacker.newest(seen["session"])
                 push = {**h, "seq": h["seq"] + 1000 + i, "axes": [0.0, 0.9, 0.0],
                         "buttons": {"enable": True}}  # fmt: skip
                 attacker.put(push)  # its tag, copied: wrong for this content
@@ -214,7 +216,8 @@ def test_a_copy_of_the_holders_session_neither_steers_nor_takes_the_lease(bench:
                 time.sleep(1.0 / RATE)
             want = {r: before[r] + n for r, n in sent.items()}
             assert m.wait_for(lambda m: all(counts(m)[r] >= n for r, n in want.items()), 10), (
-                counts(m), want,
+                counts(m), want, [(e["kind"], e["detail"]) for e in m.events
+                                  if e["kind"] in ("operator", "stall", "input_rejected")],
             )  # fmt: skip
             time.sleep(0.5)
             p1, t1 = ee(m), time.monotonic()
@@ -260,9 +263,8 @@ def test_a_paused_daemon_reports_a_stall_not_a_silent_bridge(bench: Bench) -> No
         stall = next(e["detail"] for e in news if e["kind"] == "stall")
         assert stall["seconds"] >= 1.5 and stall["threshold"] == 0.5 and stall["stalls"] == 1
         changes = [e["detail"] for e in news if e["kind"] == "operator"]
-        # lost as to silence, taken back by its next message (which steers: enable held)
-        assert [c["reason"] for c in changes] == ["stall", "first_input"], changes
-        assert changes[1]["operator"] == holder.me()
+        # the holder kept the lease through the daemon's pause: nobody could race for it
+        assert changes == [], changes
         holder.axes = (0.0, -0.8, 0.0)  # it steers again
         p = ee(m)
         assert m.wait_for(lambda m: p[1] - ee(m)[1] > 0.01, 10), ee(m) - p
