@@ -166,8 +166,15 @@ def _check_the_replay_stops_at_the_commit(cli: Cli, lego: tuple[Path, dict[str, 
         assert s["last_tick"] > end["tick"] + 100  # the arm went on, on its own
         commit = s["commit"]
         if recorded["how"] == "inferred":
-            assert (commit["goal"], commit["tick"]) == (recorded["goal"], recorded["tick"])
-            assert s["agrees"] is True
+            assert commit["goal"] == recorded["goal"] and s["agrees"] is True
+            # the same tick — or one earlier where the daemon's crossing was by a hair: the
+            # replay's observer runs on the logged path, which differs from the loop's own
+            # values in the last bits, and a posterior within that of the threshold may
+            # cross a tick apart (seen once in ~10 demo recordings)
+            hair = recorded["p"] - s["p_thresh"] < 0.01
+            assert commit["tick"] == recorded["tick"] or (
+                hair and commit["tick"] == recorded["tick"] - 1
+            ), (commit, recorded)
         else:  # the simulated user confirmed on a plateau: the replay commits by then or not
             assert commit is None or commit["tick"] <= recorded["tick"]
         assert s["mismatches"] == []
