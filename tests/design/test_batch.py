@@ -42,12 +42,12 @@ def test_all_on_a_dask_cluster_over_loopback(tmp_path: Path) -> None:
         assert address.startswith("tcp://127.0.0.1:")
         root = tmp_path / "runs"
         args = ["optimize", "--all", "--scene", "breakfast_easy", "--seeds", "2",
-                "--iterations", "8", "--out", str(root), "--quiet", "--dask", address,
+                "--iterations", "4", "--out", str(root), "--quiet", "--dask", address,
                 "--objective", "commit"]  # fmt: skip
         assert run(args) == 0
     summary = json.loads((root / "breakfast_easy" / "seed2" / "summary.json").read_text())
     local = tmp_path / "local"
-    assert run(["optimize", "--scene", "breakfast_easy", "--seed", "2", "--iterations", "8",
+    assert run(["optimize", "--scene", "breakfast_easy", "--seed", "2", "--iterations", "4",
                 "--out", str(local), "--quiet", "--no-cache",
                 "--objective", "commit"]) == 0  # fmt: skip
     # the cluster ran the same computation (the commit objective): same seed, same result
