@@ -31,7 +31,6 @@ import os
 import random
 import subprocess
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,23 +51,12 @@ from legws_daemon.telemetry.rerun_log import (
     RerunLog,
 )
 from legws_daemon.telemetry.rrd_file import rerun_cli, scan
+from tests.reliability.corpus import Case
 from tests.telemetry.helpers import log_episode, straight_episode
 
 GROUPS = ["docs", "columns", "damaged", "links"]
 #: The commands every damaged file goes through.
 COMMANDS = (["replay", "{f}"], ["recording", "finish", "{f}"])
-
-
-@dataclass(frozen=True)
-class Case:
-    """One command line against the sandbox (paths relative to its root)."""
-
-    name: str
-    argv: list[str]
-    env: dict[str, str] = field(default_factory=dict)
-
-    def to_json(self, root: Path) -> dict[str, Any]:
-        return {"argv": self.argv, "cwd": str(root), "env": self.env}
 
 
 class Box:
@@ -184,18 +172,6 @@ def write_recording(
     if extra is not None:
         extra(stream)
     stream.disconnect()
-    return path
-
-
-def raw_recording(path: Path) -> Path:
-    """A recording as the daemon leaves it when killed: two stages, no footer."""
-    log = RerunLog(f"save:{path}", robot="sawyer-sim")
-    first = straight_episode("breakfast_easy", "banana", hold=2)
-    log_episode(log, first, stage="easy")
-    log.flush()
-    second = straight_episode("desk", "white_mug", hold=2)
-    log_episode(log, second, tick0=len(first.positions), stage="desk")
-    log.close(finish_file=False)
     return path
 
 

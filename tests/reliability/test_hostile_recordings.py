@@ -20,9 +20,9 @@ import pytest
 
 from legws_daemon.telemetry.rrd_file import scan
 from tests.reliability.corpus import snapshot
-from tests.reliability.recording_corpus import GROUPS, Box, Case, all_cases, raw_recording
+from tests.reliability.recording_corpus import GROUPS, Box, Case, all_cases
 from tests.reliability.test_hostile_corpus import problems, run_cases
-from tests.telemetry.helpers import verify
+from tests.telemetry.helpers import raw_recording, verify
 
 
 @pytest.fixture(scope="module")

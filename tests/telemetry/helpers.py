@@ -175,3 +175,17 @@ def verify(path: Path) -> subprocess.CompletedProcess[str]:
         timeout=60,
         check=False,
     )
+
+
+def raw_recording(path: Path, robot: str = "sawyer-sim") -> Path:
+    """A recording as the daemon leaves it when killed: two stages written as the daemon
+    writes them, closed without the finishing step (no footer)."""
+    log = RerunLog(f"save:{path}", robot=robot)
+    first = straight_episode("breakfast_easy", "banana", hold=2)
+    log_episode(log, first, stage="easy")
+    log.flush()
+    second = straight_episode("desk", "white_mug", hold=2)
+    log_episode(log, second, tick0=len(first.positions), stage="desk")
+    log.close(finish_file=False)
+    assert log.finished is None
+    return path

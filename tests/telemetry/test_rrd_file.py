@@ -12,22 +12,13 @@ import pytest
 from legws_daemon.telemetry import rrd_file
 from legws_daemon.telemetry.recording import read_commits, read_ee_path, read_stages
 from legws_daemon.telemetry.rerun_log import RerunLog
-from tests.telemetry.helpers import log_episode, straight_episode, verify
+from tests.telemetry.helpers import log_episode, raw_recording, straight_episode, verify
 
 LEGWS = [sys.executable, "-m", "legws_daemon"]
 
 
 def _raw(path: Path) -> Path:
-    """Two stages written as the daemon writes them, closed without the finishing step."""
-    log = RerunLog(f"save:{path}", robot="r")
-    first = straight_episode("breakfast_easy", "banana", hold=2)
-    log_episode(log, first, stage="easy")
-    log.flush()
-    second = straight_episode("desk", "white_mug", hold=2)
-    log_episode(log, second, tick0=len(first.positions), stage="desk")
-    log.close(finish_file=False)
-    assert log.finished is None
-    return path
+    return raw_recording(path, robot="r")
 
 
 def _content(path: Path) -> tuple[object, ...]:
