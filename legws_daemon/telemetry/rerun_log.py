@@ -48,10 +48,12 @@ re-sent. Rerun's batcher writes on its own thread, so no call waits for I/O.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import os
+import re
 import shutil
 import sys
 import time
@@ -522,6 +524,21 @@ class _Trail:
 
     def clear(self) -> None:
         self.count = self.pending = 0
+
+
+_COLOURS = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _pass_on(text: str) -> None:
+    """Lines another writer left on standard error, each terminal-safe (rerun's own lines
+    carry its colours unless NO_COLOR, and names or addresses the user gave)."""
+    for line in text.splitlines():
+        line = _COLOURS.sub("", line)  # rerun's colours (a NO_COLOR the user set empty)
+        if line.strip():
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.write(safe_text(line, MESSAGE_LIMIT) + "\n")
+    with contextlib.suppress(OSError, ValueError):
+        sys.stderr.flush()
 
 
 class RerunLog:
@@ -1323,18 +1340,26 @@ class RerunLog:
         self._closed = True  # first: a signal arriving during close must not re-enter it
         if self._sink_failed:
             timeout = min(timeout, FAILED_CLOSE_TIMEOUT)
-        try:
-            self._stream.flush(timeout_sec=timeout)
-        except Exception as exc:  # closing is best effort: still disconnect
-            self._drop("close", exc)
-        try:
-            self._stream.disconnect()
-        except Exception as exc:
-            self._drop("close", exc)
+        # rerun's own lines (a viewer it cannot reach: its last attempts and what it drops)
+        # are written from Rust straight to file descriptor 2: caught here, passed on safe
+        with rrd_file.quiet_stderr() as said:
+            try:
+                self._stream.flush(timeout_sec=timeout)
+            except Exception as exc:  # closing is best effort: still disconnect
+                self._drop("close", exc)
+            try:
+                self._stream.disconnect()
+            except Exception as exc:
+                self._drop("close", exc)
+                disconnected = False
+            else:
+                disconnected = True
+            finally:
+                if self.web is not None:
+                    self.web.close()
+        _pass_on(said.text)
+        if not disconnected:
             return
-        finally:
-            if self.web is not None:
-                self.web.close()
         if self._save_path is not None and finish_file:
             started = time.monotonic()
             try:

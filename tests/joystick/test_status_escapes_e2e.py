@@ -198,23 +198,26 @@ def test_zenoh_logs_nothing_of_its_own_whatever_rust_log_says(tmp_path: Path) ->
     assert [line.split(":")[0:2] for line in done.stderr.splitlines()] == [["legws", " error"]]
 
 
-@pytest.mark.slow  # ~12 s of real time (rerun's own wait at shutdown), 2 s of CPU
-def test_rerun_lines_carry_no_colour_escapes_once_legws_telemetry_is_loaded() -> None:
-    # rerun writes its own lines from Rust (here: a viewer it cannot reach), in colour even
-    # through a pipe, unless NO_COLOR is set before it loads: legws.telemetry sets it
+@pytest.mark.slow  # ~15 s of real time (rerun's own wait at shutdown), 2 s of CPU
+@pytest.mark.parametrize("no_color", [None, ""])  # legws's default; a user's empty one
+def test_rerun_lines_reach_the_terminal_safe_and_uncoloured(no_color: str | None) -> None:
+    # rerun writes its own lines from Rust (here: a viewer it cannot reach), coloured even
+    # through a pipe: NO_COLOR before it loads, and the lines of the close caught and
+    # passed on safe, colours dropped
     viewer = free_port()  # nobody listens there
     script = (
-        "import legws_daemon.telemetry, rerun as rr\n"
-        "rr.init('legws_test', spawn=False)\n"
-        f"rr.connect_grpc('rerun+http://127.0.0.1:{viewer}/proxy')\n"
-        "rr.log('a', rr.TextLog('hi'))\n"
-        "rr.disconnect()\n"
+        "from legws_daemon.telemetry.rerun_log import RerunLog\n"
+        f"log = RerunLog('connect:rerun+http://127.0.0.1:{viewer}/proxy', robot='r')\n"
+        "log.close()\n"
     )
     run_env = {k: v for k, v in env().items() if k != "NO_COLOR"}
+    if no_color is not None:
+        run_env["NO_COLOR"] = no_color
     done = subprocess.run(
         [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True,
         timeout=60, check=False, env=run_env,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "127.0.0.1" in done.stderr  # rerun's own lines came...
-    assert unsafe_in(done.stdout + done.stderr) == [], done.stderr[-2000:]  # ...uncoloured
+    assert f"127.0.0.1:{viewer}" in done.stderr  # rerun's own lines came...
+    assert unsafe_in(done.stdout + done.stderr) == [], done.stderr[-2000:]  # ...safe
+    assert "\\x1b" not in done.stderr  # and without their colours
