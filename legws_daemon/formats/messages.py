@@ -25,11 +25,10 @@ from legws_daemon.formats.validation import (
     Finite,
     Quat,
     Vec3,
-    check_text,
+    check_json_text,
     field_error,
     printable,
     unique_keys,
-    unsafe_character,
     validate,
 )
 
@@ -419,8 +418,7 @@ def _load(payload: bytes | str, source: str) -> Any:
             source=source,
             field="schema",
         )
-    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
-        check_text(data, source)  # labels and reasons are printed: no terminal controls
+    check_json_text(data, text, source)  # labels and reasons are printed: no controls
     return data
 
 

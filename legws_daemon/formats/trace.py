@@ -32,10 +32,9 @@ from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.formats.validation import (
     MAX_COORDINATE,
     DuplicateKeyError,
-    check_text,
+    check_json_text,
     printable,
     unique_keys,
-    unsafe_character,
 )
 
 #: A deflection may exceed norm 1 by this much (rounding in the sender's own clip).
@@ -103,8 +102,7 @@ def parse_tick(text: str, where: str) -> tuple[int, list[float], list[float], li
         raise InputError(f"invalid JSON: {reason}", source=where) from None
     if not isinstance(data, dict):
         raise InputError(f"expected a JSON object, got {_short(data)}", source=where)
-    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
-        check_text(data, where)
+    check_json_text(data, text, where)
     for key in ("segment", "ee", "u", "goal"):
         if key not in data:
             raise InputError("missing", source=where, field=key)

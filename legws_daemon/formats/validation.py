@@ -428,8 +428,7 @@ def parse_json(text: str, source: str, where: SourceText | None) -> Any:
         raise InputError("invalid JSON: nested too deeply", source=source) from None
     except ValueError as err:  # e.g. an integer of more than 4300 digits
         raise InputError(f"invalid JSON: {err}", source=source) from None
-    if "\\" in text or unsafe_character(text) is not None:  # else no string can hold one
-        check_text(data, source, where=where)
+    check_json_text(data, text, source, where)
     return data
 
 
@@ -542,6 +541,14 @@ def check_text(
     elif isinstance(value, list):
         for i, v in enumerate(value):
             check_text(v, source, (*loc, i), where)
+
+
+def check_json_text(data: Any, text: str, source: str, where: SourceText | None = None) -> None:
+    """:func:`check_text` of ``data`` parsed from the JSON ``text``: the walk only where a
+    string of it can hold such a character (JSON writes a control character only as an
+    escape, so a text without a backslash or an unsafe character of its own has none)."""
+    if "\\" in text or unsafe_character(text) is not None:
+        check_text(data, source, where=where)
 
 
 def read_text(path: Path, kind: str = "text") -> str:
