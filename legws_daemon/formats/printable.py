@@ -37,6 +37,7 @@ This module imports nothing of legws: :mod:`legws_daemon.errors` uses it.
 from __future__ import annotations
 
 import logging
+import re
 import sys
 
 __all__ = [
@@ -123,6 +124,15 @@ def safe_text(text: str, limit: int | None = LIMIT) -> str:
     while pieces and size + len(ELLIPSIS) > limit:
         size -= len(pieces.pop())
     return "".join(pieces) + ELLIPSIS
+
+
+#: A terminal control sequence (CSI: colours, cursor moves) as a program's log writes them.
+_TERMINAL_SEQUENCE = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+
+
+def without_terminal_sequences(text: str) -> str:
+    """``text`` without its CSI sequences (a library's coloured log line, read back)."""
+    return _TERMINAL_SEQUENCE.sub("", text)
 
 
 def safe_lines(text: str, limit: int | None = LIMIT) -> str:

@@ -53,7 +53,6 @@ import json
 import logging
 import math
 import os
-import re
 import shutil
 import sys
 import time
@@ -77,7 +76,7 @@ from legws_daemon.formats.files import output_path
 from legws_daemon.formats.goalset import ParamsSchema, goalset_to_data, params_from_schema
 from legws_daemon.formats.log_lines import How, parse_commit
 from legws_daemon.formats.log_lines import commit_text as commit_text
-from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text
+from legws_daemon.formats.printable import MESSAGE_LIMIT, safe_text, without_terminal_sequences
 from legws_daemon.formats.validation import parse_json, validate
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
@@ -526,14 +525,11 @@ class _Trail:
         self.count = self.pending = 0
 
 
-_COLOURS = re.compile(r"\x1b\[[0-9;]*m")
-
-
 def _pass_on(text: str) -> None:
     """Lines another writer left on standard error, each terminal-safe (rerun's own lines
     carry its colours unless NO_COLOR, and names or addresses the user gave)."""
     for line in text.splitlines():
-        line = _COLOURS.sub("", line)  # rerun's colours (a NO_COLOR the user set empty)
+        line = without_terminal_sequences(line)  # colours (a NO_COLOR the user set empty)
         if line.strip():
             with contextlib.suppress(OSError, ValueError):
                 sys.stderr.write(safe_text(line, MESSAGE_LIMIT) + "\n")

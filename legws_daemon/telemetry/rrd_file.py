@@ -58,6 +58,7 @@ from typing import Any
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import MiB, output_path, regular_file
+from legws_daemon.formats.printable import without_terminal_sequences
 
 #: Seconds ``rerun rrd optimize`` may take at close. It reads the whole file: ~1.7 s for a
 #: 48 MiB recording (6 minutes at 50 Hz) on the 2-core development machine.
@@ -259,7 +260,6 @@ def _frames(f: Any, size: int, version: tuple[int, int, int]) -> Scan:
 
 # --- rerun's output ---------------------------------------------------------------------------
 
-_ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 _LOG_LINE = re.compile(r"^(?:\S+\s+)?(TRACE|DEBUG|INFO|WARN|ERROR)\s+\S+?:\s+(.*)$")
 _CHUNK_COUNT = re.compile(r"Chunk count (\d+) ->")
 
@@ -268,7 +268,7 @@ def rerun_reason(text: str) -> str | None:
     """The gist of rerun's log output (a child's stderr, or what the in-process reader
     wrote): a crash's message, else the first error, else the first warning, else the last
     ``Error:`` line; one line of at most 300 characters, or ``None`` when it says nothing."""
-    lines = [_ANSI.sub("", line).strip() for line in text.splitlines()]
+    lines = [without_terminal_sequences(line).strip() for line in text.splitlines()]
     lines = [line for line in lines if line]
     for i, line in enumerate(lines):
         if " panicked at " in line:  # 'message' on this line, or the message on the next
@@ -693,7 +693,7 @@ def _salvage(source: Path, found: Scan, tmp: Path, deadline: float) -> int:
         )
         if code != 0 or not _nonempty(tmp):
             return None
-        counted = _CHUNK_COUNT.search(_ANSI.sub("", err))
+        counted = _CHUNK_COUNT.search(without_terminal_sequences(err))
         skipped = err.count("couldn't decode message")
         return int(counted[1]) if counted else max(found.chunks_in(messages) - skipped, 0)
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import ctypes
 import ipaddress
 import os
-import re
 import shutil
 import signal
 import socket
@@ -41,6 +40,7 @@ from types import TracebackType
 from urllib.parse import quote
 
 from legws_daemon.errors import InputError
+from legws_daemon.formats.printable import without_terminal_sequences
 from legws_daemon.telemetry.rerun_log import viewer_executable
 from legws_daemon.telemetry.rrd_file import rerun_cli
 
@@ -51,7 +51,6 @@ WEB_FORMS = "web, web:PORT or web:HOST:PORT"
 #: Seconds a child gets to exit after SIGTERM before it is killed.
 STOP_GRACE = 3.0
 _PR_SET_PDEATHSIG = 1
-_ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 _LOG_TAIL = 64 * 1024
 
 
@@ -212,7 +211,7 @@ def child_error(log: Path) -> str:
             text = f.read(_LOG_TAIL).decode("utf-8", errors="replace")
     except OSError:
         return ""
-    lines = [" ".join(_ANSI.sub("", line).split()) for line in text.splitlines()]
+    lines = [" ".join(without_terminal_sequences(line).split()) for line in text.splitlines()]
     lines = [line for line in lines if line]
     for needle in ("panicked at", " ERROR ", "error:", "Error:"):
         found = [line for line in lines if needle in line]
