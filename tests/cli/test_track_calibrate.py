@@ -4,8 +4,6 @@ true scale, and one-line errors for an unreadable camera and bad input."""
 from __future__ import annotations
 
 import re
-import struct
-import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ import pytest
 from legws_daemon.cli import track_calibrate
 from legws_daemon.tracking.calibration import detect_board, load_calibration
 from tests.cli.helpers import Result, assert_bad_input
+from tests.reliability.classes import png_header_only
 from tests.tracking.test_calibration import synthetic_views
 
 MM_PER_POINT = 25.4 / 72
@@ -72,19 +71,6 @@ def test_images_from_a_folder_with_pictures_left_out(
     assert result.code == 0, result.err
     assert f"{pictures / 'blank.png'}: 0 of 24 corners, left out" in result.out
     assert "from 12 of 13 views" in result.out
-
-
-def png_header_only(width: int, height: int) -> bytes:
-    """A PNG that says ``width`` x ``height`` grey pixels and holds 16 rows of them."""
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        crc = zlib.crc32(kind + data) & 0xFFFFFFFF
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
-
-    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    rows = zlib.compress(b"\x00" * (width + 1) * 16)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", rows)
-            + chunk(b"IEND", b""))  # fmt: skip
 
 
 @pytest.mark.parametrize(

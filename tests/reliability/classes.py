@@ -118,7 +118,10 @@ def place_path(root: Path, folder: Path, filename: str, what: str, data: bytes) 
 # --- pictures ---------------------------------------------------------------------------------
 
 
-def _png(width: int, height: int, rows: int = 16, cut: bool = False) -> bytes:
+def png_header_only(width: int, height: int, rows: int = 16, cut: bool = False) -> bytes:
+    """A grey PNG whose header says ``width`` x ``height`` pixels and which holds ``rows`` of
+    them (``cut``: nothing after the header): a small file that would decode to any size."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         crc = zlib.crc32(kind + data) & 0xFFFFFFFF
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
@@ -155,11 +158,11 @@ def _jpeg(width: int, height: int) -> bytes:
 
 #: Picture files by class: label -> bytes.
 PICTURES: dict[str, Callable[[], bytes]] = {
-    "png-32000x32000": lambda: _png(32000, 32000),
-    "png-65535x65535": lambda: _png(65535, 65535),
-    "png-60000x1000": lambda: _png(60_000, 1000, rows=1),
-    "png-0x0": lambda: _png(0, 0),
-    "png-cut-after-header": lambda: _png(640, 480, cut=True),
+    "png-32000x32000": lambda: png_header_only(32000, 32000),
+    "png-65535x65535": lambda: png_header_only(65535, 65535),
+    "png-60000x1000": lambda: png_header_only(60_000, 1000, rows=1),
+    "png-0x0": lambda: png_header_only(0, 0),
+    "png-cut-after-header": lambda: png_header_only(640, 480, cut=True),
     "bmp-30000x30000": lambda: _bmp(30000, 30000),
     "tiff-40000x40000": lambda: _tiff(40000, 40000),
     "jpeg-65500x65500": lambda: _jpeg(65500, 65500),

@@ -361,7 +361,7 @@ def test_the_board_frame_matches_the_board_picture() -> None:
 
 def test_a_picture_is_measured_from_its_header_before_it_is_decoded() -> None:
     from legws_daemon.tracking.calibration import MAX_PICTURE_PIXELS, check_picture_size
-    from tests.cli.test_track_calibrate import png_header_only
+    from tests.reliability.classes import png_header_only
 
     assert check_picture_size(png_header_only(640, 480), "a.png") == (640, 480)
     assert MAX_PICTURE_PIXELS < 10000 * 6000  # over ours, under PIL's own bound
