@@ -127,6 +127,13 @@ def _one_matrix_to_quat(R: FloatArray) -> FloatArray:
     return np.array([v * scale for v in q])
 
 
+def yaw_quat(yaw: float) -> FloatArray:
+    """The quaternion ``[w, x, y, z]`` of a turn by ``yaw`` (rad) about the world z axis:
+    an object's orientation as it stands on the table."""
+    half = 0.5 * float(yaw)
+    return np.array([math.cos(half), 0.0, 0.0, math.sin(half)])
+
+
 def rot_z(yaw: ArrayLike) -> FloatArray:
     """Rotations about the world z axis, ``(..., 3, 3)``."""
     angle = np.asarray(yaw, dtype=np.float64)

@@ -88,7 +88,7 @@ from legws_daemon.autonomy.events import (
 from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.autonomy.operator_watch import OperatorWatch
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, yaw_quat
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
@@ -952,7 +952,7 @@ class DaemonService:
         out = {}
         for name, p in c.layouts.observed.items():
             position = np.array([p.x, p.y, c.scene.z_center(name)])
-            out[name] = (position, np.array([np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]))
+            out[name] = (position, yaw_quat(p.yaw))
         return out
 
     @staticmethod

@@ -26,7 +26,13 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import zenoh
 
-from legws_daemon.core.geometry import FloatArray, matrix_to_quat, quat_to_matrix, rotation_angle
+from legws_daemon.core.geometry import (
+    FloatArray,
+    matrix_to_quat,
+    quat_to_matrix,
+    rotation_angle,
+    yaw_quat,
+)
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState, model_state, register
@@ -266,9 +272,7 @@ class SimAdapter(Adapter):
         # upright again: keep only the yaw of the held pose
         R = quat_to_matrix(quat)
         yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-        w.set_object_pose(
-            name, [pos[0], pos[1], support + half], [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
-        )
+        w.set_object_pose(name, [pos[0], pos[1], support + half], yaw_quat(yaw))
 
     def _carry(self) -> None:
         if self.held is None or self._grip_offset is None:

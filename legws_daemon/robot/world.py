@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat
+from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, yaw_quat
 from legws_daemon.errors import InputError
 from legws_daemon.robot.assets import RESTORE_COMMAND, sawyer_dir, verify
 from legws_daemon.robot.gripper import FINGER_GAP, FINGER_HALF, TCP_OFFSET
@@ -180,7 +180,7 @@ class World:
             body = spec.worldbody.add_body(name=f"obj/{name}", mocap=True)
             p = poses[name]
             body.pos = [p.x, p.y, scene.z_center(name)]
-            body.quat = [np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]
+            body.quat = yaw_quat(p.yaw)
             body.add_geom(
                 name=f"obj/{name}",
                 type=_GEOM[obj.shape],
@@ -247,7 +247,7 @@ class World:
         for name, p in layout.items():
             i = self._mocap[name]
             self.data.mocap_pos[i] = [p.x, p.y, self.scene.z_center(name)]
-            self.data.mocap_quat[i] = [np.cos(p.yaw / 2), 0.0, 0.0, np.sin(p.yaw / 2)]
+            self.data.mocap_quat[i] = yaw_quat(p.yaw)
         mujoco.mj_kinematics(self.model, self.data)
 
     def object_pose(self, name: str) -> tuple[FloatArray, FloatArray]:

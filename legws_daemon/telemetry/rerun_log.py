@@ -68,7 +68,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from numpy.typing import ArrayLike
 
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, yaw_quat
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
@@ -336,10 +336,6 @@ def _part(name: str) -> str:
 def _xyzw(q_wxyz: ArrayLike) -> FloatArray:
     q = np.asarray(q_wxyz, dtype=np.float64)
     return np.array([q[1], q[2], q[3], q[0]])
-
-
-def _yaw_xyzw(yaw: float) -> list[float]:
-    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
 
 
 def _half_size(scene: Scene, name: str) -> tuple[float, float, float]:
@@ -808,7 +804,7 @@ class RerunLog:
             box = rr.Boxes3D(
                 centers=[[pose.x, pose.y, scene.z_center(name)]],
                 half_sizes=[_half_size(scene, name)],
-                quaternions=[rr.Quaternion(xyzw=_yaw_xyzw(pose.yaw))],
+                quaternions=[rr.Quaternion(xyzw=_xyzw(yaw_quat(pose.yaw)))],
                 colors=[_PLANNED],
                 fill_mode="majorwireframe",
             )

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from legws_daemon.core.geometry import FloatArray, matrix_to_quat
+from legws_daemon.core.geometry import FloatArray, matrix_to_quat, yaw_quat
 from legws_daemon.errors import InputError
 from legws_daemon.robot.render import MAX_SIZE, _import_mujoco, gl_unavailable
 from legws_daemon.scene.scene import ObjectPose, Scene
@@ -96,7 +96,7 @@ def add_marker_decals(mujoco: ModuleType, spec: Any, markers: SceneMarkers) -> N
     """Add every marker of the scene to ``spec`` as a textured decal (see the module)."""
     table_z = markers.table_height + DECAL_HALF_THICKNESS
     for m in markers.table.values():
-        quat = [math.cos(m.yaw / 2), 0.0, 0.0, math.sin(m.yaw / 2)]
+        quat = yaw_quat(m.yaw)
         _add_decal(mujoco, spec, markers, spec.worldbody, m.id, m.size, [m.x, m.y, table_z], quat)
     for o in markers.objects.values():
         body = spec.body(f"obj/{o.object}")
@@ -112,7 +112,7 @@ def _add_decal(
     marker_id: int,
     size: float,
     pos: list[float],
-    quat: list[float],
+    quat: ArrayLike,
 ) -> None:
     picture = marker_image(markers.dictionary, marker_id, TEXTURE_CELL_PIXELS)
     name = f"marker/{marker_id}"

@@ -19,6 +19,7 @@ from legws_daemon.core.geometry import (
     rotation_angle,
     se3_distance,
     symmetric_angle,
+    yaw_quat,
 )
 from legws_daemon.errors import InputError
 
@@ -138,3 +139,10 @@ def test_axis_rotation_turns_by_the_angle_about_the_axis(axis: list[float], angl
     assert batch.shape == (2, 3, 3)
     np.testing.assert_allclose(batch[0], R, atol=1e-15)
     np.testing.assert_allclose(batch[1], np.eye(3), atol=1e-15)
+
+
+@given(st.floats(-10.0, 10.0))
+def test_yaw_quat_is_the_turn_about_z(yaw: float) -> None:
+    q = yaw_quat(yaw)
+    assert q.shape == (4,)
+    np.testing.assert_allclose(quat_to_matrix(q), rot_z(yaw), atol=1e-12)
