@@ -1,0 +1,126 @@
+"""What legws knows about one arm: the robot description every part derives from.
+
+Standard library only, and Python-3.8 syntax: the bridges on a robot's own computer read
+the same joint tables as the daemon (``bridge/``), so this module and the arm modules beside
+it import nothing else.
+
+Frames: scenes are in *table coordinates* (method.md §1: the frame the Sawyer's base
+defines, the table top at ``workspace.table_height``). Each arm's base sits at its
+:attr:`ArmSpec.mount` in that frame, so a scene, its layouts and its certificates mean the
+same place on the table whatever arm stands at it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+Vector = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where the arm's base stands in table coordinates: position (m) and yaw (rad)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw: float = 0.0
+
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """``[w, x, y, z]`` of the yaw about the table's z axis."""
+        return (math.cos(self.yaw / 2), 0.0, 0.0, math.sin(self.yaw / 2))
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """One arm. Joint vectors (limits, postures) have the arm's DoF, in joint order.
+
+    Attributes:
+        name: registry key (``sawyer``, ``panda``, ...): the profile's ``arm``, ``--robot``.
+        title: what the arm is called in messages ("Rethink Sawyer").
+        asset_folder: the folder of robosuite's wheel (``models/assets/robots/<folder>``)
+            holding its ``robot.xml`` and meshes; cached under the assets folder as ``name``.
+        joint_names: the MJCF joint names, base to wrist (also the names on the real arm's
+            joint-state topic unless :attr:`hardware_joint_names` says otherwise).
+        position_limits: ``(lower, upper)`` per joint, rad: the hardware's range (a
+            continuous joint gets the range legws lets it use).
+        speed_limits: per joint, rad/s (the manufacturer's specification).
+        ready_posture: the posture the redundancy is pulled toward (keeps joints off their
+            limits) and the first seed of the home pose's inverse kinematics.
+        home_seeds: more seeds of the home pose's inverse kinematics.
+        free_joints: joints the posture never pulls (the wrist roll follows the grasp yaw).
+        hand_body: the MJCF body the gripper is mounted on (robosuite's ``right_hand``:
+            z out of the flange).
+        tcp_quat: the grasp frame (``ee`` site) in the hand's frame, ``[w, x, y, z]``: z
+            the approach, x the closing direction.
+        mount: the base's pose in table coordinates.
+        mesh_collision_bodies: bodies whose *visual* meshes' convex hulls become their
+            collision shapes (for a description whose collision shapes are coarse
+            primitives, the Sawyer's); empty when the description ships collision meshes.
+        primitive_bodies: more bodies whose primitive collision geoms the meshes replace.
+        max_endpoint_speed: the guard's default cap on the endpoint's speed, m/s.
+    """
+
+    name: str
+    title: str
+    asset_folder: str
+    joint_names: tuple[str, ...]
+    position_limits: tuple[tuple[float, float], ...]
+    speed_limits: Vector
+    ready_posture: Vector
+    free_joints: tuple[int, ...]
+    home_seeds: tuple[Vector, ...] = ()
+    hand_body: str = "right_hand"
+    tcp_quat: tuple[float, float, float, float] = (math.sqrt(0.5), 0.0, 0.0, -math.sqrt(0.5))
+    mount: Mount = field(default_factory=Mount)
+    mesh_collision_bodies: frozenset[str] = frozenset()
+    primitive_bodies: frozenset[str] = frozenset()
+    max_endpoint_speed: float = 0.25
+    hardware_joint_names: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        if n < 6:
+            raise ValueError(f"arm {self.name}: {n} joints, expected at least 6")
+        for what, value in (
+            ("position_limits", self.position_limits),
+            ("speed_limits", self.speed_limits),
+            ("ready_posture", self.ready_posture),
+            *(("home_seeds", s) for s in self.home_seeds),
+        ):
+            if len(value) != n:
+                raise ValueError(f"arm {self.name}: {what} has {len(value)} entries, expected {n}")
+        for i, (lo, hi) in enumerate(self.position_limits):
+            if not lo < hi:
+                raise ValueError(f"arm {self.name}: joint {i} has an empty range")
+            if not lo < self.ready_posture[i] < hi:
+                raise ValueError(f"arm {self.name}: ready posture out of joint {i}'s range")
+        if not all(v > 0 for v in self.speed_limits):
+            raise ValueError(f"arm {self.name}: speed limits must be positive")
+        if any(not 0 <= j < n for j in self.free_joints):
+            raise ValueError(f"arm {self.name}: free_joints names a joint it does not have")
+        if self.hardware_joint_names is not None and len(self.hardware_joint_names) != n:
+            raise ValueError(f"arm {self.name}: hardware_joint_names must name {n} joints")
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def prefix(self) -> str:
+        """What the arm's MJCF names are prefixed with in a composed world."""
+        return self.name + "/"
+
+    @property
+    def lower(self) -> Vector:
+        return tuple(lo for lo, _ in self.position_limits)
+
+    @property
+    def upper(self) -> Vector:
+        return tuple(hi for _, hi in self.position_limits)
+
+    @property
+    def hardware_joints(self) -> tuple[str, ...]:
+        """The joint names the real arm's interface uses."""
+        return self.hardware_joint_names or self.joint_names
