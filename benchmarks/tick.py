@@ -57,9 +57,9 @@ def stand_in(scene_name: str, picks: int, seed: int) -> dict[str, Any]:
     reads = Counter[str]()
 
     class Counting(SimAdapter):
-        def read_state(self) -> RobotState:
+        def _read_state(self) -> RobotState:
             reads["read_state"] += 1
-            return super().read_state()
+            return super()._read_state()
 
     def make(sc: Scene) -> SimAdapter:
         a = Counting(profile, sc, clock=clock)

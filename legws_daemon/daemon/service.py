@@ -20,7 +20,8 @@ session closed. The same shutdown runs when the loop fails (an unexpected except
 Faults that do not end the run:
 
 - the adapter raises anything (a bug in an adapter, a library error): it is a
-  :class:`~legws_daemon.errors.HardwareError` (:class:`GuardedAdapter`), so the controller
+  :class:`~legws_daemon.errors.HardwareError` (the guard in
+  :class:`~legws_daemon.hardware.base.Adapter`), so the controller
   makes its safe stop — zero velocity, one ``fault`` event, status keeps publishing;
 - the daemon itself stood still (its process paused: SIGSTOP, a swap storm, a debugger;
   two ticks more than :func:`~.ticker.stall_threshold` apart): a ``stall`` event, zero
@@ -94,8 +95,9 @@ from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
 from legws_daemon.daemon.scheduling import current_priority, enter_realtime
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
+from legws_daemon.daemon.throttle import Throttle
 from legws_daemon.daemon.ticker import Ticker, stall_threshold
-from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
+from legws_daemon.errors import BridgeTimeoutError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import StopMessage, bridge_keys, parse_stop, stop_role
 from legws_daemon.formats.files import LineFile
 from legws_daemon.formats.messages import (
@@ -110,11 +112,9 @@ from legws_daemon.formats.messages import (
 )
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.hardware.base import Adapter, JointCommand, RobotState, adapter_class
+from legws_daemon.hardware.base import Adapter, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.robot.visual import RobotVisual, finger_half_gap, robot_visual
-from legws_daemon.robot.world import World
-from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
@@ -248,104 +248,6 @@ def _held_width(held: Held | None) -> float | None:
     return float(np.abs(held.frame[0]) @ held.extents)
 
 
-class GuardedAdapter(Adapter):
-    """An adapter whose unexpected exceptions are hardware faults.
-
-    Adapters raise :class:`~legws_daemon.errors.LegwsError` for what they expect (a lost
-    heartbeat, a refused command). Anything else (a bug, a library error) would end the
-    loop with the robot's last command still live on the robot side; here it becomes a
-    :class:`HardwareError` naming the call, so the controller stops the robot and reports
-    a ``fault`` like any other. The first traceback of each kind is logged.
-
-    Args:
-        inner: the adapter to guard (connected or not).
-    """
-
-    def __init__(self, inner: Adapter) -> None:
-        super().__init__(inner.profile, inner.scene, inner.session)
-        self.inner = inner
-        self._logged: set[tuple[str, str]] = set()
-
-    def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
-        try:
-            return fn(*args)
-        except LegwsError:
-            raise
-        except Exception as err:
-            key = (what, type(err).__name__)
-            if key not in self._logged:
-                self._logged.add(key)
-                log.error("adapter %s raised %s", what, type(err).__name__, exc_info=True)
-            raise HardwareError(f"{what}: {type(err).__name__}: {err}") from err
-
-    def connect(self) -> None:
-        self._call("connect", self.inner.connect)
-
-    def disconnect(self) -> None:
-        self._call("disconnect", self.inner.disconnect)
-
-    def read_state(self) -> RobotState:
-        state: RobotState = self._call("read_state", self.inner.read_state)
-        return state
-
-    @property
-    def kinematics(self) -> World:
-        model: World = self._call("kinematics", lambda: self.inner.kinematics)
-        return model
-
-    def _command(
-        self, state: RobotState, velocity: FloatArray, hold: FloatArray | None, box: Box
-    ) -> None:
-        self._call("command", self.inner._command, state, velocity, hold, box)
-
-    def _command_joints(self, state: RobotState, qdot: FloatArray) -> None:
-        self._call("command", self.inner._command_joints, state, qdot)
-
-    def send_velocity(
-        self,
-        state: RobotState,
-        velocity: object,
-        hold: FloatArray | None = None,
-        floor: float | None = None,
-    ) -> FloatArray:
-        sent: FloatArray = self._call(
-            "send_velocity", self.inner.send_velocity, state, velocity, hold, floor
-        )
-        return sent
-
-    def send_joint_velocity(
-        self, state: RobotState, qdot: object, floor: float | None = None
-    ) -> JointCommand:
-        sent: JointCommand = self._call(
-            "send_joint_velocity", self.inner.send_joint_velocity, state, qdot, floor
-        )
-        return sent
-
-    def halt(self) -> None:
-        self._call("halt", self.inner.halt)
-
-    def paused(self, resumed: float) -> None:
-        self._call("paused", self.inner.paused, resumed)
-
-    def grip(self, closed: bool) -> None:
-        self._call("grip", self.inner.grip, closed)
-
-    def stop_by(self, by: str) -> None:
-        self._call("stop_by", self.inner.stop_by, by)
-
-    def resume(self) -> None:
-        self._call("resume", self.inner.resume)
-
-    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
-        poses: dict[str, tuple[FloatArray, FloatArray]] = self._call(
-            "object_poses", self.inner.object_poses
-        )
-        return poses
-
-    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
-        return bool(self._call("place_objects", self.inner.place_objects, layout))
-
-
 @dataclass(frozen=True, slots=True)
 class CalibrationSpec:
     """A calibration to run (``legws operator calibrate``): ``targets`` reaches, seeded."""
@@ -426,10 +328,10 @@ class DaemonService:
         )
         self._deadman: NoInput | None = "no_operator"  # as last reported (None: input flows)
         self.started_at: float | None = None  # the daemon's wall clock at its start, s
-        #: per stop role: when its last stop event went out, stops not announced since
-        self._stop_said: dict[str, tuple[float, int]] = {}
-        self._last_deadman_event = -np.inf
-        self._last_rejection_event: dict[str, float] = {}
+        #: a stop event per role (each stop acts at once; those not announced are counted)
+        self._stop_events: Throttle[str] = Throttle(STOP_EVENT_INTERVAL)
+        self._deadman_events: Throttle[None] = Throttle(DEADMAN_EVENT_INTERVAL)
+        self._rejection_events: Throttle[str] = Throttle(REJECTION_EVENT_INTERVAL)
         self._rejections_unreported: dict[str, InputRejected] = {}
         #: closed while a tick runs: the load preparer and command callbacks pause then
         self.gate = LoopGate()
@@ -455,7 +357,7 @@ class DaemonService:
         self._session: zenoh.Session | None = None
         self._event_pub: Any = None
         self._t0 = time.monotonic()
-        self._last_overrun_warning = -np.inf
+        self._overrun_warnings: Throttle[None] = Throttle(OVERRUN_WARNING_INTERVAL)
         self.controller: Controller | None = None
         self.worker: TelemetryWorker | None = None
         if config.telemetry is not None:
@@ -463,7 +365,7 @@ class DaemonService:
                 check=config.telemetry.check,
                 check_every=TELEMETRY_CHECK_INTERVAL,
             )
-        self._last_telemetry_warning = -np.inf
+        self._telemetry_warnings: Throttle[None] = Throttle(TELEMETRY_WARNING_INTERVAL)
         self._telemetry_unreported = 0
         self._telemetry_last: TelemetryReport | None = None
         self._logged_stage: object = None
@@ -490,15 +392,13 @@ class DaemonService:
 
     # --- adapters ---------------------------------------------------------------------
     def make_adapter(self, scene: Scene) -> Adapter:
-        """Build and connect the profile's adapter (guarded: see :class:`GuardedAdapter`);
-        fall back to the stand-in if asked."""
+        """Build and connect the profile's adapter (its calls guarded: see
+        :class:`~legws_daemon.hardware.base.Adapter`); fall back to the stand-in if asked."""
         if self.fallback or self.adapter_kind == "sim":
-            adapter = GuardedAdapter(SimAdapter(self.profile, scene, self._session))
+            adapter: Adapter = SimAdapter(self.profile, scene, self._session)
             adapter.connect()
             return adapter
-        adapter = GuardedAdapter(
-            adapter_class(self.adapter_kind)(self.profile, scene, self._session)
-        )
+        adapter = adapter_class(self.adapter_kind)(self.profile, scene, self._session)
         try:
             adapter.connect()
         except BridgeTimeoutError as err:
@@ -507,7 +407,7 @@ class DaemonService:
             self.fallback = True
             self.ticker.paced = True
             self._emit(Fallback(str(err), "sim"))
-            sim = GuardedAdapter(SimAdapter(self.profile, scene, self._session))
+            sim = SimAdapter(self.profile, scene, self._session)
             sim.connect()
             return sim
         return adapter
@@ -758,13 +658,11 @@ class DaemonService:
             # every stop acts at once; a stop that stops the robot is always announced, a
             # role's further stops (and log lines) at most one a second, the next one counting
             # those not announced
-            last, quiet = self._stop_said.get(role, (-np.inf, 0))
-            if now - last >= STOP_EVENT_INTERVAL or c.mode != Mode.STOPPED:
-                c.stop(role, source, reason, repeats=quiet)
-                self._stop_said[role] = (now, 0)
+            repeats = self._stop_events.attempt(role, now=now, force=c.mode != Mode.STOPPED)
+            if repeats is not None:
+                c.stop(role, source, reason, repeats=repeats)
             else:
                 c.stop(role, source, reason, announce=False)
-                self._stop_said[role] = (last, quiet + 1)
         return True
 
     def _apply_objects(self) -> None:
@@ -904,9 +802,8 @@ class DaemonService:
                 )
             )
         flipped = (why is None) != (self._deadman is None)
-        if flipped and now - self._last_deadman_event >= DEADMAN_EVENT_INTERVAL:
+        if flipped and self._deadman_events.attempt(now=now) is not None:
             self._deadman = why
-            self._last_deadman_event = now
             self._emit(Deadman(why is not None, why))
         totals = self.inbox.counts() if report.rejections else {}
         for reason, tally in report.rejections.items():
@@ -916,8 +813,7 @@ class DaemonService:
                 reason, count, totals[reason], tally.source, tally.session, tally.error
             )
         for kind, event in list(self._rejections_unreported.items()):
-            if now - self._last_rejection_event.get(kind, -np.inf) >= REJECTION_EVENT_INTERVAL:
-                self._last_rejection_event[kind] = now
+            if self._rejection_events.attempt(kind, now=now) is not None:
                 del self._rejections_unreported[kind]
                 self._emit(event)
 
@@ -1029,12 +925,10 @@ class DaemonService:
             self._telemetry_last = report
         if not self._telemetry_unreported:
             return
-        now = time.monotonic()
-        if now - self._last_telemetry_warning < TELEMETRY_WARNING_INTERVAL:
+        if self._telemetry_warnings.attempt() is None:
             return
         last = self._telemetry_last
         assert last is not None
-        self._last_telemetry_warning = now
         self._emit(
             TelemetryProblem(last.last_error, self._telemetry_unreported, last.errors, last.dropped)
         )
@@ -1222,7 +1116,7 @@ class DaemonService:
         assert c is not None
         now = time.monotonic()
         self.inbox.stalled(now)  # no input this tick: the controller commands zero
-        with contextlib.suppress(LegwsError):  # (only a guarded adapter's bug raises here)
+        with contextlib.suppress(LegwsError):  # (only an adapter's bug, guarded, raises here)
             c.adapter.paused(now)
         self._emit(Stall(round(gap, 3), self.ticker.stall_after, self.ticker.stalls))
         return now
@@ -1234,9 +1128,7 @@ class DaemonService:
         pub.put(data)
 
     def _overrun_warning(self) -> None:
-        now = time.monotonic()
-        if now - self._last_overrun_warning >= OVERRUN_WARNING_INTERVAL:
-            self._last_overrun_warning = now
+        if self._overrun_warnings.attempt() is not None:
             last = self.ticker.last_duration or 0.0
             self._emit(
                 Overrun(round(1000 * last, 2), 1000 * self.ticker.period, self.ticker.overruns)
@@ -1348,8 +1240,7 @@ def _quietly(what: str, fn: Callable[..., Any], *args: Any) -> None:
 
 
 def _adapter_name(adapter: Adapter) -> str:
-    inner = adapter.inner if isinstance(adapter, GuardedAdapter) else adapter
-    return type(inner).__name__
+    return type(adapter).__name__
 
 
 def catalog_scene(name: str) -> Scene:

@@ -4,20 +4,29 @@ An adapter connects to one robot, reports its state, and sends EE velocity or jo
 velocity commands. Every command passes through the safety envelope
 (:mod:`legws_daemon.safety.envelope`) inside :meth:`Adapter.send_velocity` and
 :meth:`Adapter.send_joint_velocity`, which return what was actually sent.
+
+Every public method of :class:`Adapter` is final: it runs the subclass's hook (``connect``
+runs ``_connect``, ``read_state`` ``_read_state``, ``send_velocity`` the envelope then
+``_command``, ...) inside one guard, which turns anything but a
+:class:`~legws_daemon.errors.LegwsError` into a :class:`~legws_daemon.errors.HardwareError`
+naming the call. A subclass that defines one of the public methods is refused when the
+class is made, so no call reaches the robot around the guard.
 """
 
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
+from typing import Any, ClassVar, TypeVar, final
 
 import numpy as np
 import zenoh
 
 from legws_daemon.core.geometry import FloatArray, matrix_to_quat
-from legws_daemon.errors import InputError
+from legws_daemon.errors import HardwareError, InputError, LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.robot.gripper import floor_height
 from legws_daemon.robot.kinematics import LIMIT_MARGIN
@@ -79,6 +88,9 @@ class JointCommand:
     ee_velocity: FloatArray
 
 
+log = logging.getLogger("legws.hardware")
+_T = TypeVar("_T")
+
 #: Joint-space moves keep the EE's turning rate below this, rad/s.
 MAX_EE_ANGULAR_SPEED = 0.8
 #: Bisection steps cutting a joint step that would leave the workspace box.
@@ -98,6 +110,17 @@ class Adapter(ABC):
     :data:`~legws_daemon.robot.gripper.FINGERTIP_CLEARANCE` above the table at the EE's
     orientation; a move may lower that floor to its own target (the final approach of a
     grasp), never below the box.
+
+    Subclasses implement the hooks (``_connect``, ``_disconnect``, ``_read_state``,
+    ``_kinematics``, ``_command``, ``_command_joints``, ``_grip``, ``_halt``, and where
+    they differ from the stand-in's ``_stop_by``, ``_paused``, ``_resume``,
+    ``_object_poses``, ``_place_objects``); the public methods are final (see the module
+    docstring): adapters raise :class:`~legws_daemon.errors.LegwsError` for what they
+    expect (a lost heartbeat, a refused command), and anything else (a bug, a library
+    error) — which would otherwise end the loop with the robot's last command still live
+    on the robot side — becomes a :class:`~legws_daemon.errors.HardwareError` naming the
+    call, so the controller stops the robot and reports a ``fault`` like any other. The
+    first traceback of each kind is logged.
 
     Args:
         profile: the hardware profile (rates, limits, workspace box, adapter settings).
@@ -122,24 +145,127 @@ class Adapter(ABC):
         )
         self.w_max = MAX_EE_ANGULAR_SPEED
         self.table_height = scene.workspace.table_height
+        self._logged: set[tuple[str, str]] = set()
 
-    @abstractmethod
+    #: the public methods, each the guarded way to its hook, and the envelope's own steps
+    #: (subclasses define none of them)
+    FINAL: ClassVar[frozenset[str]] = frozenset(
+        {
+            "connect", "disconnect", "read_state", "kinematics", "send_velocity",
+            "send_joint_velocity", "grip", "halt", "stop_by", "paused", "resume",
+            "object_poses", "place_objects", "stop", "envelope", "_guard",
+            "_send_velocity", "_send_joint_velocity",
+        }
+    )  # fmt: skip
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        bypass = sorted(Adapter.FINAL & set(vars(cls)))
+        if bypass:
+            raise TypeError(
+                f"{cls.__name__} defines {', '.join(bypass)}: an adapter implements the "
+                "hooks (_connect, _read_state, ...); the public methods are the guard's"
+            )
+
+    def _guard(self, what: str, fn: Callable[..., _T], *args: Any) -> _T:
+        """``fn(*args)``; anything it raises but a :class:`LegwsError` is a
+        :class:`HardwareError` naming ``what`` (its first traceback of a kind logged)."""
+        try:
+            return fn(*args)
+        except LegwsError:
+            raise
+        except Exception as err:
+            key = (what, type(err).__name__)
+            if key not in self._logged:
+                self._logged.add(key)
+                log.error("adapter %s raised %s", what, type(err).__name__, exc_info=True)
+            raise HardwareError(f"{what}: {type(err).__name__}: {err}") from err
+
+    # --- the public, guarded methods --------------------------------------------------
+    @final
     def connect(self) -> None:
         """Open the connection; raise a :class:`~legws_daemon.errors.LegwsError` on failure."""
+        self._guard("connect", self._connect)
 
-    @abstractmethod
+    @final
     def disconnect(self) -> None:
         """Stop the robot and close the connection (idempotent)."""
+        self._guard("disconnect", self._disconnect)
 
-    @abstractmethod
+    @final
     def read_state(self) -> RobotState:
         """The latest measured state."""
+        return self._guard("read_state", self._read_state)
 
+    @final
     @property
-    @abstractmethod
     def kinematics(self) -> World:
         """The robot's kinematic model (connected adapters only): the envelope predicts
         joint steps with it, the motion planner plans on a twin of it."""
+        return self._guard("kinematics", self._kinematics)
+
+    @final
+    def grip(self, closed: bool) -> None:
+        """Close (``True``) or open the gripper."""
+        self._guard("grip", self._grip, closed)
+
+    @final
+    def halt(self) -> None:
+        """Command zero velocity now, without a state (the state may be what failed)."""
+        self._guard("halt", self._halt)
+
+    @final
+    def stop_by(self, by: str) -> None:
+        """A stop from ``by`` (a role): halt now and tell the robot side, which holds the
+        stop until :meth:`resume`."""
+        self._guard("stop_by", self._stop_by, by)
+
+    @final
+    def paused(self, resumed: float) -> None:
+        """The daemon stood still until ``resumed`` (monotonic s; the process was paused):
+        an adapter that judges the robot side by what it heard measures its silence from
+        then — nothing was heard while the daemon did not run."""
+        self._guard("paused", self._paused, resumed)
+
+    @final
+    def resume(self) -> None:
+        """Clear the robot side's stop (or a latched implausible state) before a reset.
+
+        Raises:
+            HardwareError: the robot side still holds its stop.
+        """
+        self._guard("resume", self._resume)
+
+    @final
+    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Measured object poses, name -> (position, quaternion ``[w, x, y, z]``).
+
+        Empty when the adapter cannot see objects (a real robot: a tracker reports them on
+        ``legws/<robot>/objects``).
+        """
+        return self._guard("object_poses", self._object_poses)
+
+    @final
+    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
+        """Put objects at ``layout``; ``False`` when a person has to (a real robot)."""
+        return bool(self._guard("place_objects", self._place_objects, layout))
+
+    # --- the hooks ----------------------------------------------------------------------
+    @abstractmethod
+    def _connect(self) -> None:
+        """Open the connection (:meth:`connect`)."""
+
+    @abstractmethod
+    def _disconnect(self) -> None:
+        """Stop the robot and close the connection, idempotent (:meth:`disconnect`)."""
+
+    @abstractmethod
+    def _read_state(self) -> RobotState:
+        """The latest measured state (:meth:`read_state`)."""
+
+    @abstractmethod
+    def _kinematics(self) -> World:
+        """The robot's kinematic model (:attr:`kinematics`)."""
 
     @abstractmethod
     def _command(
@@ -153,42 +279,31 @@ class Adapter(ABC):
         """Apply already clamped joint velocities for one control period, from ``state``."""
 
     @abstractmethod
-    def grip(self, closed: bool) -> None:
-        """Close (``True``) or open the gripper."""
+    def _grip(self, closed: bool) -> None:
+        """Close (``True``) or open the gripper (:meth:`grip`)."""
 
     @abstractmethod
-    def halt(self) -> None:
-        """Command zero velocity now, without a state (the state may be what failed)."""
+    def _halt(self) -> None:
+        """Command zero velocity now, without a state (:meth:`halt`)."""
 
-    def stop_by(self, by: str) -> None:
-        """A stop from ``by`` (a role): halt now and tell the robot side, which holds the
-        stop until :meth:`resume` (the stand-in has no robot side: halting is all)."""
-        self.halt()
+    def _stop_by(self, by: str) -> None:
+        """:meth:`stop_by` (the stand-in has no robot side: halting is all)."""
+        self._halt()
 
-    def paused(self, resumed: float) -> None:
-        """The daemon stood still until ``resumed`` (monotonic s; the process was paused):
-        an adapter that judges the robot side by what it heard measures its silence from
-        then — nothing was heard while the daemon did not run (the stand-in hears nothing)."""
+    def _paused(self, resumed: float) -> None:
+        """:meth:`paused` (the stand-in hears nothing)."""
         return
 
-    def resume(self) -> None:
-        """Clear the robot side's stop (or a latched implausible state) before a reset.
+    def _resume(self) -> None:
+        """:meth:`resume` (the stand-in holds no stop)."""
+        return
 
-        Raises:
-            HardwareError: the robot side still holds its stop.
-        """
-        return  # the stand-in holds no stop
-
-    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
-        """Measured object poses, name -> (position, quaternion ``[w, x, y, z]``).
-
-        Empty when the adapter cannot see objects (a real robot: a tracker reports them on
-        ``legws/<robot>/objects``).
-        """
+    def _object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """:meth:`object_poses` (none: the adapter cannot see objects)."""
         return {}
 
-    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
-        """Put objects at ``layout``; ``False`` when a person has to (a real robot)."""
+    def _place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
+        """:meth:`place_objects` (``False``: a person has to)."""
         return False
 
     def envelope(self, rotation: FloatArray, floor: float | None = None) -> Box:
@@ -199,6 +314,7 @@ class Adapter(ABC):
             z = min(z, floor)
         return self.box.with_floor(z)
 
+    @final
     def send_velocity(
         self,
         state: RobotState,
@@ -215,11 +331,17 @@ class Adapter(ABC):
             hold: EE orientation (3, 3) to hold, or ``None`` for the current one.
             floor: the lowest EE height this command may reach (a final approach), m.
         """
+        return self._guard("send_velocity", self._send_velocity, state, velocity, hold, floor)
+
+    def _send_velocity(
+        self, state: RobotState, velocity: object, hold: FloatArray | None, floor: float | None
+    ) -> FloatArray:
         box = self.envelope(state.ee_rotation, floor)
         sent = clamp_ee_velocity(state.ee_position, velocity, self.dt, box, self.v_max)
         self._command(state, sent, hold, box)
         return sent
 
+    @final
     def send_joint_velocity(
         self, state: RobotState, qdot: object, floor: float | None = None
     ) -> JointCommand:
@@ -232,6 +354,11 @@ class Adapter(ABC):
             qdot: requested joint velocities (7,), rad/s; anything invalid sends zero.
             floor: the lowest EE height this command may reach, m.
         """
+        return self._guard("send_joint_velocity", self._send_joint_velocity, state, qdot, floor)
+
+    def _send_joint_velocity(
+        self, state: RobotState, qdot: object, floor: float | None
+    ) -> JointCommand:
         model = self.kinematics
         arm = model.arm
         qd = clamp_joint_velocity(
@@ -275,6 +402,7 @@ class Adapter(ABC):
                 bad = mid
         return qdot * good
 
+    @final
     def stop(self) -> FloatArray:
         """Send zero velocity from a freshly read state."""
         return self.send_velocity(self.read_state(), np.zeros(3))

@@ -174,7 +174,7 @@ class SawyerAdapter(Adapter):
     def connected(self) -> bool:
         return self._subscriber is not None
 
-    def connect(self) -> None:
+    def _connect(self) -> None:
         """Subscribe to the bridge's state and wait for its first valid message.
 
         Raises:
@@ -220,7 +220,7 @@ class SawyerAdapter(Adapter):
                 f"{timeout:g} s: is the bridge running and connected?"
             )
 
-    def disconnect(self) -> None:
+    def _disconnect(self) -> None:
         """Send zero joint velocities a few times, then stop listening (idempotent).
 
         The session stays open: the daemon owns it.
@@ -304,11 +304,10 @@ class SawyerAdapter(Adapter):
             raise LegwsError("the sawyer adapter is not connected")
         return self._ik
 
-    @property
-    def kinematics(self) -> World:
+    def _kinematics(self) -> World:
         return self._model()
 
-    def read_state(self) -> RobotState:
+    def _read_state(self) -> RobotState:
         """The newest measured state, with the EE and link poses from the kinematic model.
 
         Raises:
@@ -360,11 +359,11 @@ class SawyerAdapter(Adapter):
         """Publish joint velocities the envelope has already clamped."""
         self._publish(within_speed(qdot, self.speed_limits))
 
-    def halt(self) -> None:
+    def _halt(self) -> None:
         """Publish zero joint velocities now, without reading the state (e.g. on a fault)."""
         self._publish(np.zeros(7))
 
-    def stop_by(self, by: str) -> None:
+    def _stop_by(self, by: str) -> None:
         """Halt now and have the bridge hold a stop (``legws/<robot>/stop/daemon``)."""
         self.halt()
         if self._stopper is None:
@@ -374,13 +373,13 @@ class SawyerAdapter(Adapter):
         )
         self._stopper.put(dump(message))
 
-    def paused(self, resumed: float) -> None:
+    def _paused(self, resumed: float) -> None:
         """The daemon stood still until ``resumed``: the bridge's heartbeat is judged from
         then (states it sent meanwhile arrive after the resume, or it is silent and faults
         ``heartbeat_timeout`` after it)."""
         self._awake = max(self._awake, resumed)
 
-    def resume(self) -> None:
+    def _resume(self) -> None:
         """Believe the bridge again and have it clear its stop; waits up to
         :data:`RESUME_TIMEOUT` for a joint state that shows no stop.
 
@@ -413,7 +412,7 @@ class SawyerAdapter(Adapter):
             f"{RESUME_TIMEOUT:g} s after the resume"
         )
 
-    def grip(self, closed: bool) -> None:
+    def _grip(self, closed: bool) -> None:
         """Request the gripper state; sent now (with zero joint velocities) and with every
         later command."""
         self._gripper = "closed" if closed else "open"

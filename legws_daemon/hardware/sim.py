@@ -111,14 +111,14 @@ class SimAdapter(Adapter):
         self._left_at: FloatArray | None = None  # the arm's q after the last tracked step
         self._valid_hold: tuple[bytes, FloatArray] = (b"", np.eye(3))
 
-    def connect(self) -> None:
+    def _connect(self) -> None:
         world = World(self.scene)
         self.q_home = home_configuration(
             world, self.scene.home.position, self.scene.home.rotation
         ).q
         self.world = world
 
-    def disconnect(self) -> None:
+    def _disconnect(self) -> None:
         self.world = None
 
     def _world(self) -> World:
@@ -126,11 +126,10 @@ class SimAdapter(Adapter):
             raise LegwsError("the sim adapter is not connected")
         return self.world
 
-    @property
-    def kinematics(self) -> World:
+    def _kinematics(self) -> World:
         return self._world()
 
-    def read_state(self) -> RobotState:
+    def _read_state(self) -> RobotState:
         return model_state(self._world(), self.clock(), self._closed)
 
     def reset_arm(self, q: FloatArray | None = None) -> None:
@@ -194,7 +193,7 @@ class SimAdapter(Adapter):
         self._reference = None
         self._carry()
 
-    def halt(self) -> None:
+    def _halt(self) -> None:
         """Zero velocity: the stand-in does not move."""
         self._reference = None
 
@@ -225,7 +224,7 @@ class SimAdapter(Adapter):
                 bad = mid
         w.set_q(q0 + good * (q1 - q0))
 
-    def grip(self, closed: bool) -> None:
+    def _grip(self, closed: bool) -> None:
         w = self._world()
         if closed and not self._closed:
             self._closed = True
@@ -282,11 +281,11 @@ class SimAdapter(Adapter):
         offset_p, offset_R = self._grip_offset
         w.set_object_pose(self.held, p + R @ offset_p, matrix_to_quat(R @ offset_R))
 
-    def object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+    def _object_poses(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         w = self._world()
         return {name: w.object_pose(name) for name in self.scene.objects}
 
-    def place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
+    def _place_objects(self, layout: Mapping[str, ObjectPose]) -> bool:
         w = self._world()
         if self.held in layout:
             self.grip(False)

@@ -51,10 +51,10 @@ class StandIn(SimAdapter):
     wrist_jammed = False
     joints_jammed = False
 
-    def read_state(self) -> RobotState:
+    def _read_state(self) -> RobotState:
         if self.failing:
             raise HardwareError("bridge heartbeat lost")
-        return super().read_state()
+        return super()._read_state()
 
     def _command(
         self, state: RobotState, velocity: np.ndarray, hold: np.ndarray | None, box: Box

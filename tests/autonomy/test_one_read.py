@@ -31,9 +31,9 @@ from tests.hardware.helpers import peers
 class CountingStandIn(StandIn):
     reads = 0
 
-    def read_state(self) -> RobotState:
+    def _read_state(self) -> RobotState:
         self.reads += 1
-        return super().read_state()
+        return super()._read_state()
 
 
 @pytest.fixture

@@ -60,17 +60,17 @@ class CachedWorldSimAdapter(SimAdapter):
 
     _idle: ClassVar[dict[str, list[World]]] = {}
 
-    def connect(self) -> None:
+    def _connect(self) -> None:
         idle = self._idle.setdefault(self.scene.name, [])
         world = idle.pop() if idle else World(self.scene)
         home = home_configuration(world, self.scene.home.position, self.scene.home.rotation)
         self.q_home = home.q
         self.world = world
 
-    def disconnect(self) -> None:
+    def _disconnect(self) -> None:
         if self.world is not None:
             self._idle.setdefault(self.scene.name, []).append(self.world)
-        super().disconnect()
+        super()._disconnect()
 
 
 @dataclass
