@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
-from typing import Dict, Tuple
 
 from legws_daemon.robot.arms.spec import ArmSpec, Mount
 

@@ -1,6 +1,7 @@
 """What legws knows about one arm: the robot description every part derives from.
 
-Standard library only, and Python-3.8 syntax: the bridges on a robot's own computer read
+Standard library only, and Python 3.8 at run time (annotations stay strings: no
+subscripted builtin is evaluated): the bridges on a robot's own computer read
 the same joint tables as the daemon (``bridge/``), so this module and the arm modules beside
 it import nothing else.
 
@@ -14,8 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
-Vector = tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -67,10 +66,10 @@ class ArmSpec:
     asset_folder: str
     joint_names: tuple[str, ...]
     position_limits: tuple[tuple[float, float], ...]
-    speed_limits: Vector
-    ready_posture: Vector
+    speed_limits: tuple[float, ...]
+    ready_posture: tuple[float, ...]
     free_joints: tuple[int, ...]
-    home_seeds: tuple[Vector, ...] = ()
+    home_seeds: tuple[tuple[float, ...], ...] = ()
     hand_body: str = "right_hand"
     tcp_quat: tuple[float, float, float, float] = (math.sqrt(0.5), 0.0, 0.0, -math.sqrt(0.5))
     mount: Mount = field(default_factory=Mount)
@@ -113,11 +112,11 @@ class ArmSpec:
         return self.name + "/"
 
     @property
-    def lower(self) -> Vector:
+    def lower(self) -> tuple[float, ...]:
         return tuple(lo for lo, _ in self.position_limits)
 
     @property
-    def upper(self) -> Vector:
+    def upper(self) -> tuple[float, ...]:
         return tuple(hi for _, hi in self.position_limits)
 
     @property

@@ -19,7 +19,7 @@ ARM = ArmSpec(
         "wrist_1_joint",
         "wrist_2_joint",
         "wrist_3_joint",
-    ),  # fmt: skip
+    ),
     position_limits=((-math.pi, math.pi),) * 6,
     speed_limits=(math.pi,) * 6,
     ready_posture=(0.0, -1.3, 1.6, -1.87, -1.57, 0.0),
