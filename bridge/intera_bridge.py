@@ -2,21 +2,24 @@
 """legws bridge for a Rethink Sawyer: Intera joint states out, joint velocity commands in.
 
 Runs on the robot's PC (ROS Noetic, Intera SDK, Python >= 3.8, ``pip install
-eclipse-zenoh``) and implements the bridge contract of ``docs/bridge.md``:
+eclipse-zenoh``) and implements the bridge contract of ``docs/bridge.md``. It talks to the
+robot on Intera's own ROS topics through rospy (joint states, endpoint state, joint
+commands with the robot's command timeout, enable and state, e-stop, the end-effector IO;
+:class:`RosLimb`, :class:`RosEnable`, :func:`find_gripper`):
 
 * ``legws/<robot>/bridge/state`` (published at 100 Hz, the bridge's heartbeat):
   ``{"schema": 1, "seq", "stamp", "q": [7], "dq": [7], "gripper", "enabled", "estop"}``
-  from ``intera_interface.Limb('right')``, joints ``right_j0`` .. ``right_j6``.
+  from ``/robot/joint_states`` and ``/robot/state``, joints ``right_j0`` .. ``right_j6``.
 * ``legws/<robot>/bridge/command`` (subscribed):
   ``{"schema": 1, "seq", "stamp", "mode": "joint_velocity", "dq": [7], "ttl", "gripper"}``.
-  A command is applied with ``Limb.set_joint_velocities`` until its ``ttl`` runs out (the
-  deadman), then the arm holds its position. A command with a non-finite or over-limit
-  value, or any other invalid field, is rejected and stops the arm. Nothing moves while
-  the robot is disabled or e-stopped.
+  A command is applied as ``JointCommand`` in velocity mode until its ``ttl`` runs out (the
+  deadman), then the arm holds its position (position mode at the measured angles). A
+  command with a non-finite or over-limit value, or any other invalid field, is rejected
+  and stops the arm. Nothing moves while the robot is disabled or e-stopped.
 * Its own limits, whatever it is sent (the profile's ``[bridge]`` and ``[workspace]``:
   flags, or ``--profile PATH``): commands beyond a rate are refused and stop the arm;
   joint speeds are scaled down to a cap; a command moves the arm at most ``max_ttl``; the
-  endpoint's speed, predicted from Intera's measured ``Limb.endpoint_velocity()``, is held
+  endpoint's speed, predicted from Intera's measured endpoint twist, is held
   to a cap; a step whose predicted endpoint (``endpoint_pose()`` + velocity x period)
   leaves the workspace box (+ margin) stops the arm (:class:`EndpointGuard`). The
   state's ``limited`` lists what was enforced.
@@ -24,9 +27,11 @@ eclipse-zenoh``) and implements the bridge contract of ``docs/bridge.md``:
   are ignored until a valid ``legws/<robot>/bridge/resume``. The state's ``stopped_by``
   names the role (the key's last chunk).
 
-Standalone on purpose: it imports only rospy, intera_interface, zenoh and the standard
-library. The message checks and the deadman are plain functions and classes, tested in
-the legws repository with fake ``rospy``/``intera_interface`` modules.
+Standalone on purpose: it imports only rospy, the ROS messages (``std_msgs``,
+``sensor_msgs`` and Intera's ``intera_core_msgs``), zenoh and the standard library. The
+message checks and the deadman are plain functions and classes, tested in the legws
+repository with fake ROS modules, and the whole file against a real ROS master and a
+simulated Sawyer (``bridge/ros/sim_sawyer.py``).
 
 Usage (see bridge/README.md)::
 
@@ -53,9 +58,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import intera_interface
 import rospy
 import zenoh
+from intera_core_msgs.msg import (
+    EndpointState,
+    IOComponentCommand,
+    IODeviceStatus,
+    IONodeStatus,
+    JointCommand,
+    RobotAssemblyState,
+)
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Empty, Float64
 
 try:  # Python >= 3.11: --profile reads a legws hardware profile
     import tomllib
@@ -575,7 +589,7 @@ def state_message(
 
 
 def robot_status(state: Any) -> tuple[bool, bool]:
-    """``(enabled, estop)`` from Intera's ``AssemblyState`` (``RobotEnable.state()``)."""
+    """``(enabled, estop)`` from Intera's ``RobotAssemblyState`` (``RosEnable.state()``)."""
     estop_pressed = getattr(state, "ESTOP_BUTTON_PRESSED", 1)
     estop = bool(getattr(state, "stopped", False)) or (
         getattr(state, "estop_button", 0) == estop_pressed
@@ -613,6 +627,296 @@ class GripperDriver:
         return self.requested
 
 
+# --- the robot: Intera's own topics, straight through rospy -----------------------------
+# What the bridge used of intera_interface (Limb, RobotEnable, the gripper), on the topics
+# and message types the Sawyer itself publishes and subscribes (intera_core_msgs).
+#: The arm's joint states (sensor_msgs/JointState, all the robot's joints, ~100 Hz).
+JOINT_STATES_TOPIC = "/robot/joint_states"
+#: The endpoint's pose and twist in the base frame (intera_core_msgs/EndpointState).
+ENDPOINT_TOPIC = "/robot/limb/right/endpoint_state"
+#: Joint commands (intera_core_msgs/JointCommand).
+JOINT_COMMAND_TOPIC = "/robot/limb/right/joint_command"
+#: The joint controller's command timeout (std_msgs/Float64, latched): a mode other than
+#: position mode without a command for this long falls back to holding its position.
+COMMAND_TIMEOUT_TOPIC = "/robot/limb/right/joint_command_timeout"
+#: Enabled, stopped (e-stop), error (intera_core_msgs/RobotAssemblyState).
+ROBOT_STATE_TOPIC = "/robot/state"
+#: Enable (True) or disable (std_msgs/Bool); reset a stopped robot (std_msgs/Empty).
+ENABLE_TOPIC = "/robot/set_super_enable"
+RESET_TOPIC = "/robot/set_super_reset"
+#: The end-effector IO node: its devices (intera_core_msgs/IONodeStatus); a device's state
+#: (IODeviceStatus) and commands (IOComponentCommand) under /io/end_effector/<device>/.
+EE_NODE_TOPIC = "/io/end_effector/state"
+EE_DEVICE_TOPIC = "/io/end_effector/{}/{}"
+#: The command timeout the bridge sets, s (Intera's default): the robot itself stops a
+#: velocity command after this, whatever the bridge does.
+COMMAND_TIMEOUT = 0.2
+#: Joint or endpoint states older than this are no state (the robot or ROS is gone), s.
+STATE_STALE = 0.1
+#: Start-up waits this long for the robot's state, joint states and endpoint state, and
+#: for the robot to enable, s (as intera_interface does).
+ROBOT_WAIT = 5.0
+#: ... and this long for the end-effector IO (no gripper: the state reports "unknown").
+GRIPPER_WAIT = 2.0
+#: The electric parallel gripper's opening, m (intera_interface.Gripper).
+GRIPPER_OPEN = 0.041667
+GRIPPER_CLOSED = 0.0
+
+
+def wait_for(condition: Callable[[], bool], timeout: float, message: str) -> None:
+    """Poll ``condition`` every 10 ms until true; OSError(``message``) after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() >= deadline or rospy.is_shutdown():
+            raise OSError(message)
+        time.sleep(0.01)
+
+
+class Vector:
+    """A point or vector of the endpoint state (``x``, ``y``, ``z``)."""
+
+    __slots__ = ("x", "y", "z")
+
+    def __init__(self, v: Any) -> None:
+        self.x, self.y, self.z = float(v.x), float(v.y), float(v.z)
+
+
+class RosLimb:
+    """The right arm on Intera's topics (what the bridge used of ``intera_interface.Limb``).
+
+    Joint and endpoint states come from the robot's own topics (stale after
+    :data:`STATE_STALE`: then none, so the bridge's heartbeat stops); velocities go out as
+    ``JointCommand`` in ``VELOCITY_MODE``, the hold as ``POSITION_MODE`` at the measured
+    angles. The command timeout is set (latched) to :data:`COMMAND_TIMEOUT` at start.
+    """
+
+    def __init__(self, timeout: float = COMMAND_TIMEOUT, wait: float = ROBOT_WAIT) -> None:
+        self._lock = threading.Lock()
+        self._angles: dict[str, float] = {}
+        self._velocities: dict[str, float] = {}
+        self._joints_at = -math.inf
+        self._endpoint: tuple[dict[str, Vector], dict[str, Vector]] | None = None
+        self._endpoint_at = -math.inf
+        self._command = JointCommand()
+        self._command_pub = rospy.Publisher(
+            JOINT_COMMAND_TOPIC, JointCommand, tcp_nodelay=True, queue_size=1
+        )
+        self._timeout_pub = rospy.Publisher(
+            COMMAND_TIMEOUT_TOPIC, Float64, latch=True, queue_size=10
+        )
+        self._subscribers = [
+            rospy.Subscriber(
+                JOINT_STATES_TOPIC, JointState, self._on_joints, queue_size=1, tcp_nodelay=True
+            ),
+            rospy.Subscriber(
+                ENDPOINT_TOPIC, EndpointState, self._on_endpoint, queue_size=1, tcp_nodelay=True
+            ),
+        ]
+        self.set_command_timeout(timeout)
+        wait_for(self._fresh_joints, wait, f"no joint states of the arm on {JOINT_STATES_TOPIC}")
+        wait_for(lambda: self._endpoint is not None, wait, f"no endpoint state on {ENDPOINT_TOPIC}")
+
+    def _on_joints(self, msg: Any) -> None:
+        names = list(msg.name)
+        if not set(JOINT_NAMES) <= set(names):
+            return  # the head's or the gripper's joints alone
+        position, velocity = list(msg.position), list(msg.velocity)
+        if len(position) != len(names) or len(velocity) != len(names):
+            return
+        index = {name: i for i, name in enumerate(names)}
+        with self._lock:
+            self._angles = {n: float(position[index[n]]) for n in JOINT_NAMES}
+            self._velocities = {n: float(velocity[index[n]]) for n in JOINT_NAMES}
+            self._joints_at = time.monotonic()
+
+    def _on_endpoint(self, msg: Any) -> None:
+        if not msg.valid:
+            with self._lock:
+                self._endpoint = None
+            return
+        pose = {"position": Vector(msg.pose.position)}
+        twist = {"linear": Vector(msg.twist.linear), "angular": Vector(msg.twist.angular)}
+        with self._lock:
+            self._endpoint = (pose, twist)
+            self._endpoint_at = time.monotonic()
+
+    def _fresh_joints(self) -> bool:
+        with self._lock:
+            return time.monotonic() - self._joints_at <= STATE_STALE
+
+    def joint_angles(self) -> dict[str, float]:
+        """The measured angles by joint name; ``{}`` when stale."""
+        with self._lock:
+            fresh = time.monotonic() - self._joints_at <= STATE_STALE
+            return dict(self._angles) if fresh else {}
+
+    def joint_velocities(self) -> dict[str, float]:
+        """The measured velocities by joint name; ``{}`` when stale."""
+        with self._lock:
+            fresh = time.monotonic() - self._joints_at <= STATE_STALE
+            return dict(self._velocities) if fresh else {}
+
+    def _endpoint_now(self) -> tuple[dict[str, Vector], dict[str, Vector]] | None:
+        with self._lock:
+            if time.monotonic() - self._endpoint_at > STATE_STALE:
+                return None
+            return self._endpoint
+
+    def endpoint_pose(self) -> dict[str, Vector]:
+        """``{"position": ...}`` in the base frame; ``{}`` when stale or invalid."""
+        endpoint = self._endpoint_now()
+        return dict(endpoint[0]) if endpoint is not None else {}
+
+    def endpoint_velocity(self) -> dict[str, Vector]:
+        """``{"linear": ..., "angular": ...}``; ``{}`` when stale or invalid."""
+        endpoint = self._endpoint_now()
+        return dict(endpoint[1]) if endpoint is not None else {}
+
+    def set_command_timeout(self, timeout: float) -> None:
+        self._timeout_pub.publish(Float64(timeout))
+
+    def _send(self, mode: int, names: list[str], values: list[float]) -> None:
+        command = self._command
+        command.header.stamp = rospy.Time.now()
+        command.mode = mode
+        command.names = names
+        if mode == JointCommand.VELOCITY_MODE:
+            command.position, command.velocity = [], values
+        else:
+            command.position, command.velocity = values, []
+        self._command_pub.publish(command)
+
+    def set_joint_velocities(self, velocities: dict[str, float]) -> None:
+        """One velocity command (the robot applies it for the command timeout)."""
+        names = list(velocities)
+        self._send(JointCommand.VELOCITY_MODE, names, [float(velocities[n]) for n in names])
+
+    def exit_control_mode(self, timeout: float = COMMAND_TIMEOUT) -> None:
+        """Back to position mode at the measured angles (Intera's hold)."""
+        self.set_command_timeout(timeout)
+        angles = self.joint_angles()
+        if angles:
+            names = list(angles)
+            self._send(JointCommand.POSITION_MODE, names, [angles[n] for n in names])
+
+
+class RosEnable:
+    """The robot's state and enable (what the bridge used of ``RobotEnable``)."""
+
+    def __init__(self, wait: float = ROBOT_WAIT) -> None:
+        self._state: Any = None
+        self._enable_pub = rospy.Publisher(ENABLE_TOPIC, Bool, queue_size=10)
+        self._reset_pub = rospy.Publisher(RESET_TOPIC, Empty, queue_size=10)
+        self._subscriber = rospy.Subscriber(ROBOT_STATE_TOPIC, RobotAssemblyState, self._on_state)
+        wait_for(lambda: self._state is not None, wait, f"no robot state on {ROBOT_STATE_TOPIC}")
+
+    def _on_state(self, msg: Any) -> None:
+        self._state = msg
+
+    def state(self) -> Any:
+        """The latest ``RobotAssemblyState``."""
+        return self._state
+
+    def enable(self, wait: float = ROBOT_WAIT) -> None:
+        """Enable (a stopped robot is reset first, unless its e-stop button is pressed);
+        OSError when it does not."""
+        state = self._state
+        if state.stopped:
+            if state.estop_button == RobotAssemblyState.ESTOP_BUTTON_PRESSED:
+                raise OSError("Robot is E-Stopped: release the e-stop button")
+
+            def reset() -> bool:
+                self._reset_pub.publish(Empty())
+                return not self._state.stopped
+
+            wait_for(reset, wait, "failed to reset the stopped robot")
+
+        def enabled() -> bool:
+            self._enable_pub.publish(Bool(True))
+            return bool(self._state.enabled)
+
+        wait_for(enabled, wait, "failed to enable the robot")
+        rospy.loginfo("legws bridge: robot enabled")
+
+
+class RosGripper:
+    """An end-effector IO device's signals: Intera's electric parallel gripper
+    (``position_m``; :meth:`open`, :meth:`close`, :meth:`is_moving`)."""
+
+    def __init__(self, device: str) -> None:
+        self.device = device
+        self.signals: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._pub = rospy.Publisher(
+            EE_DEVICE_TOPIC.format(device, "command"), IOComponentCommand, queue_size=10
+        )
+        self._sub = rospy.Subscriber(
+            EE_DEVICE_TOPIC.format(device, "state"), IODeviceStatus, self._on_state
+        )
+
+    def _on_state(self, msg: Any) -> None:
+        values = {}
+        for signal in msg.signals:
+            try:
+                data = json.loads(signal.data)
+            except ValueError:
+                continue
+            values[signal.name] = data[0] if isinstance(data, list) and data else None
+        with self._lock:
+            self.signals = values
+
+    def signal(self, name: str) -> Any:
+        with self._lock:
+            return self.signals.get(name)
+
+    def set_signal(self, name: str, kind: str, value: Any) -> None:
+        """One ``set`` command (as ``intera_io.SetCommand``)."""
+        args = {"signals": {name: {"format": {"type": kind}, "data": [value]}}}
+        self._pub.publish(IOComponentCommand(rospy.Time.now(), "set", json.dumps(args)))
+
+    def open(self) -> None:
+        self.set_signal("position_m", "float", GRIPPER_OPEN)
+
+    def close(self) -> None:
+        self.set_signal("position_m", "float", GRIPPER_CLOSED)
+
+    def is_moving(self) -> bool:
+        return bool(self.signal("is_moving"))
+
+
+class RosClickSmart(RosGripper):
+    """A ClickSmart plate: its ``grip`` signal."""
+
+    def set_ee_signal_value(self, name: str, value: bool) -> None:
+        self.set_signal(name, "bool", bool(value))
+
+
+def find_gripper(wait: float = GRIPPER_WAIT) -> RosGripper | None:
+    """The first end-effector device, as a gripper (``None``: none attached, or none this
+    bridge knows: neither ``position_m`` nor ``grip``). An electric gripper not calibrated
+    yet is calibrated."""
+    devices: list[str] = []
+
+    def on_node(msg: Any) -> None:
+        devices[:] = [str(d.name) for d in msg.devices]
+
+    node = rospy.Subscriber(EE_NODE_TOPIC, IONodeStatus, on_node)
+    try:
+        wait_for(lambda: bool(devices), wait, f"no end-effector device on {EE_NODE_TOPIC}")
+    finally:
+        node.unregister()
+    probe = RosGripper(devices[0])
+    wait_for(lambda: bool(probe.signals), wait, f"no state of the end effector {devices[0]}")
+    if "grip" in probe.signals:
+        probe._sub.unregister()
+        return RosClickSmart(devices[0])
+    if "position_m" not in probe.signals:
+        raise OSError(f"the end effector {devices[0]} is not a gripper this bridge drives")
+    if probe.signal("is_calibrated") is False:
+        probe.set_signal("calibrate", "bool", True)
+    return probe
+
+
 class SawyerBridge:
     """The bridge's work: commands, stops and resumes in (zenoh threads), state out and
     velocities applied (:meth:`tick`, the ROS loop at 100 Hz).
@@ -625,9 +929,9 @@ class SawyerBridge:
     Args:
         session: an open zenoh session (closed by the caller).
         robot: the robot name: keys under ``legws/<robot>/``.
-        limb: ``intera_interface.Limb('right')``.
+        limb: the arm (:class:`RosLimb`).
         gripper: the gripper driver.
-        enabler: ``intera_interface.RobotEnable`` (its ``state()`` says enabled / e-stop).
+        enabler: the robot's state (:class:`RosEnable`: ``state()`` says enabled / e-stop).
         clock: monotonic seconds, for the deadman and the rate.
         wall: the clock of the ``stamp`` fields.
         limits: the bridge's own limits (default: the profile defaults).
@@ -1012,8 +1316,8 @@ def limits_from_args(args: argparse.Namespace) -> Limits:
 def open_gripper() -> GripperDriver:
     """The attached gripper, or a driver reporting ``unknown`` when there is none."""
     try:
-        gripper = intera_interface.get_current_gripper_interface()
-    except Exception as err:  # Intera raises OSError (timeout) and others without a gripper
+        gripper = find_gripper()
+    except Exception as err:  # OSError: none attached (no IO state in time), or unknown
         rospy.logwarn(f"legws bridge: no gripper ({err}); gripper requests are ignored")
         gripper = None
     return GripperDriver(gripper)
@@ -1054,11 +1358,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is not None:
         rospy.logwarn(f"legws bridge: INSECURE TRANSPORT: {problem}")
     try:
-        enabler = intera_interface.RobotEnable(intera_interface.CHECK_VERSION)
+        enabler = RosEnable()
         if not args.no_enable:
             enabler.enable()
-        limb = intera_interface.Limb("right")
-    except Exception as err:  # Intera raises OSError and others (e-stop, no robot)
+        limb = RosLimb()
+    except Exception as err:  # OSError: no state in time, e-stop, not enabled
         return _fail(f"cannot reach the robot: {_first_line(err)}")
     gripper = open_gripper()
     try:

@@ -1,6 +1,8 @@
-"""The robot-side Intera bridge, imported with fake ``rospy``/``intera_interface`` modules.
+"""The robot-side Intera bridge, imported with fake ``rospy`` and ROS message modules.
 
-Only the hardware edge is faked (ROS and the Intera SDK): the fake limb follows the
+Only the hardware edge is faked (ROS and the robot; the bridge's own ROS layer is replaced
+by look-alikes of Intera's ``Limb``, ``RobotEnable`` and gripper; it meets a real ROS master
+and a simulated Sawyer in ``test_ros_e2e.py``): the fake limb follows the
 velocities it is sent at once, and reports its endpoint from legws's kinematic model of
 the Sawyer. zenoh is real (a session without endpoints, or two loopback peers), and what
 the bridge publishes is checked with the daemon's own validator.
@@ -231,7 +233,9 @@ class FakeRate:
 
 
 def fake_intera(gripper: object | None) -> tuple[types.ModuleType, dict[str, Any]]:
-    """A fake ``intera_interface`` module and the objects it hands out."""
+    """The robot's side as ``intera_interface`` had it (``Limb``, ``RobotEnable``,
+    ``get_current_gripper_interface``) and the objects it hands out: :func:`load_bridge`
+    puts them in place of the bridge's ROS layer."""
     made: dict[str, Any] = {}
     m = types.ModuleType("intera_interface")
     m.CHECK_VERSION = True  # type: ignore[attr-defined]
@@ -260,13 +264,38 @@ def load_bridge(
 ) -> types.ModuleType:
     """Import ``bridge/intera_bridge.py`` with the fakes in ``sys.modules``."""
     monkeypatch.setitem(sys.modules, "rospy", ros.module())
-    monkeypatch.setitem(sys.modules, "intera_interface", intera)
+    for name, classes in MESSAGES.items():
+        package = types.ModuleType(name)
+        msg = types.ModuleType(f"{name}.msg")
+        for cls in classes:
+            setattr(msg, cls, type(cls, (), {}))
+        package.msg = msg  # type: ignore[attr-defined]
+        monkeypatch.setitem(sys.modules, name, package)
+        monkeypatch.setitem(sys.modules, f"{name}.msg", msg)
     spec = importlib.util.spec_from_file_location("intera_bridge_under_test", BRIDGE)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, spec.name, module)
     spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "RosLimb", lambda: intera.Limb("right"))
+    monkeypatch.setattr(module, "RosEnable", lambda: intera.RobotEnable())
+    monkeypatch.setattr(module, "find_gripper", intera.get_current_gripper_interface)
     return module
+
+
+#: The ROS messages the bridge imports, faked (the real ones: test_ros_e2e.py).
+MESSAGES = {
+    "intera_core_msgs": (
+        "EndpointState",
+        "IOComponentCommand",
+        "IODeviceStatus",
+        "IONodeStatus",
+        "JointCommand",
+        "RobotAssemblyState",
+    ),
+    "sensor_msgs": ("JointState",),
+    "std_msgs": ("Bool", "Empty", "Float64"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -333,7 +362,7 @@ def test_standalone_and_python_3_8_syntax() -> None:
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
     outside = imported - set(sys.stdlib_module_names) - {"__future__"}
-    assert outside == {"rospy", "intera_interface", "zenoh"}
+    assert outside == {"rospy", "intera_core_msgs", "sensor_msgs", "std_msgs", "zenoh"}
 
 
 def test_constants_are_the_contract(bridge_module: types.ModuleType) -> None:
