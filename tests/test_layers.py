@@ -18,6 +18,7 @@ PACKAGE = Path(__file__).parents[1] / "legws_daemon"
 #: Bottom to top. A package may import only packages listed before it (and itself); the
 #: top-level modules (``errors``, ``workers``, ``__init__``) sit below everything.
 LAYERS = [
+    "arms",  # the robot descriptions: data, standard library only (the bridges read them)
     "core",  # the method's math: geometry, observer, certificate
     "formats",  # file and message schemas, validation
     "safety",  # the envelope: pure math on commands

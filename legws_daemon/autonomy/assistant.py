@@ -23,11 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from legws_daemon.arms import DEFAULT_ARM, arm
 from legws_daemon.autonomy.inputs import Cartesian, Command, Joints, zero
 from legws_daemon.core.geometry import FloatArray, rotation_angle
 from legws_daemon.errors import InfeasibleError
 from legws_daemon.robot.motion import ROTATION_TOLERANCE, Grip, JointMove, Move, Primitive
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS
 
 #: Proportional gain of a Cartesian move, 1/s.
 POSITION_GAIN = 2.0
@@ -67,6 +67,7 @@ class Assistant:
         dt: control period, s.
         target: the name of what the plan acts on (for events and logs).
         path: checks a joint-space move when it begins (see the attribute).
+        joint_speed_limits: the arm's joint speed limits, rad/s (default the default arm's).
     """
 
     plan: list[Primitive]
@@ -76,6 +77,9 @@ class Assistant:
     #: checks a joint-space move from where the arm is when it begins: the configurations
     #: to pass on the way (none: straight), or an InfeasibleError (the move fails)
     path: Callable[[FloatArray, FloatArray], list[FloatArray]] | None = None
+    joint_speed_limits: FloatArray = field(
+        default_factory=lambda: np.array(arm(DEFAULT_ARM).speed_limits)
+    )
     index: int = 0
     elapsed: float = 0.0
     _entered: int = field(default=-1, repr=False)
@@ -161,7 +165,7 @@ class Assistant:
         if prim.patience is not None and self._stalled((worst, 0.0), prim.patience):
             return self._stall(prim.label, prim.patience)
         qdot = min(JOINT_GAIN, 1.0 / self.dt) * delta
-        ratio = float(np.max(np.abs(qdot) / (JOINT_SPEED_FRACTION * JOINT_SPEED_LIMITS)))
+        ratio = float(np.max(np.abs(qdot) / (JOINT_SPEED_FRACTION * self.joint_speed_limits)))
         if ratio > 1.0:
             qdot /= ratio  # the same straight line in joint space, slower
         return AssistStep(Joints(qdot), None, prim.label)

@@ -77,6 +77,7 @@ from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
 from legws_daemon.robot.motion import Primitive
 from legws_daemon.robot.planner import MotionPlanner
+from legws_daemon.robot.world import resolve_arm
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
@@ -152,6 +153,8 @@ class Controller:
         operator: OperatorModel | None = None,
     ) -> None:
         self.profile = profile
+        #: the arm's description (the profile's ``arm``)
+        self.arm = resolve_arm(profile.arm)
         self.params = params
         self.operator = operator
         #: the calibration under way (``None``: none was started)
@@ -519,7 +522,9 @@ class Controller:
             return self.planner.joint_path(q0, q1, self.adapter.box, ignore)
 
         speed = self.profile.control.assist_speed
-        self.assistant = Assistant(plan, speed, self.dt, target, path)
+        self.assistant = Assistant(
+            plan, speed, self.dt, target, path, np.array(self.arm.speed_limits)
+        )
         self.cancel.reset()
         self._motion = np.zeros(3)
         self.modes.to(Mode.ASSIST)

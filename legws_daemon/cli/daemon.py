@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import ipaddress
 import os
 import signal
@@ -10,16 +11,19 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import click
 
+from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import open_output, output_path
 from legws_daemon.formats.operator_file import OperatorFile, load_operator
 from legws_daemon.formats.printable import echo
-from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.formats.profile import ProfileSpec, load_profile_named, with_arm
 from legws_daemon.formats.validation import validate
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import require_feasible
@@ -31,6 +35,9 @@ from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.transport.security import authentication_problem
 from legws_daemon.transport.session import config_from_file, config_from_spec
 
+if TYPE_CHECKING:
+    from legws_daemon.telemetry.rerun_log import RerunLog
+
 # rerun writes its own log lines (a viewer it cannot reach) from Rust straight to stderr,
 # coloured with escape sequences even through a pipe: no colour (read when rerun is first
 # imported, below); a NO_COLOR set by the user wins
@@ -38,7 +45,11 @@ os.environ.setdefault("NO_COLOR", "1")
 
 
 def _load_plan(
-    arg: str, graph: TaskGraph, scene: Scene, operator: OperatorFile | None = None
+    arg: str,
+    graph: TaskGraph,
+    scene: Scene,
+    operator: OperatorFile | None = None,
+    arm: str = DEFAULT_ARM,
 ) -> Plan:
     """``auto``: the cached plan of the graph (for ``operator`` when given), planned now if
     there is none or the cached one does not validate (a warning, then it is replaced) —
@@ -51,7 +62,7 @@ def _load_plan(
 
         people = (operator,) if operator is not None else ()
         try:
-            plan = cached_plan(graph, scene, operators=people)
+            plan = cached_plan(graph, scene, operators=people, arm=arm)
         except InputError as err:  # not usable: planned again and replaced
             echo(f"legws daemon: warning: {err}", err=True)
             plan = None
@@ -68,7 +79,7 @@ def _load_plan(
             err=True,
         )
         started = time.monotonic()
-        plan = plan_taskgraph(graph, scene, operators=people, progress=True)
+        plan = plan_taskgraph(graph, scene, operators=people, arm=arm, progress=True)
         echo(f"legws daemon: planned {graph.name} in {time.monotonic() - started:.0f} s",
                    err=True)  # fmt: skip
         return plan
@@ -81,20 +92,28 @@ def _load_plan(
         raise InputError(
             f"the plan is for task graph '{plan.taskgraph}', not '{graph.name}'", field="--plan"
         )
+    planned_for = plan.settings.get("arm", DEFAULT_ARM)
+    if planned_for != arm:  # its layouts were screened with another arm's reach
+        raise InputError(
+            f"the plan is for the arm '{planned_for}', not '{arm}' (plan it with "
+            f"`legws plan {graph.name} --robot {arm}`)",
+            field="--plan",
+        )
     return check_plan(plan, graph, scene, str(plan_json), lines)
 
 
-def cached_catalog_plan(graph: TaskGraph, scene: Scene) -> Plan:
+def cached_catalog_plan(graph: TaskGraph, scene: Scene, arm: str = DEFAULT_ARM) -> Plan:
     """``load_taskgraph`` with ``plan: "auto"``: the graph's cached plan (as ``--plan auto``
     would use), validated as ``--plan DIR`` is. Nothing is planned on the control loop:
     without one, or with one that does not validate, say how to make it."""
     from legws_daemon.design.stage_plan import cached_plan
 
-    plan = cached_plan(graph, scene)
+    plan = cached_plan(graph, scene, arm=arm)
     if plan is None:
+        robot = "" if arm == DEFAULT_ARM else f" --robot {arm}"
         raise InputError(
             f"no cached plan of task graph '{graph.name}'; make it with `legws plan "
-            f"{graph.name}` (the daemon does not plan on its control loop)",
+            f"{graph.name}{robot}` (the daemon does not plan on its control loop)",
             field="plan",
         )
     return plan
@@ -218,6 +237,7 @@ def install_stop_handlers(stop: threading.Event) -> None:
     "every certificate is for their model, and the live watch re-fits it from the picks "
     "that complete (default: the profile's control.operator, else the paper's user).",
 )
+@robot_option(what="the profile's `arm` replaced (the stand-in's model, plans and limits)")
 @click.option(
     "--allow-motion",
     is_flag=True,
@@ -243,6 +263,7 @@ def daemon_cmd(
     duration: float | None,
     trace_file: Path | None,
     operator_file: Path | None,
+    robot: str | None,
     allow_motion: bool,
     insecure_transport: bool,
 ) -> int:
@@ -252,7 +273,7 @@ def daemon_cmd(
     commands on legws/<robot>/command. SIGINT/SIGTERM stop the robot and exit 0. A profile
     that drives real hardware (not the sim stand-in) starts only with --allow-motion.
     """
-    from legws_daemon.daemon.service import DaemonConfig, DaemonService, Telemetry
+    from legws_daemon.daemon.service import DaemonConfig, DaemonService
     from legws_daemon.telemetry.terminal_log import log_to_terminal
 
     log_to_terminal("legws daemon")
@@ -266,6 +287,8 @@ def daemon_cmd(
     if trace_file is not None:
         output_path(trace_file)  # a device or folder there: one line before anything starts
     spec = load_profile_named(profile)
+    if robot is not None:
+        spec = with_arm(spec, robot)
     require_motion_allowed(spec, allow_motion)
     operator = operator_for(spec, operator_file)
     if rate is not None:
@@ -279,7 +302,7 @@ def daemon_cmd(
         # hands-off by default: a task graph runs on its plan unless told otherwise
         wanted = plan_arg if plan_arg is not None else "none" if layout_file else "auto"
         if wanted != "none":
-            plan = _load_plan(wanted, graph, sc, operator)
+            plan = _load_plan(wanted, graph, sc, operator, spec.arm)
     else:
         sc = load_scene(scene or "desk")
     layout = load_layout(layout_file, sc) if layout_file else sc.default_layout()
@@ -298,7 +321,7 @@ def daemon_cmd(
     stop = threading.Event()
     install_stop_handlers(stop)
     with ExitStack() as stack:
-        telemetry: Telemetry | None = None
+        telemetry: RerunLog | None = None
         if rerun_target:
             from legws_daemon.telemetry.rerun_log import RerunLog
 
@@ -324,7 +347,7 @@ def daemon_cmd(
             trace=trace,
             graph=graph,
             plan=plan,
-            plan_loader=cached_catalog_plan,
+            plan_loader=functools.partial(cached_catalog_plan, arm=spec.arm),
             transport_problem=problem,
             insecure_transport=insecure,
             operator=operator,

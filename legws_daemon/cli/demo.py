@@ -7,9 +7,11 @@ from typing import Any
 
 import click
 
+from legws_daemon.arms import arm
 from legws_daemon.cli.numbers import FiniteFloat
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.formats.printable import echo
-from legws_daemon.formats.profile import load_profile_named
+from legws_daemon.formats.profile import load_profile_named, with_arm
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 
 
@@ -38,6 +40,7 @@ from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
     help="Stage-specific layouts from `legws plan` (cached after the first run), or the "
     "scene's default layout throughout.",
 )
+@robot_option(what="the stand-in's arm (its model, reach, plans and limits)")
 @click.option(
     "--rerun",
     "web",
@@ -52,6 +55,7 @@ def demo_cmd(
     timeout: float,
     profile: str,
     plan: bool,
+    robot: str | None,
     web: str | None,
 ) -> None:
     """Run TASKGRAPH (tea, lego, feeding or a file) on the stand-in with a simulated user.
@@ -76,6 +80,8 @@ def demo_cmd(
     spec = load_profile_named(profile)
     if spec.adapter != "sim":
         raise click.UsageError(f"the demo runs on a sim profile; '{profile}' is {spec.adapter}")
+    if robot is not None:
+        spec = with_arm(spec, robot)
     graph, scene = load_taskgraph(resolve_taskgraph(taskgraph))  # errors before starting
     folder = out if out is not None else Path("out") / f"demo-{graph.name}"
     output_folder(folder)  # a file or device in the way: one line before any planning
@@ -83,8 +89,9 @@ def demo_cmd(
     if plan:
         from legws_daemon.design.stage_plan import plan_taskgraph
 
-        echo(f"legws: planning the layout of each decision of {graph.name}", err=True)
-        planned = plan_taskgraph(graph, scene, progress=False)
+        echo(f"legws: planning the layout of each decision of {graph.name} for the "
+             f"{arm(spec.arm).title}", err=True)  # fmt: skip
+        planned = plan_taskgraph(graph, scene, arm=spec.arm, progress=False)
         plan_dir = planned.directory
         for d in planned.decisions:
             cert = "no inference" if d.certificate is None else f"J = {d.certificate:.3f}"
@@ -99,7 +106,8 @@ def demo_cmd(
             detail = {k: v for k, v in d.items() if k not in ("posterior", "history")}
             echo(f"  {kind} {detail}", err=True)
 
-    echo(f"legws: demo {graph.name} (seed {seed}) -> {folder}", err=True)
+    echo(f"legws: demo {graph.name} on the {arm(spec.arm).title} (seed {seed}) -> {folder}",
+         err=True)  # fmt: skip
     if web_target is not None:
         echo(f"legws: watch in a browser: {web_target.page_url}", err=True)
     result = run_demo(graph.name if taskgraph == graph.name else taskgraph, spec, folder,

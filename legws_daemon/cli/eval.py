@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.printable import echo
@@ -81,6 +82,7 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
     help="The simulated user steers like this person: an operator file's fitted model "
     "(method.md §10: speed, noise and its correlation, bias, steering), with the robot's clip.",
 )
+@robot_option("sawyer", what="the stand-in's arm the picks run on")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def eval_cmd(
     scene_name: str,
@@ -92,6 +94,7 @@ def eval_cmd(
     episodes_per_goal: int | None,
     top_k: int | None,
     operator_file: Path | None,
+    robot: str,
     quiet: bool,
 ) -> None:
     """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates,
@@ -130,7 +133,7 @@ def eval_cmd(
     with tqdm(total=len(layouts), desc=f"eval {scene.name}", unit="layout", disable=quiet) as bar:
         report = run_eval(
             scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update,
-            episodes_per_goal=episodes_per_goal, elites=elites, operator=operator,
+            episodes_per_goal=episodes_per_goal, elites=elites, operator=operator, arm=robot,
         )  # fmt: skip
     text = markdown(report)
     if out_dir is not None:

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from legws_daemon.cli.design_options import load_operators, objective_options, operator_options
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.design import METHODS
 
 if TYPE_CHECKING:
@@ -43,6 +44,7 @@ RESULT_KEYS = ("objective", "commit_objective", "commit_certified", "commit_rate
     help="Run folder (default: out/optimize/SCENE).",
 )  # fmt: skip
 @click.option("--no-cache", is_flag=True, help="Ignore and do not write the result cache.")
+@robot_option("sawyer", what="the arm whose reach and grasps screen the layouts")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def optimize_cmd(
     scene_names: tuple[str, ...],
@@ -60,6 +62,7 @@ def optimize_cmd(
     movable: str | None,
     out_dir: Path | None,
     no_cache: bool,
+    robot: str,
     quiet: bool,
 ) -> None:
     """Optimise a scene's layout (method.md §5) and verify the best elite in simulation.
@@ -81,6 +84,8 @@ def optimize_cmd(
     names_given = [n.strip() for spec in scene_names for n in spec.split(",") if n.strip()]
     people = load_operators(operator_file, operator_files)  # a bad file: one line, first
     if run_all_scenes:
+        if robot != "sawyer":
+            raise click.UsageError("--all runs on the Sawyer; give one --scene with --robot")
         _run_all(names_given or all_names(), seeds, seed, dask_address, workers, method,
                  objective_kind, commit_form, people, iterations, movable, out_dir,
                  quiet)  # fmt: skip
@@ -107,7 +112,7 @@ def optimize_cmd(
 
         summary = optimize(
             scene, out, method=method, iterations=iterations, seed=seed, movable=names,
-            objective=objective_kind, commit_form=commit_form, operators=people,
+            objective=objective_kind, commit_form=commit_form, operators=people, arm=robot,
             use_cache=not no_cache, progress=progress,
         )  # fmt: skip
     keys = (*RESULT_KEYS, "evaluations", "seconds", "cached")

@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from legws_daemon.cli.design_options import load_operators, objective_options, operator_options
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.design import METHODS
 from legws_daemon.formats.printable import echo
 from legws_daemon.task.plan import DEFAULT_ITERATIONS, Plan, PlannedDecision
@@ -97,6 +98,7 @@ def render_table(plan: Plan) -> str:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--no-cache", is_flag=True, help="Ignore and do not write the plan cache.")
 @click.option("--json", "as_json", is_flag=True, help="Print plan.json (and where it is).")
+@robot_option("sawyer", what="the arm whose reach and grasps the layouts are for")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def plan_cmd(
     taskgraph: str,
@@ -110,6 +112,7 @@ def plan_cmd(
     seed: int,
     no_cache: bool,
     as_json: bool,
+    robot: str,
     quiet: bool,
 ) -> None:
     """Plan a layout for every decision point of TASKGRAPH (a name in taskgraphs/ or a path).
@@ -141,7 +144,7 @@ def plan_cmd(
         output_folder(out_dir)  # a file or device in the way: one line before any planning
     plan = plan_taskgraph(
         graph, scene, method=method, iterations=iterations, seed=seed, objective=objective_kind,
-        commit_form=commit_form, operators=people,
+        commit_form=commit_form, operators=people, arm=robot,
         progress=not quiet, use_cache=not no_cache, out_dir=out_dir,
     )  # fmt: skip
     if as_json:

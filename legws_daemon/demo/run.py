@@ -153,7 +153,7 @@ def run_demo(
     recording = out / "recording.rrd"
     args = [sys.executable, "-m", "legws_daemon", "daemon", "--profile", profile.name,
             "--taskgraph", taskgraph, "--rerun", f"save:{recording}", "--zenoh-config",
-            str(cfg_path), "--duration", str(timeout)]  # fmt: skip
+            str(cfg_path), "--duration", str(timeout), "--robot", profile.arm]  # fmt: skip
     # the plan made here, or none (the daemon would plan a task graph by default)
     args += ["--plan", str(plan) if plan is not None else "none"]
     if web is not None:

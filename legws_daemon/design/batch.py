@@ -21,7 +21,7 @@ from typing import Any
 
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.operator_file import OperatorFile
-from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.robot.assets import arm_dir
 from legws_daemon.workers import worker_context
 
 #: A Dask scheduler address as ``--dask`` takes it.
@@ -125,7 +125,7 @@ def run_all(
     """
     results: dict[int, dict[str, Any]] = {}
     if dask is None:
-        sawyer_dir()  # a missing or damaged robot model: one line here, not in each worker
+        arm_dir()  # a missing or damaged robot model: one line here, not in each worker
     with executor(dask, workers) as pool:
         if started is not None:
             started()

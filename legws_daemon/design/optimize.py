@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from legws_daemon import __version__
+from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.commit import (
     certify_commit,
@@ -88,7 +89,8 @@ def settings_key(scene: Scene, settings: dict[str, Any]) -> str:
     code's version. Cheap, so that a cached run needs no simulator."""
     h = hashlib.sha256()
     h.update(read_limited(Path(scene.source), "scene"))
-    h.update(model_digest().encode())  # every file of the model, verified
+    # every file of the arm's model, verified
+    h.update(model_digest(None, settings.get("arm", DEFAULT_ARM)).encode())
     extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP,
              "feasibility": FEASIBILITY}  # fmt: skip
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
@@ -188,6 +190,7 @@ def optimize(
     objective: str = "slack",
     commit_form: str = "sum",
     operators: Sequence[OperatorFile] = (),
+    arm: str = DEFAULT_ARM,
     use_cache: bool = True,
     render: bool = True,
     progress: Callable[[int, float, float], None] | None = None,
@@ -195,7 +198,8 @@ def optimize(
     """Optimise a scene's layout and write the run folder; returns the summary.
 
     ``operators``: design for these people (their ``certify_with`` models, the worst of
-    them; method.md §10); empty: for section 2's user."""
+    them; method.md §10); empty: for section 2's user. ``arm``: the arm whose reach and
+    grasps screen and verify the layouts."""
     from legws_daemon.design.search import search
 
     problem = LayoutProblem(
@@ -216,6 +220,8 @@ def optimize(
         settings["commit_form"] = commit_form
     if operators:  # for whom (absent: section 2's user, as runs before the option)
         settings["operators"] = operator_settings(operators)
+    if arm != DEFAULT_ARM:  # absent: the Sawyer (the key of runs made before arms)
+        settings["arm"] = arm
     key = settings_key(scene, settings)
     cached = cache_dir() / key
     output_folder(out_dir)
@@ -225,7 +231,7 @@ def optimize(
         summary: dict[str, Any] = read_json(out_dir / "summary.json", "summary")
         summary["cached"] = True
         return summary
-    world = World(scene)
+    world = World(scene, arm=arm)
     q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
     problem.screen = load_or_build(world, q_home)
     result = search(problem, method, iterations, seed, progress)

@@ -28,6 +28,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, read_limited, write_atomic
 from legws_daemon.robot.assets import model_digest
@@ -55,12 +56,13 @@ def plan_cache_dir() -> Path:
 
 
 def plan_key(graph: TaskGraph, scene: Scene, settings: dict[str, Any]) -> str:
-    """Hash of the task-graph file, the scene file, the robot model and the settings."""
+    """Hash of the task-graph file, the scene file, the arm's model and the settings."""
     h = hashlib.sha256()
     source = Path(graph.source)
     h.update(read_limited(source, "task graph") if source.is_file() else repr(graph).encode())
     h.update(b"\0" + read_limited(Path(scene.source), "scene") + b"\0")
-    h.update(model_digest().encode())  # every file of the model, verified
+    # every file of the arm's model, verified
+    h.update(model_digest(None, settings.get("arm", DEFAULT_ARM)).encode())
     extra = {"tcp": TCP_OFFSET, "gap": FINGER_GAP, "feasibility": FEASIBILITY}
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
     return h.hexdigest()[:20]

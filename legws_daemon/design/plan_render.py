@@ -35,6 +35,7 @@ def decision_picture(
     title: str,
     width: int = WIDTH,
     height: int = HEIGHT,
+    arm: str = "sawyer",
 ) -> bytes:
     """PNG bytes of the top view of ``layout`` with ``targets`` marked and a title line.
 
@@ -44,7 +45,7 @@ def decision_picture(
     view = copy.copy(scene)  # a shallow copy whose candidate goals are the decision's
     objects = tuple(t.name for t in targets if t.name in scene.objects)
     view.goal_names = objects or scene.goal_names
-    image = Image.fromarray(render_layout(view, dict(layout), width, height, "top"))
+    image = Image.fromarray(render_layout(view, dict(layout), width, height, "top", arm))
     draw = ImageDraw.Draw(image)
     for t in targets:
         row, col = top_pixel(scene, width, height, float(t.position[0]), float(t.position[1]))

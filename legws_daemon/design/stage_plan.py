@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from legws_daemon import __version__
+from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.commit import (
     CommitCertificate,
@@ -334,7 +335,9 @@ def _render(
         j = "" if d.certificate is None else f"  J = {d.certificate:.3f}"
         title = f"{p.graph.name}: {d.label}{j}"
         try:
-            png = decision_picture(p.scene, d.layout, p.targets(point, d.layout), title)
+            png = decision_picture(
+                p.scene, d.layout, p.targets(point, d.layout), title, arm=p.world.spec.name
+            )
         except LegwsError as err:  # no GL here: the plan still stands
             log.warning("legws: warning: no pictures of the plan: %s", err)
             return [d for _, d in planned]
@@ -351,9 +354,11 @@ def plan_settings(
     commit_form: str = "sum",
     params: Params | None = None,
     operators: Sequence[OperatorFile] = (),
+    arm: str = DEFAULT_ARM,
 ) -> dict[str, Any]:
     """The settings a plan's cache key is made of (``plan.json``'s ``settings``): with
-    ``operators`` also each person's ``name`` and ``model`` and ``design_for``."""
+    ``operators`` also each person's ``name`` and ``model`` and ``design_for``; for an arm
+    other than the default, its name (``arm``)."""
     settings: dict[str, Any] = {
         "method": method,
         "iterations": iterations,
@@ -367,11 +372,16 @@ def plan_settings(
     if operators:  # absent means section 2's user (the key of plans made before the option)
         settings["operators"] = operator_settings(operators)
         settings["design_for"] = design_for([f.name for f in operators])
+    if arm != DEFAULT_ARM:  # absent means the Sawyer (the key of plans made before arms)
+        settings["arm"] = arm
     return settings
 
 
 def cached_plan(
-    graph: TaskGraph, scene: Scene, operators: Sequence[OperatorFile] = ()
+    graph: TaskGraph,
+    scene: Scene,
+    operators: Sequence[OperatorFile] = (),
+    arm: str = DEFAULT_ARM,
 ) -> Plan | None:
     """The graph's plan with the default settings (``legws plan NAME``, with ``operators``:
     ``--operator``) from the cache, or ``None`` (nothing is planned: for the daemon's
@@ -383,7 +393,7 @@ def cached_plan(
             certificates included); the message says what is wrong and to plan it again
             with ``legws plan NAME``.
     """
-    folder = plan_cache_dir() / plan_key(graph, scene, plan_settings(operators=operators))
+    folder = plan_cache_dir() / plan_key(graph, scene, plan_settings(operators=operators, arm=arm))
     plan, problem = read_cached(folder, graph, scene)
     if problem is not None:
         raise InputError(
@@ -406,6 +416,7 @@ def plan_taskgraph(
     commit_form: str = "sum",
     params: Params | None = None,
     operators: Sequence[OperatorFile] = (),
+    arm: str = DEFAULT_ARM,
     progress: bool = False,
     use_cache: bool = True,
     out_dir: Path | None = None,
@@ -424,6 +435,7 @@ def plan_taskgraph(
         operators: design every decision for these people (the worst of them, method.md
             §10, the robot's clip); plan.json's ``settings`` records them. The recorded
             certificates stay section 2's user's.
+        arm: the arm the layouts are for (reach, grasps and motions are its own).
         progress: a progress bar per search on stderr.
         use_cache: load the plan from the cache when there, and store it there.
         out_dir: also copy ``plan.json`` and the pictures into this folder.
@@ -446,14 +458,16 @@ def plan_taskgraph(
             field="--objective",
         )
     params = params or Params()
-    settings = plan_settings(method, iterations, seed, objective, commit_form, params, operators)
+    settings = plan_settings(
+        method, iterations, seed, objective, commit_form, params, operators, arm
+    )
     key = plan_key(graph, scene, settings)
     folder = plan_cache_dir() / key
     cached = load_cached(folder, graph, scene) if use_cache else None
     if cached is not None:
         return copy_out(cached, out_dir) if out_dir is not None else cached
     started = time.perf_counter()
-    world = World(scene)
+    world = World(scene, arm=arm)
     q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
     planner = _Planner(
         graph,

@@ -27,6 +27,7 @@ from pydantic import (
     model_validator,
 )
 
+from legws_daemon.arms import DEFAULT_ARM, arm_names
 from legws_daemon.errors import InputError
 from legws_daemon.formats.positions import SourceText
 from legws_daemon.formats.validation import (
@@ -191,6 +192,8 @@ class ProfileSpec(_Model):
     name: Name
     robot: Name
     adapter: Literal["sim", "sawyer"]
+    #: the arm's description (:mod:`legws_daemon.arms`): its model, joints and limits
+    arm: str = DEFAULT_ARM
     description: str = ""
     control: ControlSpec = ControlSpec()
     workspace: WorkspaceBox = WorkspaceBox()
@@ -202,6 +205,10 @@ class ProfileSpec(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> ProfileSpec:
+        if self.arm not in arm_names():
+            raise field_error(("arm",), f"expected one of: {', '.join(arm_names())}")
+        if self.adapter == "sawyer" and self.arm != "sawyer":
+            raise field_error(("arm",), "the sawyer adapter drives the Sawyer only")
         if self.control.assist_speed < self.control.v_max / 10:
             raise field_error(("control", "assist_speed"), "implausibly slow next to v_max")
         if self.control.deadman_timeout < 1.0 / self.control.rate_hz:
@@ -228,6 +235,13 @@ class ProfileSpec(_Model):
                 "the daemon's commands would expire between ticks",
             )
         return self
+
+
+def with_arm(spec: ProfileSpec, arm: str) -> ProfileSpec:
+    """``spec`` on the arm ``arm`` (``--robot``), validated as the profile's own ``arm``."""
+    if arm == spec.arm:
+        return spec
+    return validate(ProfileSpec, {**spec.model_dump(), "arm": arm}, "--robot", None)
 
 
 def load_profile(path: Path) -> ProfileSpec:

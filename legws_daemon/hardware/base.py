@@ -30,7 +30,7 @@ from legws_daemon.errors import HardwareError, InputError, LegwsError
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.robot.gripper import floor_height
 from legws_daemon.robot.kinematics import LIMIT_MARGIN
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import World, resolve_arm
 from legws_daemon.safety.envelope import (
     Box,
     clamp_ee_velocity,
@@ -141,7 +141,8 @@ class Adapter(ABC):
         self.v_max = max(profile.control.v_max, profile.control.assist_speed)
         #: joint speeds at most (rad/s): the specification's, capped as the bridge caps them
         self.speed_limits = np.minimum(
-            np.asarray(JOINT_SPEED_LIMITS, dtype=np.float64), profile.bridge.joint_speed_cap
+            np.asarray(resolve_arm(profile.arm).speed_limits, dtype=np.float64),
+            profile.bridge.joint_speed_cap,
         )
         self.w_max = MAX_EE_ANGULAR_SPEED
         self.table_height = scene.workspace.table_height

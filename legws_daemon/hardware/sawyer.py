@@ -185,7 +185,7 @@ class SawyerAdapter(Adapter):
             return
         if self._fk is None:
             # with the link meshes: the motion planner checks collisions on a twin of it
-            self._fk = World(self.scene)
+            self._fk = World(self.scene, arm=self.profile.arm)
         if self._ik is None:
             # imported here: mink and qpsolvers add ~0.25 s to the import, for this adapter only
             from legws_daemon.robot.mink_ik import MinkVelocityIK

@@ -112,7 +112,7 @@ class SimAdapter(Adapter):
         self._valid_hold: tuple[bytes, FloatArray] = (b"", np.eye(3))
 
     def _connect(self) -> None:
-        world = World(self.scene)
+        world = World(self.scene, arm=self.profile.arm)
         self.q_home = home_configuration(
             world, self.scene.home.position, self.scene.home.rotation
         ).q

@@ -1,13 +1,15 @@
-"""The Sawyer robot description, fetched once with pip at set-up and cached on disk.
+"""The arms' robot descriptions, fetched once with pip at set-up and cached on disk.
 
 The MJCF and meshes come from robosuite's wheel on PyPI (MIT licence), which ships a
-standalone ``robots/sawyer`` folder. robosuite itself is never installed (it pins an old
-mink): the wheel is downloaded with ``pip download --no-deps`` and only that folder is
-unpacked into the asset cache. Nothing is downloaded at run time.
+standalone ``robots/<arm>`` folder per arm (Sawyer, Panda, UR5e, Kinova Gen3, ...: the
+folder each :class:`~legws_daemon.arms.ArmSpec` names). robosuite itself is never
+installed (it pins an old mink): the wheel is downloaded with ``pip download --no-deps``
+and only the registered arms' folders are unpacked into the asset cache, one folder per arm
+(``<cache>/<arm name>``). Nothing is downloaded at run time.
 
 Integrity: the fetch writes a manifest into the folder's marker ``legws-asset.json`` (every
 file's relative path, size and sha256, and one digest over them all). Every
-:func:`sawyer_dir` checks the folder against it, because this model also drives the real
+:func:`arm_dir` checks the folder against it, because this model also drives the real
 arm's kinematics: a missing, changed, truncated or replaced file is one ``InputError``
 naming the file and the command that restores the folder. Hashing the ~55 MB folder takes
 ~0.15 s; the result is kept per process for each file's (path, size, mtime, ctime, inode),
@@ -40,12 +42,13 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+from legws_daemon.arms import DEFAULT_ARM, ArmSpec, arm, arm_names
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.nesting import check_json_nesting
 from legws_daemon.robot.mesh_files import FAST_MESH_DIR, fast_mesh_path, obj_to_msh
 
 ROBOSUITE_VERSION = "1.5.2"
-_PREFIX = "robosuite/models/assets/robots/sawyer/"
+_ROBOTS = "robosuite/models/assets/robots/"
 _MARKER = "legws-asset.json"
 FETCH_COMMAND = "./dev setup   (or: legws assets fetch)"
 #: What restores a damaged model: download it again and replace the folder atomically.
@@ -90,19 +93,27 @@ def assets_dir() -> Path:
     return Path.home() / ".cache" / "legws" / "assets"
 
 
-def sawyer_dir(root: Path | None = None) -> Path:
-    """Folder holding ``robot.xml`` and its meshes, checked against the fetch's manifest.
+def arm_dir(root: Path | None = None, name: str = DEFAULT_ARM) -> Path:
+    """Folder holding the arm's ``robot.xml`` and its meshes, checked against the fetch's
+    manifest.
 
     Raises:
         InputError: one line saying which command fetches the model when it is missing, or
             which file is damaged and which command restores it.
     """
-    return verify(root).folder
+    return verify(root, name).folder
 
 
-def model_digest(root: Path | None = None) -> str:
+def model_digest(root: Path | None = None, name: str = DEFAULT_ARM) -> str:
     """The verified model's overall sha256 (e.g. for cache keys that depend on the robot)."""
-    return verify(root).digest
+    return verify(root, name).digest
+
+
+def _spec(name: str) -> ArmSpec:
+    try:
+        return arm(name)
+    except KeyError as err:
+        raise InputError(str(err.args[0])) from None
 
 
 # --- hashing ------------------------------------------------------------------------------
@@ -261,9 +272,9 @@ def _remember(cache: dict[_StatKey, Any], key: _StatKey, value: Any) -> None:
     cache[key] = value
 
 
-def _damaged(folder: Path, what: str, how: str) -> InputError:
+def _damaged(folder: Path, what: str, how: str, title: str) -> InputError:
     return InputError(
-        f"the Sawyer model is damaged: {folder / what} {how}; restore it with: {RESTORE_COMMAND}"
+        f"the {title} model is damaged: {folder / what} {how}; restore it with: {RESTORE_COMMAND}"
     )
 
 
@@ -328,32 +339,33 @@ def _manifest(marker: Path) -> tuple[list[ManifestEntry], str]:
     return cached
 
 
-def verify(root: Path | None = None) -> Verified:
-    """Check the Sawyer folder against its manifest (see the module's docstring).
+def verify(root: Path | None = None, name: str = DEFAULT_ARM) -> Verified:
+    """Check the arm's folder against its manifest (see the module's docstring).
 
     Raises:
         InputError: one line: not fetched (and how to fetch), or the damaged file and
             ``legws assets fetch --force``.
     """
-    folder = (root or assets_dir()) / "sawyer"
+    title = _spec(name).title
+    folder = (root or assets_dir()) / name
     marker = folder / _MARKER
     if not folder.is_dir() or not (marker.exists() or marker.is_symlink()):
         if folder.is_dir() and any(folder.iterdir()):
-            raise _damaged(folder, _MARKER, "is missing (the fetch did not complete)")
+            raise _damaged(folder, _MARKER, "is missing (the fetch did not complete)", title)
         raise InputError(
-            f"the Sawyer model is not fetched (looked in {folder}); fetch it with: {FETCH_COMMAND}"
+            f"the {title} model is not fetched (looked in {folder}); fetch it with: {FETCH_COMMAND}"
         )
     with _LOCK:
         try:
             entries, overall = _manifest(marker)
         except ValueError as err:
-            raise _damaged(folder, _MARKER, str(err)) from None
+            raise _damaged(folder, _MARKER, str(err), title) from None
         dirs_ok: set[str] = set()
         for entry in entries:
             try:
                 _check_entry(str(folder), entry, dirs_ok)
             except _DamagedError as err:
-                raise _damaged(folder, err.what or entry.path, err.how) from None
+                raise _damaged(folder, err.what or entry.path, err.how, title) from None
     return Verified(
         folder, len(entries), sum(e.size for e in entries), overall,
         {e.path: e.sha256 for e in entries},
@@ -408,7 +420,7 @@ def _write_manifest(folder: Path, source: dict[str, Any]) -> None:
                 continue
             st = path.lstat()
             if not stat.S_ISREG(st.st_mode):
-                raise LegwsError(f"the fetched Sawyer folder holds a non-regular file: {rel}")
+                raise LegwsError(f"the fetched model folder holds a non-regular file: {rel}")
             entries.append(ManifestEntry(rel, st.st_size, _hash_file(path, st.st_size)))
     manifest = {
         "version": MANIFEST_VERSION,
@@ -419,20 +431,30 @@ def _write_manifest(folder: Path, source: dict[str, Any]) -> None:
     (folder / _MARKER).write_text(json.dumps({**source, "manifest": manifest}, indent=1))
 
 
-def fetch(root: Path | None = None, *, force: bool = False) -> Path:
-    """Download robosuite's wheel with pip and unpack its Sawyer folder into the cache.
+def fetch(
+    root: Path | None = None, *, force: bool = False, names: tuple[str, ...] | None = None
+) -> dict[str, Path]:
+    """Download robosuite's wheel with pip and unpack the arms' folders into the cache.
 
-    Without ``force``, an intact cached model is kept. Atomic: the new folder is unpacked
-    and hashed beside the cache, then swapped in with two renames; the old one is removed
-    after.
+    ``names``: the arms (default: every registered one). Without ``force``, an intact cached
+    model is kept (and nothing is downloaded when all are). Atomic per arm: the new folder
+    is unpacked and hashed beside the cache, then swapped in with two renames; the old one
+    is removed after. Returns each arm's verified folder.
     """
     root = root or assets_dir()
-    target = root / "sawyer"
-    if not force:
-        try:
-            return sawyer_dir(root)
-        except InputError:
-            pass
+    wanted = tuple(names or arm_names())
+    todo: list[ArmSpec] = []
+    for name in wanted:
+        spec = _spec(name)
+        if not force:
+            try:
+                arm_dir(root, name)
+                continue
+            except InputError:
+                pass
+        todo.append(spec)
+    if not todo:
+        return {n: arm_dir(root, n) for n in wanted}
     root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=root, prefix=".fetch-") as tmp:
         cmd = [
@@ -444,23 +466,37 @@ def fetch(root: Path | None = None, *, force: bool = False) -> Path:
         if proc.returncode != 0 or not wheels:
             last = (proc.stderr.strip().splitlines() or ["no wheel downloaded"])[-1]
             raise LegwsError(f"pip download of robosuite=={ROBOSUITE_VERSION} failed: {last}")
-        staging = Path(tmp) / "sawyer"
         with zipfile.ZipFile(wheels[0]) as wheel:
-            members = [n for n in wheel.namelist() if n.startswith(_PREFIX) and not n.endswith("/")]
-            for name in members:
-                rel = _clean_relpath(name[len(_PREFIX) :])
-                if rel is None or rel == _MARKER:
-                    raise LegwsError(f"robosuite's wheel holds an unsafe file name: {name!r}")
-                dest = staging / rel
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                with wheel.open(name) as src, dest.open("wb") as out:
-                    shutil.copyfileobj(src, out, _CHUNK)
-        converted = _write_fast_meshes(staging)
-        _write_manifest(
-            staging,
-            {"source": f"robosuite=={ROBOSUITE_VERSION}", "files": len(members) + converted},
+            for spec in todo:
+                _unpack(wheel, spec, root, Path(tmp))
+    return {n: arm_dir(root, n) for n in wanted}
+
+
+def _unpack(wheel: zipfile.ZipFile, spec: ArmSpec, root: Path, tmp: Path) -> None:
+    """Unpack one arm's folder of the wheel, hash it, and swap it into ``root/<name>``."""
+    prefix = f"{_ROBOTS}{spec.asset_folder}/"
+    staging = tmp / spec.name
+    members = [n for n in wheel.namelist() if n.startswith(prefix) and not n.endswith("/")]
+    if not any(n == prefix + "robot.xml" for n in members):
+        raise LegwsError(
+            f"robosuite=={ROBOSUITE_VERSION} has no {spec.asset_folder}/robot.xml "
+            f"(the model of arm {spec.name})"
         )
-        if target.exists() or target.is_symlink():
-            target.rename(Path(tmp) / "old")  # removed with the temporary folder
-        staging.rename(target)
-    return sawyer_dir(root)
+    for name in members:
+        rel = _clean_relpath(name[len(prefix) :])
+        if rel is None or rel == _MARKER:
+            raise LegwsError(f"robosuite's wheel holds an unsafe file name: {name!r}")
+        dest = staging / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        with wheel.open(name) as src, dest.open("wb") as out:
+            shutil.copyfileobj(src, out, _CHUNK)
+    converted = _write_fast_meshes(staging)
+    _write_manifest(
+        staging,
+        {"source": f"robosuite=={ROBOSUITE_VERSION}", "arm": spec.name,
+         "files": len(members) + converted},
+    )  # fmt: skip
+    target = root / spec.name
+    if target.exists() or target.is_symlink():
+        target.rename(tmp / f"old-{spec.name}")  # removed with the temporary folder
+    staging.rename(target)

@@ -32,14 +32,15 @@ class _Link:
 
     pos: FloatArray  # (3,) offset from the previous hinge's frame
     rot: FloatArray  # (3, 3)
-    joint: int  # index into the arm's 7 joints
+    joint: int  # index into the arm's joints
     axis: FloatArray  # (3,) hinge axis in the body frame
     anchor: FloatArray  # (3,) hinge position in the body frame
     q0: float  # qpos0 of the hinge (MuJoCo turns by q - qpos0)
 
     @property
     def about_z(self) -> bool:
-        """A turn about the body's own z axis through its origin (every Sawyer joint)."""
+        """A turn about the body's own z axis through its origin (every Sawyer joint; the
+        others take the general path)."""
         return bool(np.array_equal(self.axis, [0.0, 0.0, 1.0]) and not self.anchor.any())
 
 
@@ -74,8 +75,8 @@ def _chain(world: World) -> tuple[list[_Link], FloatArray, FloatArray]:
             axis, anchor = np.array(m.jnt_axis[j]), np.array(m.jnt_pos[j])
             links.append(_Link(pos, rot, qadr.index(adr), axis, anchor, float(m.qpos0[adr])))
             pos, rot = np.zeros(3), np.eye(3)
-    if sorted(lk.joint for lk in links) != list(range(7)):
-        raise LegwsError("the EE site's chain does not hold the arm's 7 joints")
+    if sorted(lk.joint for lk in links) != list(range(world.dof)):
+        raise LegwsError(f"the EE site's chain does not hold the arm's {world.dof} joints")
     site_pos = pos + rot @ m.site_pos[site]
     return links, site_pos, rot @ _quat_matrix(m.site_quat[site])
 
@@ -92,14 +93,16 @@ class BatchKinematics:
 
     def __init__(self, world: World) -> None:
         self.links, self.site_pos, self.site_rot = _chain(world)
+        self.dof = world.dof
 
     def forward(self, q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """EE positions ``(N, 3)``, rotations ``(N, 3, 3)`` and Jacobians ``(N, 6, 7)``."""
-        n = len(q)
+        """EE positions ``(N, 3)``, rotations ``(N, 3, 3)`` and Jacobians ``(N, 6, n)``
+        (``n`` the arm's DoF)."""
+        n, dof = len(q), self.dof
         p = np.zeros((n, 3))
         R = np.broadcast_to(np.eye(3), (n, 3, 3))
-        axes = np.empty((n, 7, 3))
-        anchors = np.empty((n, 7, 3))
+        axes = np.empty((n, dof, 3))
+        anchors = np.empty((n, dof, 3))
         for i, lk in enumerate(self.links):
             p = p + (lk.pos if i == 0 else _times(R, lk.pos))
             R = np.broadcast_to(lk.rot, (n, 3, 3)) if i == 0 else _times(R, lk.rot)
@@ -120,7 +123,7 @@ class BatchKinematics:
                 R = R @ axis_rotation(lk.axis, angle)
                 p = a - _times(R, lk.anchor)
         ee = p + _times(R, self.site_pos)
-        J = np.empty((n, 6, 7))
+        J = np.empty((n, 6, dof))
         r = ee[:, None, :] - anchors
         ax, ay, az = axes[:, :, 0], axes[:, :, 1], axes[:, :, 2]
         J[:, 0] = ay * r[:, :, 2] - az * r[:, :, 1]
@@ -166,20 +169,20 @@ def batch_ik(
 
     Args:
         positions: ``(N, 3)`` EE targets; rotations ``(N, 3, 3)``.
-        q0: ``(7,)`` seed of every target, or ``(N, 7)`` one per target.
+        q0: ``(n,)`` seed of every target, or ``(N, n)`` one per target (``n`` the DoF).
         patience: when positive, a target also stops once its error (the larger of the
             position and rotation errors, each relative to its tolerance) has not dropped
             by 1 % for this many iterations: stuck on a joint limit or out of reach.
 
     Returns:
-        configurations ``(N, 7)``, position and rotation errors ``(N,)`` at the last
+        configurations ``(N, n)``, position and rotation errors ``(N,)`` at the last
         iterate (as ``solve_ik``: a target stops iterating once within the tolerances).
     """
     kin = kinematics or BatchKinematics(world)
     n = len(positions)
     lower, upper = world.arm.lower, world.arm.upper
     lo, hi = lower + LIMIT_MARGIN, upper - LIMIT_MARGIN
-    q_out = np.array(np.broadcast_to(np.clip(q0, lower, upper), (n, 7)))
+    q_out = np.array(np.broadcast_to(np.clip(q0, lower, upper), (n, world.dof)))
     ep_out = np.full(n, np.inf)
     er_out = np.full(n, np.inf)
     eye = IK_DAMPING**2 * np.eye(6)

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InfeasibleError
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import World
 
 #: Damping of the least-squares solve (m, rad): keeps steps bounded near singularities.
 DAMPING = 0.02
@@ -67,8 +67,20 @@ class StepResult:
     at_limit: bool  # a joint position limit was reached
 
 
-#: Nominal "ready" posture the redundancy is pulled toward (keeps joints off their limits).
-READY_POSTURE = np.array([0.0, -0.6, 0.0, 1.4, 0.0, 0.8, 0.0])
+def ready_posture(world: World) -> FloatArray:
+    """The arm's nominal "ready" posture the redundancy is pulled toward (keeps joints off
+    their limits): its description's."""
+    return np.array(world.spec.ready_posture)
+
+
+def posture_pull(world: World, q: FloatArray) -> FloatArray:
+    """``POSTURE_GAIN * (ready - q)``, zero for the arm's free joints (the wrist roll
+    follows the grasp yaw)."""
+    pull = POSTURE_GAIN * (ready_posture(world) - q)
+    pull[list(world.spec.free_joints)] = 0.0
+    return pull
+
+
 #: Gain of the null-space pull toward the ready posture, 1/s.
 POSTURE_GAIN = 0.5
 
@@ -76,15 +88,14 @@ POSTURE_GAIN = 0.5
 def velocity_step(world: World, twist: ArrayLike, dt: float, *, posture: bool = True) -> StepResult:
     """Move the arm by the EE twist ``[v (3), w (3)]`` for ``dt`` seconds.
 
-    With ``posture``, the arm's redundancy drifts slowly toward :data:`READY_POSTURE` in the
+    With ``posture``, the arm's redundancy drifts slowly toward :func:`ready_posture` in the
     exact null space of the EE task (it does not move the EE to first order). The joint
     velocity is then scaled down uniformly (direction kept) to respect the joint speed
     limits, and joint positions are clamped inside the limits.
     """
     J = world.jacobian()
     q = world.q
-    pull = POSTURE_GAIN * (READY_POSTURE - q) if posture else np.zeros(7)
-    pull[6] = 0.0  # the wrist roll is free: it follows the grasp yaw
+    pull = posture_pull(world, q) if posture else np.zeros(world.dof)
     tw = np.asarray(twist, dtype=np.float64)
     lo, hi = world.arm.lower + LIMIT_MARGIN, world.arm.upper - LIMIT_MARGIN
     qdot = _redundant_solve(J, tw, pull)
@@ -94,9 +105,9 @@ def velocity_step(world: World, twist: ArrayLike, dt: float, *, posture: bool = 
     if any_blocked:
         # joints that would pass a limit stop there; the others take over their share
         free = ~blocked
-        qdot = np.zeros(7)
+        qdot = np.zeros(world.dof)
         qdot[free] = _redundant_solve(J[:, free], tw, pull[free])
-    ratio = float((np.abs(qdot) / JOINT_SPEED_LIMITS).max())
+    ratio = float((np.abs(qdot) / world.arm.speed_limits).max())
     scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
     if scale != 1.0:
         qdot = qdot * scale
@@ -128,15 +139,15 @@ def _redundant_solve(J: FloatArray, twist: FloatArray, posture: FloatArray) -> F
 
 
 def home_configuration(world: World, position: ArrayLike, rotation: ArrayLike) -> IKResult:
-    """IK of the EE home pose, the solution nearest :data:`READY_POSTURE` of a few seeds."""
-    bent = READY_POSTURE + np.array([0.0, -0.4, 0.0, 0.6, 0.0, -0.2, 0.0])
-    seeds = [READY_POSTURE, bent, np.zeros(7)]
+    """IK of the EE home pose, the solution nearest the arm's :func:`ready_posture` of a
+    few seeds (the ready posture and the description's ``home_seeds``)."""
+    ready = ready_posture(world)
+    seeds = [ready, *(np.array(s) for s in world.spec.home_seeds)]
     best: IKResult | None = None
     for seed in seeds:
         r = solve_ik(world, position, rotation, seed, tol_position=1e-4, tol_rotation=1e-4)
         if r.converged and (
-            best is None
-            or np.linalg.norm(r.q - READY_POSTURE) < np.linalg.norm(best.q - READY_POSTURE)
+            best is None or np.linalg.norm(r.q - ready) < np.linalg.norm(best.q - ready)
         ):
             best = r
     if best is None:

@@ -5,12 +5,13 @@ Each call solves one small quadratic program (mink, solver daqp) for the joint d
 
 - a ``FrameTask`` on the ``ee`` site, whose target is the pose the twist reaches in ``dt``
   (position ``p + v dt``, orientation ``exp([w] dt) R``, both in the world frame);
-- a low-weight ``PostureTask`` toward a posture (default :data:`~legws_daemon.robot.kinematics.
-  READY_POSTURE`, the wrist roll held where it is), moved a fraction ``POSTURE_GAIN * dt``
-  of the way per call: it resolves the arm's redundancy and is the only regularisation;
+- a low-weight ``PostureTask`` toward a posture (default the arm's
+  :func:`~legws_daemon.robot.kinematics.ready_posture`, its free joints held where they
+  are), moved a fraction ``POSTURE_GAIN * dt`` of the way per call: it resolves the arm's
+  redundancy and is the only regularisation;
 - a ``ConfigurationLimit`` ``LIMIT_MARGIN`` inside the joint range (a joint covers at most
   95 % of its remaining distance to that band per period) and a ``VelocityLimit`` at
-  :data:`~legws_daemon.robot.world.JOINT_SPEED_LIMITS`: hard constraints, so the answer tracks
+  the arm's speed limits (its description's): hard constraints, so the answer tracks
   the twist as well as the limits allow, up to the small posture weight (unlike
   :func:`~legws_daemon.robot.kinematics.velocity_step`, which stops a joint that would pass
   its limit and scales the whole motion down uniformly for the speed limits).
@@ -35,8 +36,8 @@ from numpy.typing import ArrayLike
 
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InfeasibleError, InputError, LegwsError
-from legws_daemon.robot.kinematics import LIMIT_MARGIN, POSTURE_GAIN, READY_POSTURE
-from legws_daemon.robot.world import ARM_JOINTS, JOINT_SPEED_LIMITS, PREFIX, World
+from legws_daemon.robot.kinematics import LIMIT_MARGIN, POSTURE_GAIN, ready_posture
+from legws_daemon.robot.world import World
 
 #: Weights of the EE position (1/m) and orientation (1/rad) errors in the QP objective.
 POSITION_COST = 1.0
@@ -52,8 +53,6 @@ DAMPING = 1e-12
 #: The QP backend (qpsolvers name); daqp was the fastest measured (dependencies.md).
 SOLVER = "daqp"
 
-_N = len(ARM_JOINTS)
-
 
 class MinkVelocityIK:
     """Joint velocities realising an EE twist, from mink's QP with exact joint limits.
@@ -62,15 +61,16 @@ class MinkVelocityIK:
     Not thread-safe (one configuration, one set of buffers): use one per control thread.
 
     Args:
-        world: the compiled scene (its model, the arm's 7 joints, the ``ee`` site). Only
+        world: the compiled scene (its model, the arm's ``n`` joints, the ``ee`` site). Only
             the model is used: this object has its own ``MjData``, so ``world`` is not moved.
-        posture: joint angles (7,) the redundancy is pulled toward (the wrist roll's entry
-            is ignored: that joint is held where it is).
+        posture: joint angles (n,) the redundancy is pulled toward (default the arm's ready
+            posture; the entries of its free joints are ignored: those are held where they
+            are).
         posture_cost: weight of the posture task, see :data:`POSTURE_COST`.
         margin: the joint position limits are kept this far inside the model's range, rad.
 
     Raises:
-        LegwsError: the model's degrees of freedom are not exactly the arm's 7 joints, in
+        LegwsError: the model's degrees of freedom are not exactly the arm's joints, in
             order, or an argument is out of range.
     """
 
@@ -78,13 +78,19 @@ class MinkVelocityIK:
         self,
         world: World,
         *,
-        posture: ArrayLike = READY_POSTURE,
+        posture: ArrayLike | None = None,
         posture_cost: float = POSTURE_COST,
         margin: float = LIMIT_MARGIN,
-        speed_limits: ArrayLike = JOINT_SPEED_LIMITS,
+        speed_limits: ArrayLike | None = None,
     ) -> None:
         model = world.model
         arm = world.arm
+        _N = self._n = world.dof
+        self._free = list(world.spec.free_joints)
+        if posture is None:
+            posture = ready_posture(world)
+        if speed_limits is None:
+            speed_limits = arm.speed_limits
         if (
             model.nq != _N
             or model.nv != _N
@@ -118,7 +124,11 @@ class MinkVelocityIK:
         if speeds.shape != (_N,) or not np.all(np.isfinite(speeds)) or np.any(speeds <= 0):
             raise LegwsError(f"speed_limits must be {_N} positive rad/s, got {speeds.tolist()}")
         self._velocity_limit = mink.VelocityLimit(
-            model, {PREFIX + j: float(v) for j, v in zip(ARM_JOINTS, speeds, strict=True)}
+            model,
+            {
+                world.prefix + j: float(v)
+                for j, v in zip(world.spec.joint_names, speeds, strict=True)
+            },
         )
         self._tasks = [self._frame, self._posture]
         self._limits = [self._position_limit, self._velocity_limit]
@@ -137,10 +147,10 @@ class MinkVelocityIK:
         self._turn = np.empty(4)
 
     def joint_velocity(self, q: ArrayLike, twist: ArrayLike, dt: float) -> FloatArray:
-        """Joint velocities (7,), rad/s, moving the EE by ``twist`` for ``dt`` seconds.
+        """Joint velocities (n,), rad/s, moving the EE by ``twist`` for ``dt`` seconds.
 
         Args:
-            q: the arm's joint angles (7,), rad.
+            q: the arm's joint angles (n,), rad.
             twist: EE linear velocity (3,) m/s then angular velocity (3,) rad/s, world frame.
             dt: the control period, s.
 
@@ -156,6 +166,7 @@ class MinkVelocityIK:
             InfeasibleError: the QP solver found no solution (not expected: ``dq = 0`` is
                 always feasible).
         """
+        _N = self._n
         q = np.asarray(q, dtype=np.float64)
         tw = np.asarray(twist, dtype=np.float64)
         if q.shape != (_N,) or not np.isfinite(q).all():
@@ -172,7 +183,8 @@ class MinkVelocityIK:
         cfg = self.configuration
         cfg.update(q)
         self._set_frame_target(tw, dt)
-        self._posture_target[6] = q[6]  # the wrist roll is free: held, not pulled
+        # the free joints (the wrist roll) are held, not pulled
+        self._posture_target[self._free] = q[self._free]
         self._posture.set_target(self._posture_target)
         self._posture.gain = min(1.0, POSTURE_GAIN * dt)
         lo = np.minimum(self.lower, q, out=self._band_lower)

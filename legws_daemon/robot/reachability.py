@@ -454,11 +454,12 @@ class _Solver:
         patience: int,
     ) -> tuple[BoolArray, FloatArray]:
         """Which targets IK reaches within the feasibility tolerances with the arm clear of
-        the table, and the configurations ``(N, 7)``; ``seeds`` ``(7,)`` or ``(N, 7)``."""
-        n = len(positions)
+        the table, and the configurations ``(N, n)``; ``seeds`` ``(n,)`` or ``(N, n)``
+        (``n`` the arm's DoF)."""
+        n, dof = len(positions), self.world.dof
         ok = np.zeros(n, dtype=np.bool_)
-        qs = np.empty((n, 7))
-        seeds = np.broadcast_to(seeds, (n, 7))
+        qs = np.empty((n, dof))
+        seeds = np.broadcast_to(seeds, (n, dof))
         tol = self.grid.inner_tolerance
         for s in range(0, n, _CHUNK):
             chunk = slice(s, s + _CHUNK)
@@ -600,7 +601,7 @@ def build(
 def _check_kinematics(world: World, kin: BatchKinematics, q_home: FloatArray) -> None:
     """The numpy chain must agree with MuJoCo (guards against a changed robot model)."""
     rng = np.random.default_rng(0)
-    qs = np.vstack([q_home, rng.uniform(world.arm.lower, world.arm.upper, size=(4, 7))])
+    qs = np.vstack([q_home, rng.uniform(world.arm.lower, world.arm.upper, size=(4, world.dof))])
     ee, R, J = kin.forward(qs)
     saved = world.q
     try:
@@ -623,13 +624,23 @@ def _check_kinematics(world: World, kin: BatchKinematics, q_home: FloatArray) ->
 
 
 def cache_key(world: World, q_home: ArrayLike, grid: ReachabilityGrid = DEFAULT_GRID) -> str:
-    """Hash of what a map depends on: robot description, gripper, collision meshes in use,
-    table, home configuration, tolerances, grid and the map's format."""
+    """Hash of what a map depends on: robot description (its files and the arm's
+    registration: joints, limits, mount, hand), gripper, collision meshes in use, table,
+    home configuration, tolerances, grid and the map's format."""
     ws = world.scene.workspace
+    spec = world.spec
     h = hashlib.sha256()
-    h.update(model_digest().encode())  # every file of the model, verified
+    h.update(model_digest(None, spec.name).encode())  # every file of the model, verified
     facts = {
         "format": FORMAT_VERSION,
+        "arm": {
+            "name": spec.name,
+            "joints": list(spec.joint_names),
+            "limits": [list(lim) for lim in spec.position_limits],
+            "mount": [spec.mount.x, spec.mount.y, spec.mount.z, spec.mount.yaw],
+            "hand": [spec.hand_body, list(spec.tcp_quat), spec.flange_yaw],
+            "collision": sorted(spec.mesh_collision_bodies | spec.primitive_bodies),
+        },
         "tcp_offset": TCP_OFFSET,
         "finger_gap": FINGER_GAP,
         "meshes": int(world.model.nmesh),

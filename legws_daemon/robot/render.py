@@ -212,8 +212,10 @@ def render_layout(
     width: int = 800,
     height: int = 600,
     view: View = "top",
+    arm: str = "sawyer",
 ) -> np.ndarray:
-    """Render ``scene`` with ``layout`` (``None``: the scene file's poses).
+    """Render ``scene`` with ``layout`` (``None``: the scene file's poses), the arm
+    ``arm`` at its home pose.
 
     Returns:
         ``(height, width, 3)`` uint8 RGB image.
@@ -230,7 +232,7 @@ def render_layout(
     from legws_daemon.robot.world import World
 
     poses = scene.poses(layout)
-    world = World(scene, visual=True)
+    world = World(scene, arm=arm, visual=True)
     world.set_layout(poses)
     home_configuration(world, scene.home.position, scene.home.rotation)
     model, data = world.model, world.data

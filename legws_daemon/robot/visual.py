@@ -21,9 +21,10 @@ from functools import cache
 import mujoco
 import numpy as np
 
+from legws_daemon.arms import ArmSpec
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.robot.gripper import FINGER_GAP
-from legws_daemon.robot.world import PREFIX, World, robot_model
+from legws_daemon.robot.world import World, robot_model
 
 #: Geom group of what is drawn (robot meshes and the gripper; see robot/world.py).
 VISUAL_GROUP = 1
@@ -148,10 +149,11 @@ def _mesh_part(m: mujoco.MjModel, g: int) -> tuple[FloatArray, np.ndarray, int]:
     return vertices, np.asarray(m.mesh_face[f0 : f0 + nf], dtype=np.int64), _geom_color(m, g)
 
 
-def visual_of(m: mujoco.MjModel, link_bodies: list[int]) -> RobotVisual:
-    """The visual geometry of the given bodies (link ``i`` is ``link_bodies[i]``)."""
+def visual_of(m: mujoco.MjModel, link_bodies: list[int], prefix: str = "") -> RobotVisual:
+    """The visual geometry of the given bodies (link ``i`` is ``link_bodies[i]``; names
+    without ``prefix``)."""
     index = {body: i for i, body in enumerate(link_bodies)}
-    names = tuple(m.body(b).name.removeprefix(PREFIX) for b in link_bodies)
+    names = tuple(m.body(b).name.removeprefix(prefix) for b in link_bodies)
     parts: dict[int, list[tuple[FloatArray, np.ndarray, int]]] = {}
     boxes: list[LinkBox] = []
     fingers: Fingers | None = None
@@ -160,7 +162,7 @@ def visual_of(m: mujoco.MjModel, link_bodies: list[int]) -> RobotVisual:
         if link is None or int(m.geom_group[g]) != VISUAL_GROUP:
             continue
         kind = int(m.geom_type[g])
-        name = m.geom(g).name.removeprefix(PREFIX)
+        name = m.geom(g).name.removeprefix(prefix)
         if kind == mujoco.mjtGeom.mjGEOM_MESH:
             parts.setdefault(link, []).append(_mesh_part(m, g))
         elif kind == mujoco.mjtGeom.mjGEOM_BOX and name in FINGER_GEOMS:
@@ -192,9 +194,9 @@ def visual_of(m: mujoco.MjModel, link_bodies: list[int]) -> RobotVisual:
 
 
 @cache
-def _visual_robot() -> RobotVisual:
+def _visual_robot(spec: ArmSpec) -> RobotVisual:
     """The arm's visual geometry from the robot model alone (compiled once per process)."""
-    m = robot_model()
+    m = robot_model(spec)
     return visual_of(m, list(range(1, m.nbody)))  # every body but the world, as World has them
 
 
@@ -212,9 +214,9 @@ def robot_visual(world: World) -> RobotVisual:
         for g in range(m.ngeom)
     )
     if has_mesh:
-        return visual_of(m, links)
-    alone = _visual_robot()
-    names = tuple(m.body(b).name.removeprefix(PREFIX) for b in links)
+        return visual_of(m, links, world.prefix)
+    alone = _visual_robot(world.spec)
+    names = tuple(m.body(b).name.removeprefix(world.prefix) for b in links)
     if alone.links != names:  # not the same robot description
-        return visual_of(m, links)
+        return visual_of(m, links, world.prefix)
     return alone

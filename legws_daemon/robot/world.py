@@ -1,7 +1,9 @@
-"""A scene composed with ``MjSpec``: table, objects as primitive geometry, the Sawyer.
+"""A scene composed with ``MjSpec``: table, objects as primitive geometry, one arm.
 
-World frame = robot base frame (method.md §1): the Sawyer's base sits at the origin, the
-table top at ``workspace.table_height``, its centre and size from the scene file. Every
+World frame = table coordinates (method.md §1: the Sawyer's base frame): the table top at
+``workspace.table_height``, its centre and size from the scene file; the arm (one of
+:mod:`legws_daemon.arms`, the Sawyer by default) stands at its mount pose (the
+Sawyer's at the origin). Every
 object is a mocap body with one primitive geom matching its shape and size, so a layout is
 applied without recompiling. A simple parallel gripper of primitive geoms is attached to
 the hand; its ``ee`` site is the grasp frame convention of the grasp library (origin
@@ -21,23 +23,12 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
+from legws_daemon.arms import DEFAULT_ARM, ArmSpec, arm
 from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, yaw_quat
 from legws_daemon.errors import InputError
-from legws_daemon.robot.assets import RESTORE_COMMAND, sawyer_dir, verify
+from legws_daemon.robot.assets import RESTORE_COMMAND, arm_dir, verify
 from legws_daemon.robot.gripper import FINGER_GAP, FINGER_HALF, TCP_OFFSET
 from legws_daemon.scene.scene import ObjectPose, Scene
-
-PREFIX = "sawyer/"
-ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))
-#: Joint speed limits of the Sawyer (Intera specification), rad/s.
-JOINT_SPEED_LIMITS = np.array([1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545])
-
-#: Links whose meshes collide (with meshes loaded); the base, shoulder and head keep the
-#: robot description's primitives (their meshes are not all convex-hullable, and they
-#: stay far from the table).
-_MESH_COLLISION_BODIES = frozenset(f"right_l{i}" for i in range(1, 7))
-#: Extra primitive-only collision bodies of the description, replaced by the meshes too.
-_EXTRA_PRIMITIVE_BODIES = frozenset({"right_l1_2", "right_l2_2", "right_l4_2"})
 
 _GEOM = {
     "box": mujoco.mjtGeom.mjGEOM_BOX,
@@ -50,12 +41,13 @@ _GEOM = {
 class ArmIndex:
     """Addresses of the arm in the compiled model."""
 
-    qpos: np.ndarray  # (7,) qpos addresses
-    dof: np.ndarray  # (7,) dof addresses
-    lower: FloatArray  # (7,) joint position limits
+    qpos: np.ndarray  # (n,) qpos addresses, n the arm's DoF
+    dof: np.ndarray  # (n,) dof addresses
+    lower: FloatArray  # (n,) joint position limits (the arm description's)
     upper: FloatArray
     ee_site: int
     robot_bodies: frozenset[int]
+    speed_limits: FloatArray  # (n,) rad/s
 
 
 def _object_geom_size(shape: str, size: list[float]) -> list[float]:
@@ -66,36 +58,58 @@ def _object_geom_size(shape: str, size: list[float]) -> list[float]:
     return [size[0], 0.0, 0.0]
 
 
-def _model_error(what: str, err: Exception) -> InputError:
-    """One line for a Sawyer model that passed its integrity check but MuJoCo refuses."""
+def resolve_arm(which: ArmSpec | str) -> ArmSpec:
+    """The arm named ``which`` (or ``which`` itself); one line naming the registered arms
+    for a name that is not one."""
+    if isinstance(which, ArmSpec):
+        return which
+    try:
+        return arm(which)
+    except KeyError as err:
+        raise InputError(str(err.args[0])) from None
+
+
+def _model_error(spec: ArmSpec, what: str, err: Exception) -> InputError:
+    """One line for an arm's model that passed its integrity check but MuJoCo refuses."""
     detail = " ".join(str(err).split()) or type(err).__name__
     return InputError(
-        f"MuJoCo cannot {what} the Sawyer model ({detail}); restore it with: {RESTORE_COMMAND}",
-        source=str(sawyer_dir() / "robot.xml"),
+        f"MuJoCo cannot {what} the {spec.title} model ({detail}); "
+        f"restore it with: {RESTORE_COMMAND}",
+        source=str(arm_dir(None, spec.name) / "robot.xml"),
     )
 
 
-def _robot_spec(visual: bool) -> mujoco.MjSpec:
+def _robot_spec(spec: ArmSpec, visual: bool) -> mujoco.MjSpec:
     try:
-        model = verify()
+        model = verify(None, spec.name)
         robot = mujoco.MjSpec.from_file(str(model.folder / "robot.xml"))
     except (ValueError, mujoco.FatalError) as err:  # a bad XML, or a file it names
-        raise _model_error("load", err) from None
+        raise _model_error(spec, "load", err) from None
     if visual:
         for mesh in robot.meshes:  # the binary copies the fetch wrote: ~0.3 s less to load
             mesh.file = model.fast_mesh(mesh.file) or mesh.file
     for actuator in list(robot.actuators):
         robot.delete(actuator)
+    for name, (lo, hi) in zip(spec.joint_names, spec.position_limits, strict=True):
+        joint = robot.joint(name)
+        if joint is None:
+            raise _model_error(spec, "find the arm's joints in", KeyError(name))
+        # the description's range (a continuous joint gets the one legws lets it use), so
+        # MuJoCo, mink's limits and the bridges' guard hold the same numbers
+        joint.range = [lo, hi]
+        joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     for geom in list(robot.geoms):
         body = geom.parent.name
         if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+            collision_mesh = geom.contype != 0 or geom.conaffinity != 0
             if not visual:
                 robot.delete(geom)
-            elif body in _MESH_COLLISION_BODIES:
-                # the meshes' convex hulls are the arm's collision shapes: tighter than the
-                # primitives, which make every side grasp below ~7 cm hit the table
+            elif body in spec.mesh_collision_bodies:
+                # the visual meshes' convex hulls are these links' collision shapes
                 geom.contype, geom.conaffinity = 1, 1
-        elif visual and (body in _MESH_COLLISION_BODIES or body in _EXTRA_PRIMITIVE_BODIES):
+            elif collision_mesh:  # a description's own collision mesh: hidden in renders
+                geom.group, geom.contype, geom.conaffinity = 3, 1, 1
+        elif visual and (body in spec.mesh_collision_bodies or body in spec.primitive_bodies):
             robot.delete(geom)
         else:
             geom.group = 3  # collision primitives: hidden in renders
@@ -104,7 +118,12 @@ def _robot_spec(visual: bool) -> mujoco.MjSpec:
             robot.delete(mesh)
         for material in list(robot.materials):
             robot.delete(material)
-    hand = robot.body("right_hand")
+    hand = robot.body(spec.hand_body)
+    if hand is None:
+        raise _model_error(spec, "find the hand body in", KeyError(spec.hand_body))
+    if spec.flange_yaw:  # the gripper turned on the flange (puts the wrist mid-range at home)
+        c, s = np.cos(spec.flange_yaw / 2), np.sin(spec.flange_yaw / 2)
+        hand = hand.add_body(name="gripper", quat=[c, 0.0, 0.0, s])
     grey = [0.25, 0.25, 0.27, 1.0]
     hand.add_geom(
         name="gripper_base", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.055, 0.03],
@@ -118,29 +137,32 @@ def _robot_spec(visual: bool) -> mujoco.MjSpec:
             pos=[0, y * (FINGER_GAP + hx), TCP_OFFSET - hz], rgba=[0.1, 0.1, 0.1, 1.0],
             group=1,
         )  # fmt: skip
-    # site frame: z along the hand's z (approach), x along the hand's -y (closing direction;
-    # this sign puts the wrist roll mid-range at the home pose)
-    c = float(np.sqrt(0.5))
+    # site frame: z along the hand's z (approach), x the closing direction (the arm's
+    # ``tcp_quat``; for the Sawyer the hand's -y, which puts the wrist roll mid-range at the
+    # home pose)
     hand.add_site(
-        name="ee", pos=[0, 0, TCP_OFFSET], quat=[c, 0, 0, -c], size=[0.008, 0, 0], group=4
-    )
+        name="ee", pos=[0, 0, TCP_OFFSET], quat=list(spec.tcp_quat), size=[0.008, 0, 0],
+        group=4,
+    )  # fmt: skip
     return robot
 
 
-def robot_model() -> mujoco.MjModel:
+def robot_model(which: ArmSpec | str = DEFAULT_ARM) -> mujoco.MjModel:
     """The robot alone, with its meshes and the gripper, compiled (~0.3 s): its bodies are
     the arm's links in the order a :class:`World` has them, without the prefix."""
+    spec = resolve_arm(which)
     try:
-        return _robot_spec(visual=True).compile()
+        return _robot_spec(spec, visual=True).compile()
     except (ValueError, mujoco.FatalError) as err:
-        raise _model_error("compile", err) from None
+        raise _model_error(spec, "compile", err) from None
 
 
 class World:
-    """A compiled scene with the Sawyer, and the state of one arm.
+    """A compiled scene with one arm, and the arm's state.
 
     Args:
         scene: the scene (objects, workspace, home pose).
+        arm: the arm (a registered name or its description; default the Sawyer).
         visual: with the robot's meshes (default), which are drawn and whose convex hulls
             are its collision shapes. Without them the model compiles ~25x faster (20 ms)
             and kinematics is the same, but collisions use the robot description's coarse
@@ -154,10 +176,13 @@ class World:
         self,
         scene: Scene,
         *,
+        arm: ArmSpec | str = DEFAULT_ARM,
         visual: bool = True,
         decorate: Callable[[mujoco.MjSpec], None] | None = None,
     ) -> None:
         self.scene = scene
+        self.spec = resolve_arm(arm)
+        prefix = self.prefix = self.spec.prefix
         spec = mujoco.MjSpec()
         spec.modelname = f"legws_{scene.name}"
         spec.option.timestep = 0.002
@@ -187,30 +212,35 @@ class World:
                 size=_object_geom_size(obj.shape, list(obj.size)),
                 rgba=[*obj.color, 1.0],
             )
-        frame = spec.worldbody.add_frame(pos=[0.0, 0.0, 0.0])
-        spec.attach(_robot_spec(visual), prefix=PREFIX, frame=frame)
+        mount = self.spec.mount
+        frame = spec.worldbody.add_frame(
+            pos=[mount.x, mount.y, mount.z], quat=list(mount.quaternion())
+        )
+        spec.attach(_robot_spec(self.spec, visual), prefix=prefix, frame=frame)
         if decorate is not None:
             decorate(spec)
         try:
             self.model = spec.compile()
         except (ValueError, mujoco.FatalError) as err:  # e.g. a mesh it cannot read
-            raise _model_error("compile", err) from None
+            raise _model_error(self.spec, "compile", err) from None
         self.data = mujoco.MjData(self.model)
         m = self.model
         try:
-            joints = [m.joint(PREFIX + j) for j in ARM_JOINTS]
-            ee_site = m.site(PREFIX + "ee").id
-        except KeyError as err:  # a robot.xml without the Sawyer's joints
-            raise _model_error("find the arm's joints in", err) from None
-        robot_bodies = frozenset(b for b in range(m.nbody) if m.body(b).name.startswith(PREFIX))
+            joints = [m.joint(prefix + j) for j in self.spec.joint_names]
+            ee_site = m.site(prefix + "ee").id
+        except KeyError as err:  # a robot.xml without the arm's joints
+            raise _model_error(self.spec, "find the arm's joints in", err) from None
+        robot_bodies = frozenset(b for b in range(m.nbody) if m.body(b).name.startswith(prefix))
         self.arm = ArmIndex(
             qpos=np.array([j.qposadr[0] for j in joints]),
             dof=np.array([j.dofadr[0] for j in joints]),
-            lower=np.array([j.range[0] for j in joints]),
-            upper=np.array([j.range[1] for j in joints]),
+            lower=np.array(self.spec.lower),
+            upper=np.array(self.spec.upper),
             ee_site=ee_site,
             robot_bodies=robot_bodies,
+            speed_limits=np.array(self.spec.speed_limits),
         )
+        self.dof = self.spec.dof
         self._mocap = {
             name: int(m.body_mocapid[m.body(f"obj/{name}").id]) for name in scene.objects
         }
@@ -296,9 +326,10 @@ class World:
         return self._link_ids
 
     def jacobian(self) -> FloatArray:
-        """``(6, 7)`` EE Jacobian: linear rows then angular rows, world frame."""
+        """``(6, n)`` EE Jacobian (``n`` the arm's DoF): linear rows then angular rows,
+        world frame."""
         mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.arm.ee_site)
-        J = np.empty((6, 7))
+        J = np.empty((6, self.dof))
         J[:3] = self._jacp[:, self._dof]
         J[3:] = self._jacr[:, self._dof]
         return J
@@ -322,5 +353,5 @@ class World:
             if other in ignore or c.dist > 0:
                 continue
             part = m.geom(robot_geom).name or m.body(m.geom_bodyid[robot_geom]).name
-            hits.append((part.removeprefix(PREFIX), other))
+            hits.append((part.removeprefix(self.prefix), other))
         return hits

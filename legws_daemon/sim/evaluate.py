@@ -20,6 +20,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
+from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
@@ -31,7 +32,7 @@ from legws_daemon.formats.validation import (
     read_json_with_lines,
     validate,
 )
-from legws_daemon.robot.assets import sawyer_dir
+from legws_daemon.robot.assets import arm_dir
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.constraints import LayoutConstraints, require_feasible
 from legws_daemon.scene.layout_file import layout_from_data, layout_to_data, load_layout
@@ -64,9 +65,14 @@ INTERVAL_KEYS = (
 )
 
 
-def _init_worker(scene_source: str, params: Params, operator: OperatorModel | None = None) -> None:
+def _init_worker(
+    scene_source: str,
+    params: Params,
+    operator: OperatorModel | None = None,
+    arm: str = DEFAULT_ARM,
+) -> None:
     global _worker
-    _worker = Evaluator(load_scene(scene_source), params, operator=operator)
+    _worker = Evaluator(load_scene(scene_source), params, operator=operator, arm=arm)
 
 
 Job = tuple[int, Layout, int, int | None]
@@ -319,6 +325,7 @@ def run_eval(
     elites: Sequence[Elite] | None = None,
     resamples: int = RESAMPLES,
     operator: OperatorModel | None = None,
+    arm: str = DEFAULT_ARM,
 ) -> dict[str, Any]:
     """Evaluate ``layouts``; returns the report (JSON-ready).
 
@@ -336,6 +343,7 @@ def run_eval(
         resamples: bootstrap resamples of the intervals.
         operator: the simulated user steers like this operator (method.md §10, with the
             robot's clip) instead of section 2's user; recorded as ``operator``.
+        arm: the stand-in's arm; recorded as ``arm``.
 
     The report's ``aggregate`` holds :func:`metrics` over the pooled picks and
     ``intervals``: percentile bootstrap intervals (level 95 %) of :data:`INTERVAL_KEYS`
@@ -346,14 +354,14 @@ def run_eval(
     params = params or Params()
     if elites is not None and len(elites) != len(layouts):
         raise InputError(f"{len(elites)} elites for {len(layouts)} layouts")
-    sawyer_dir()  # a missing or damaged robot model: one line here, not in every worker
+    arm_dir(None, arm)  # a missing or damaged robot model: one line here, not in each worker
     started = time.perf_counter()
     jobs: list[Job] = [
         (i, dict(layout), seed, episodes_per_goal) for i, layout in enumerate(layouts)
     ]
     results: dict[int, tuple[dict[str, Any], list[PickResult]]] = {}
     if workers <= 1:
-        _init_worker(scene.source, params, operator)
+        _init_worker(scene.source, params, operator, arm)
         for job in jobs:
             i, extra, picks = _evaluate(job)
             results[i] = (extra, picks)
@@ -363,7 +371,7 @@ def run_eval(
         with ProcessPoolExecutor(
             max_workers=workers,
             initializer=_init_worker,
-            initargs=(scene.source, params, operator),
+            initargs=(scene.source, params, operator, arm),
             mp_context=worker_context(),
         ) as pool:
             for i, extra, picks in pool.map(_evaluate, jobs):
@@ -422,6 +430,7 @@ def run_eval(
         "params": params.as_dict(),
         "user": "section 2's simulated user" if operator is None else "operator",
         "operator": None if operator is None else operator.as_dict(),
+        "arm": arm,
         "aggregate": aggregate,
         "timing": {
             "seconds": seconds,

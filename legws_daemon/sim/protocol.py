@@ -48,7 +48,7 @@ from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
-from legws_daemon.formats.profile import ProfileSpec, load_profile_named
+from legws_daemon.formats.profile import ProfileSpec, load_profile_named, with_arm
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser, UserView
 from legws_daemon.robot.feasibility import GraspCheck
@@ -292,12 +292,18 @@ class SimClock:
         self.ticks += 1
 
 
-def stand_in_profile(params: Params, base: ProfileSpec | None = None) -> ProfileSpec:
-    """The ``sim`` profile with the method's ``v_max`` and ``dt``, unpaced."""
+def stand_in_profile(
+    params: Params, base: ProfileSpec | None = None, arm: str | None = None
+) -> ProfileSpec:
+    """The ``sim`` profile with the method's ``v_max`` and ``dt``, unpaced (with ``arm``:
+    on that arm)."""
     p = base if base is not None else load_profile_named("sim")
     control = p.control.model_copy(update={"v_max": params.v_max, "rate_hz": 1.0 / params.dt})
     sim = p.sim.model_copy(update={"realtime": False})
-    return p.model_copy(update={"control": control, "sim": sim})
+    update: dict[str, object] = {"control": control, "sim": sim}
+    if arm is not None:
+        update["arm"] = with_arm(p, arm).arm
+    return p.model_copy(update=update)
 
 
 class Evaluator:
@@ -309,6 +315,7 @@ class Evaluator:
         profile: the stand-in's profile (default: :func:`stand_in_profile`).
         operator: the simulated user steers like this operator (method.md §10, the
             robot's clip) instead of section 2's user.
+        arm: the stand-in's arm (default the profile's).
     """
 
     def __init__(
@@ -318,11 +325,13 @@ class Evaluator:
         profile: ProfileSpec | None = None,
         *,
         operator: OperatorModel | None = None,
+        arm: str | None = None,
     ) -> None:
         self.scene = scene
         self.params = params or Params()
         self.operator = operator
-        self.profile = profile if profile is not None else stand_in_profile(self.params)
+        base = profile if profile is not None else stand_in_profile(self.params)
+        self.profile = with_arm(base, arm) if arm is not None else base
         self.clock = SimClock(self.params.dt)
         self.events: list[Event] = []
         self.adapter: SimAdapter | None = None

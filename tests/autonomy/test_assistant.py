@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from legws_daemon.arms import arm
 from legws_daemon.autonomy.assistant import (
     JOINT_SPEED_FRACTION,
     PRIMITIVE_TIMEOUT,
@@ -13,7 +14,10 @@ from legws_daemon.autonomy.assistant import (
 from legws_daemon.autonomy.cancel import CancelDetector
 from legws_daemon.autonomy.inputs import Cartesian, Joints
 from legws_daemon.robot.motion import Grip, JointMove, Move
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS
+
+SAWYER = arm("sawyer")
+JOINT_SPEED_LIMITS = np.array(SAWYER.speed_limits)
+
 
 DOWN = np.diag([1.0, -1.0, -1.0])  # approach axis (z) pointing down
 Q0 = np.zeros(7)

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from legws_daemon.arms import arm
 from legws_daemon.errors import InputError
 from legws_daemon.formats.bridge_messages import (
     JOINT_LOWER,
@@ -24,9 +25,11 @@ from legws_daemon.formats.bridge_messages import (
     parse_state,
 )
 from legws_daemon.formats.messages import dump
-from legws_daemon.robot.world import ARM_JOINTS, World
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS as MODEL_SPEED_LIMITS
+from legws_daemon.robot.world import World
 from legws_daemon.scene.scene import Scene
+
+ARM_JOINTS = arm("sawyer").joint_names
+MODEL_SPEED_LIMITS = arm("sawyer").speed_limits
 
 STATE = {
     "schema": 1,

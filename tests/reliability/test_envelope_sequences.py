@@ -27,13 +27,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
+from legws_daemon.arms import arm
 from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
 from legws_daemon.errors import InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.robot.kinematics import LIMIT_MARGIN, home_configuration
 from legws_daemon.robot.mink_ik import MinkVelocityIK
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import clamp_ee_velocity
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
@@ -45,6 +46,9 @@ from tests.reliability.helpers import (
     check_envelope,
     expect,
 )
+
+SAWYER = arm("sawyer")
+JOINT_SPEED_LIMITS = np.array(SAWYER.speed_limits)
 
 # --- values --------------------------------------------------------------------------
 anything = st.floats(allow_nan=True, allow_infinity=True)

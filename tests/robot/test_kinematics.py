@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from legws_daemon.arms import arm
 from legws_daemon.robot.kinematics import (
-    READY_POSTURE,
     _redundant_solve,
     home_configuration,
     rotation_error,
@@ -14,8 +14,12 @@ from legws_daemon.robot.kinematics import (
     solve_ik,
     velocity_step,
 )
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
+
+SAWYER = arm("sawyer")
+JOINT_SPEED_LIMITS = np.array(SAWYER.speed_limits)
+READY_POSTURE = np.array(SAWYER.ready_posture)
 
 
 @pytest.fixture(scope="module")

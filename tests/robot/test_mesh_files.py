@@ -97,12 +97,15 @@ def test_the_arm_loads_the_binary_meshes_and_compiles_to_the_same_model(
 ) -> None:
     model = assets.verify()
     fast = {rel: model.fast_mesh(rel) for rel in model.sha256 if rel.endswith(".obj")}
-    loaded = {m.file for m in world._robot_spec(visual=True).meshes}
+    loaded = {m.file for m in world._robot_spec(world.resolve_arm("sawyer"), visual=True).meshes}
     assert loaded and all(f.startswith("fast_meshes/") for f in loaded), loaded
     assert loaded <= {f for f in fast.values() if f}
     with_fast = world.robot_model()
     monkeypatch.setattr(assets.Verified, "fast_mesh", lambda self, rel: None)
-    assert all(m.file.endswith(".obj") for m in world._robot_spec(visual=True).meshes)
+    assert all(
+        m.file.endswith(".obj")
+        for m in world._robot_spec(world.resolve_arm("sawyer"), visual=True).meshes
+    )
     _assert_same_model(with_fast, world.robot_model())
 
 

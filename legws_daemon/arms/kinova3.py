@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from legws_daemon.robot.arms.spec import ArmSpec, Mount
+from legws_daemon.arms.spec import ArmSpec, Mount
 
 _TURN = (-2 * math.pi, 2 * math.pi)
 

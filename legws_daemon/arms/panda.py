@@ -4,7 +4,7 @@ is shorter than the Sawyer's 1.26 m)."""
 
 from __future__ import annotations
 
-from legws_daemon.robot.arms.spec import ArmSpec, Mount
+from legws_daemon.arms.spec import ArmSpec, Mount
 
 ARM = ArmSpec(
     name="panda",
@@ -21,8 +21,10 @@ ARM = ArmSpec(
         (-2.8973, 2.8973),
     ),
     speed_limits=(2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
-    ready_posture=(0.0, 0.0, 0.0, -2.0, 0.0, 2.0, 0.785),
-    home_seeds=((0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.785), (0.0, -0.3, 0.0, -2.4, 0.0, 2.1, 0.785)),
+    ready_posture=(0.0, 0.0, 0.0, -2.0, 0.0, 2.0, 0.0),
+    home_seeds=((0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.0), (0.0, -0.3, 0.0, -2.4, 0.0, 2.1, 0.0)),
+    # the hand turned so that the last joint is mid-range (not 2.3 rad) at the home pose
+    flange_yaw=2.3,
     free_joints=(6,),
     mount=Mount(x=0.12),
     hardware_joint_names=tuple(f"panda_joint{i}" for i in range(1, 8)),

@@ -1,7 +1,8 @@
-"""The registered arms: one module per arm in this package, each defining ``ARM``.
+"""The registered arms (the robot descriptions): one module per arm in this package, each
+defining ``ARM``.
 
 Adding an arm is one module here (found by its name, nothing else to edit) and, for its
-model, the robosuite folder its :class:`~legws_daemon.robot.arms.spec.ArmSpec` names.
+model, the robosuite folder its :class:`~legws_daemon.arms.spec.ArmSpec` names.
 Standard library only (the bridges read these tables too).
 """
 
@@ -10,7 +11,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from legws_daemon.robot.arms.spec import ArmSpec, Mount
+from legws_daemon.arms.spec import ArmSpec, Mount
 
 __all__ = ["DEFAULT_ARM", "ArmSpec", "Mount", "arm", "arm_names"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from legws_daemon.robot.arms.spec import ArmSpec, Mount
+from legws_daemon.arms.spec import ArmSpec, Mount
 
 ARM = ArmSpec(
     name="ur5e",

@@ -3,7 +3,7 @@ specification and robosuite's description; its base defines table coordinates.""
 
 from __future__ import annotations
 
-from legws_daemon.robot.arms.spec import ArmSpec
+from legws_daemon.arms.spec import ArmSpec
 
 ARM = ArmSpec(
     name="sawyer",
