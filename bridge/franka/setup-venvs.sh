@@ -3,8 +3,9 @@
 # "Franka"), from PyPI, idempotent:
 #   .venv-franka-sim  franka-sim (a libfranka protocol server on MuJoCo; it pins numpy 1.26
 #                     and mujoco < 3.3, so it cannot share legws' .venv) and the Panda's
-#                     MJCF and meshes from robosuite's wheel (franka-sim fetches its own FR3
-#                     model from GitHub at run time, which this machine cannot reach)
+#                     MJCF and meshes of robosuite's wheel (legws' .assets/panda when there,
+#                     else from the wheel; franka-sim fetches its own FR3 model from GitHub
+#                     at first use, which this machine cannot reach)
 #   .venv-franka      the robot PC's side: pylibfranka and zenoh, as bridge/franka_bridge.py
 #                     needs them
 # Usage: bridge/franka/setup-venvs.sh [ROOT]   (ROOT: where the venvs go, default the
@@ -34,7 +35,13 @@ build() {  # build VENV PACKAGES...: a fresh venv with the packages, then the st
 }
 
 panda_model() {  # the Panda MJCF (robot.xml, meshes) under VENV/share/legws-panda
-  local venv=$1 tmp
+  local venv=$1 tmp assets=${LEGWS_ASSETS:-$ROOT/.assets}/panda
+  if [ -f "$assets/robot.xml" ] && [ -d "$assets/meshes" ] && [ -d "$assets/obj_meshes" ]; then
+    # legws' own copy of the same folder (`legws assets fetch`): no 157 MB download
+    mkdir -p "$venv/share/legws-panda"
+    cp -r "$assets/robot.xml" "$assets/meshes" "$assets/obj_meshes" "$venv/share/legws-panda/"
+    return 0
+  fi
   tmp=$(mktemp -d)
   "$venv/bin/pip" download -q --no-deps -d "$tmp" "$ROBOSUITE" || { rm -rf "$tmp"; return 1; }
   "$venv/bin/python" - "$tmp"/robosuite-*.whl "$venv/share/legws-panda" <<'PY'

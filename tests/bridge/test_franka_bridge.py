@@ -1,0 +1,229 @@
+"""The Franka bridge's own logic, in legws' venv (no pylibfranka: it is imported at start-up
+only). The bridge against the robot, through pylibfranka and franka-sim, is
+``test_franka_e2e.py``; here are its tables, its message checks, its ramp and limits (pure
+functions, no device at all), and its refusals at start-up (the real program, exit 2)."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from legws_daemon.formats import bridge_messages as contract
+
+BRIDGE = Path(__file__).parents[2] / "bridge" / "franka_bridge.py"
+
+
+def _load() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("franka_bridge", BRIDGE)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["franka_bridge"] = module  # dataclasses resolve their module's names
+    spec.loader.exec_module(module)
+    return module
+
+
+fb = _load()
+
+COMMAND = {
+    "schema": 1,
+    "seq": 1,
+    "stamp": 100.0,
+    "mode": "joint_velocity",
+    "dq": [0.1, -0.2, 0.0, 0.3, 0.0, 0.0, 0.5],
+    "ttl": 0.1,
+    "gripper": None,
+}
+
+
+def payload(**changes: object) -> bytes:
+    return json.dumps({**COMMAND, **changes}).encode()
+
+
+def _registry() -> ModuleType:
+    """legws' arm registry (``legws_daemon.arms``; ``legws_daemon.robot.arms`` before)."""
+    for name in ("legws_daemon.arms", "legws_daemon.robot.arms"):
+        with contextlib.suppress(ModuleNotFoundError):
+            return importlib.import_module(name)
+    raise AssertionError("no arm registry in legws_daemon")
+
+
+def test_the_tables_are_the_registrys_panda_and_the_contracts() -> None:
+    panda = _registry().arm("panda")
+    assert panda.hardware_joints == fb.JOINT_NAMES
+    assert panda.speed_limits == fb.SPEED_LIMITS
+    assert tuple(zip(fb.LOWER, fb.UPPER, strict=True)) == panda.position_limits
+    assert (panda.mount.x, panda.mount.y, panda.mount.z, panda.mount.yaw) == fb.MOUNT
+    assert fb.STOP_ROLES == contract.STOP_ROLES
+    assert fb.MAX_TTL == contract.MAX_TTL
+    assert fb.LIMITS == ("joint_speed", "ee_speed", "workspace", "ttl", "rate")
+    assert set(fb.LIMITS) == set(contract.Limit.__args__)  # type: ignore[attr-defined]
+
+
+def test_a_valid_command_and_what_is_refused() -> None:
+    command = fb.parse_command(payload())
+    assert command.dq == tuple(COMMAND["dq"])  # type: ignore[arg-type]
+    # the Panda's own limits, not the Sawyer's: 2.0 rad/s on joint 1 is within 2.175
+    assert fb.parse_command(payload(dq=[2.0, 0, 0, 0, 0, 0, 0])).dq[0] == 2.0
+    bad = {
+        "dq[0]": payload(dq=[2.2, 0, 0, 0, 0, 0, 0]),
+        "dq[6]": payload(dq=[0, 0, 0, 0, 0, 0, 2.7]),
+        "dq": payload(dq=[0.0] * 6),
+        "ttl": payload(ttl=1.5),
+        "mode": payload(mode="torque"),
+        "gripper": payload(gripper="half"),
+        "seq": payload(seq=True),
+        "extra": payload(extra=1),
+        "payload": b'{"schema": 1, "schema": 1}',
+    }
+    for field, raw in bad.items():
+        with pytest.raises(fb.CommandError) as err:
+            fb.parse_command(raw)
+        assert err.value.field == field
+    with pytest.raises(fb.CommandError):
+        fb.parse_command(b'{"dq": [NaN]}')
+
+
+def test_the_commands_the_daemon_sends_pass() -> None:
+    message = contract.BridgeCommand.model_validate(COMMAND)
+    raw = message.model_dump_json(by_alias=True).encode()
+    assert fb.parse_command(raw).ttl == 0.1
+    state = fb.state_message(
+        3, 1.0, [0.0] * 7, [0.0] * 7, "open", True, False, "operator", ["rate"]
+    )
+    parsed = contract.parse_state(state, "test")
+    assert parsed.stopped_by == "operator" and parsed.limited == ("rate",)
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.lists(st.floats(-2.0, 2.0), min_size=7, max_size=7),
+    st.lists(st.floats(-2.0, 2.0), min_size=7, max_size=7),
+)
+def test_the_ramp_keeps_to_the_fci_limits(start: list[float], goal: list[float]) -> None:
+    """From any target to any other and back to rest: every cycle's acceleration and jerk
+    within the limits libfranka enforces, and the target reached."""
+    ramp = fb.default_ramp()
+    dt = fb.CONTROL_PERIOD
+    v = [np.zeros(7)]
+    for target in (start, goal, [0.0] * 7):
+        for _ in range(1300):
+            v.append(np.array(ramp.step(target, dt)))
+        assert np.allclose(v[-1], target, atol=1e-3)
+    assert ramp.at_rest()
+    velocity = np.array(v)
+    accel = np.diff(velocity, axis=0) / dt
+    jerk = np.diff(accel, axis=0) / dt
+    assert np.all(np.abs(accel) <= np.array(fb.ACCEL_LIMITS) * fb.ACCEL_FRACTION + 1e-6)
+    assert np.all(np.abs(jerk) <= np.array(fb.JERK_LIMITS) + 1e-3)
+
+
+def test_braking_comes_within_its_time() -> None:
+    ramp = fb.default_ramp()
+    for _ in range(2000):
+        ramp.step([0.8] * 7, fb.CONTROL_PERIOD)
+    budget = ramp.braking_time([0.8] * 7)
+    steps = 0
+    while not ramp.at_rest():
+        ramp.step([0.0] * 7, fb.CONTROL_PERIOD)
+        steps += 1
+    assert steps * fb.CONTROL_PERIOD <= budget + 0.2  # the last millimetres at low speed
+    assert budget < 0.3
+
+
+def test_no_joint_is_driven_into_its_limit() -> None:
+    accel = [a * fb.ACCEL_FRACTION for a in fb.ACCEL_LIMITS]
+    q = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.0]
+    q[0] = fb.UPPER[0] - 0.05  # 0.5 rad/s needs 0.025 rad to brake, plus the guard
+    out = fb.guard_joint_limits(q, [0.5, 0, 0, 0, 0, 0, 0], accel, 0.01)
+    assert out[0] == 0.0
+    assert fb.guard_joint_limits(q, [-0.5, 0, 0, 0, 0, 0, 0], accel, 0.01)[0] == -0.5
+    assert fb.guard_joint_limits(q, [0.1, 0, 0, 0, 0, 0, 0], accel, 0.01)[0] == 0.1
+
+
+def _jacobian(columns: list[tuple[float, float, float]]) -> list[float]:
+    """A zero Jacobian in libfranka's layout (42 values, column-major) from linear columns."""
+    out: list[float] = []
+    for x, y, z in columns:
+        out += [x, y, z, 0.0, 0.0, 0.0]
+    return out
+
+
+def test_the_endpoint_rules() -> None:
+    limits = fb.Limits(workspace=((0.2, 1.0), (-0.6, 0.6), (0.0, 0.95)), mount=(0.12, 0, 0, 0))
+    guard = fb.EndpointGuard(limits, 0.01, fb.default_ramp())
+    # joint 1 turns the endpoint 0.55 m out: 0.8 rad/s is 0.44 m/s, held to 0.2
+    jac = _jacobian([(0.0, 0.55, 0.0)] + [(0.0, 0.0, 0.0)] * 6)
+    here = [0.55, 0.0, 0.73]
+    out, enforced = guard.limit([0.8, 0, 0, 0, 0, 0, 0], here, jac)
+    assert enforced == ["ee_speed"]
+    assert out is not None and out[0] * 0.55 == pytest.approx(0.2)
+    # toward the box's face (y 0.62 with the margin): refused when the braking would cross
+    edge = [0.55, 0.60, 0.73]
+    out, enforced = guard.limit([0.3, 0, 0, 0, 0, 0, 0], edge, jac)
+    assert out is None and enforced == ["workspace"]
+    out, enforced = guard.limit([-0.3, 0, 0, 0, 0, 0, 0], edge, jac)
+    assert out is not None and enforced == []
+    # the mount turned a quarter: the base's x is the table's y
+    turned = fb.EndpointGuard(
+        fb.Limits(workspace=limits.workspace, mount=(0.12, 0, 0, math.pi / 2)),
+        0.01,
+        fb.default_ramp(),
+    )
+    assert turned.to_table([0.5, 0.0, 0.7], True) == pytest.approx([0.12, 0.5, 0.7])
+
+
+def test_the_robot_modes() -> None:
+    assert fb.robot_status("Idle", None) == (True, False)
+    assert fb.robot_status("Move", None) == (True, False)
+    assert fb.robot_status("Move", "ControlException: reflex") == (False, False)
+    assert fb.robot_status("Reflex", None) == (False, False)
+    assert fb.robot_status("UserStopped", None) == (False, True)
+    assert fb.robot_status("Guiding", None) == (False, False)
+
+
+def test_the_limits_from_a_profile(tmp_path: Path) -> None:
+    profile = tmp_path / "p.toml"
+    profile.write_text("[bridge]\njoint_speed_cap = 0.5\n[workspace]\nz = [0.0, 0.9]\n")
+    limits = fb.profile_limits(str(profile))
+    assert limits.joint_speed_cap == 0.5 and limits.workspace[2] == (0.0, 0.9)
+    assert limits.joint_caps() == [0.5] * 7
+    profile.write_text("[bridge]\nspeed = 1\n")
+    with pytest.raises(ValueError, match=r"bridge\.speed: unknown field"):
+        fb.profile_limits(str(profile))
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, str(BRIDGE), *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+        check=False,
+    )
+
+
+def test_it_refuses_an_unauthenticated_transport_before_it_reaches_the_arm() -> None:
+    done = _run("--robot-ip", "127.0.0.1")
+    assert done.returncode == 2
+    assert "the transport is not authenticated" in done.stderr
+    assert "--insecure-transport" in done.stderr
+    assert done.stderr.count("\n") == 1
+
+
+def test_bad_limits_exit_2_naming_the_flag() -> None:
+    done = _run("--robot-ip", "127.0.0.1", "--joint-speed-cap", "5", "--insecure-transport")
+    assert done.returncode == 2
+    assert "joint_speed_cap must be in" in done.stderr
