@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.profile import endpoint_problem, load_profile
+from legws_daemon.formats.profile import endpoint_problem, load_profile, with_arm
 
 PROFILES = Path(__file__).parents[2] / "hw_profiles"
 
 
-@pytest.mark.parametrize("name", ["sim", "sawyer"])
+@pytest.mark.parametrize("name", ["sim", "sawyer", "panda_sim"])
 def test_shipped_profiles_load(name: str) -> None:
     p = load_profile(PROFILES / f"{name}.toml")
     assert p.name == name
@@ -34,6 +34,7 @@ def test_shipped_profiles_load(name: str) -> None:
         (("realtime = true", 'realtime = "yes"'), "sim.realtime"),
         (("realtime = true", "realtime = true\nwarp = 3"), "sim.warp"),
         (("v_max = 0.05", "v_max = 50.0"), "control.v_max"),
+        (('adapter = "sim"', 'adapter = "sim"\narm = "baxter"'), "arm"),
     ],
 )
 def test_bad_profiles_name_file_and_field(
@@ -181,3 +182,19 @@ def test_a_bad_operator_file_is_one_line_naming_the_profile_the_file_and_the_fie
     assert "\n" not in message
     if content == "rho":
         assert "rho" in message.split(str(target))[-1]
+
+
+def test_the_arm_is_the_profiles_own_and_the_sawyer_adapter_drives_only_the_sawyer(
+    tmp_path: Path,
+) -> None:
+    assert load_profile(PROFILES / "sim.toml").arm == "sawyer"  # absent: the default arm
+    assert load_profile(PROFILES / "panda_sim.toml").arm == "panda"
+    text = (PROFILES / "sawyer.toml").read_text()
+    path = tmp_path / "p.toml"
+    path.write_text(text.replace('adapter = "sawyer"', 'adapter = "sawyer"\narm = "ur5e"', 1))
+    with pytest.raises(InputError, match="arm: the sawyer adapter drives the Sawyer only"):
+        load_profile(path)
+    spec = load_profile(PROFILES / "sim.toml")
+    assert with_arm(spec, "kinova3").arm == "kinova3" and spec.arm == "sawyer"
+    with pytest.raises(InputError, match="--robot: arm: expected one of: sawyer, kinova3"):
+        with_arm(spec, "baxter")
