@@ -61,6 +61,10 @@ class ArmSpec:
             primitives, the Sawyer's); empty when the description ships collision meshes.
         primitive_bodies: more bodies whose primitive collision geoms the meshes replace.
         max_endpoint_speed: the guard's default cap on the endpoint's speed, m/s.
+        hardware_joint_names: the joint names of the real arm's interface, when they are
+            not the MJCF's.
+        model_xml: an MJCF given inline instead of the fetched folder (an arm described
+            in code, e.g. a test's small arm; no mesh files).
     """
 
     name: str
@@ -80,6 +84,7 @@ class ArmSpec:
     primitive_bodies: frozenset[str] = frozenset()
     max_endpoint_speed: float = 0.25
     hardware_joint_names: tuple[str, ...] | None = None
+    model_xml: str | None = None
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)

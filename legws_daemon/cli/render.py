@@ -5,14 +5,19 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
+from legws_daemon.cli.robot import robot_option
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_path
 from legws_daemon.formats.printable import echo
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.layout_file import load_layout
+
+if TYPE_CHECKING:
+    from legws_daemon.robot.render import View
 
 #: Largest picture side, pixels (kept in step with ``legws_daemon.robot.render.MAX_SIZE``).
 MAX_SIZE = 4096
@@ -46,8 +51,15 @@ MAX_SIZE = 4096
     show_default=True,
     help="top: straight down on the table; perspective: from the robot's front-left.",
 )
+@robot_option("sawyer", what="the arm drawn at its home pose")
 def render_cmd(
-    scene: str, layout_file: Path | None, output: Path, width: int, height: int, view: str
+    scene: str,
+    layout_file: Path | None,
+    output: Path,
+    width: int,
+    height: int,
+    view: str,
+    robot: str,
 ) -> None:
     """Render a scene's layout to a PNG: table, objects, the robot at home, grasp markers.
 
@@ -64,7 +76,8 @@ def render_cmd(
     from legws_daemon.robot.render import render_layout, save_png
 
     start = time.perf_counter()
-    image = render_layout(sc, layout, width, height, "top" if view == "top" else "perspective")
+    shown: View = "top" if view == "top" else "perspective"
+    image = render_layout(sc, layout, width, height, shown, robot)
     try:
         path = save_png(image, output)
     except OSError as err:

@@ -109,6 +109,13 @@ def model_digest(root: Path | None = None, name: str = DEFAULT_ARM) -> str:
     return verify(root, name).digest
 
 
+def description_digest(spec: ArmSpec) -> str:
+    """The overall sha256 of an arm's model: its verified folder's, or its inline MJCF's."""
+    if spec.model_xml is not None:
+        return hashlib.sha256(spec.model_xml.encode()).hexdigest()
+    return model_digest(None, spec.name)
+
+
 def _spec(name: str) -> ArmSpec:
     try:
         return arm(name)

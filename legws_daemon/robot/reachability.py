@@ -73,7 +73,7 @@ from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.files import output_folder, regular_file, write_atomic
 from legws_daemon.formats.nesting import check_json_nesting
-from legws_daemon.robot.assets import assets_dir, model_digest
+from legws_daemon.robot.assets import assets_dir, description_digest
 from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
 from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
@@ -630,7 +630,7 @@ def cache_key(world: World, q_home: ArrayLike, grid: ReachabilityGrid = DEFAULT_
     ws = world.scene.workspace
     spec = world.spec
     h = hashlib.sha256()
-    h.update(model_digest(None, spec.name).encode())  # every file of the model, verified
+    h.update(description_digest(spec).encode())  # every file of the model, verified
     facts = {
         "format": FORMAT_VERSION,
         "arm": {

@@ -72,6 +72,8 @@ def resolve_arm(which: ArmSpec | str) -> ArmSpec:
 def _model_error(spec: ArmSpec, what: str, err: Exception) -> InputError:
     """One line for an arm's model that passed its integrity check but MuJoCo refuses."""
     detail = " ".join(str(err).split()) or type(err).__name__
+    if spec.model_xml is not None:
+        return InputError(f"MuJoCo cannot {what} the inline model of arm {spec.name} ({detail})")
     return InputError(
         f"MuJoCo cannot {what} the {spec.title} model ({detail}); "
         f"restore it with: {RESTORE_COMMAND}",
@@ -80,12 +82,16 @@ def _model_error(spec: ArmSpec, what: str, err: Exception) -> InputError:
 
 
 def _robot_spec(spec: ArmSpec, visual: bool) -> mujoco.MjSpec:
+    model = None
     try:
-        model = verify(None, spec.name)
-        robot = mujoco.MjSpec.from_file(str(model.folder / "robot.xml"))
+        if spec.model_xml is not None:
+            robot = mujoco.MjSpec.from_string(spec.model_xml)
+        else:
+            model = verify(None, spec.name)
+            robot = mujoco.MjSpec.from_file(str(model.folder / "robot.xml"))
     except (ValueError, mujoco.FatalError) as err:  # a bad XML, or a file it names
         raise _model_error(spec, "load", err) from None
-    if visual:
+    if visual and model is not None:
         for mesh in robot.meshes:  # the binary copies the fetch wrote: ~0.3 s less to load
             mesh.file = model.fast_mesh(mesh.file) or mesh.file
     for actuator in list(robot.actuators):
@@ -96,7 +102,8 @@ def _robot_spec(spec: ArmSpec, visual: bool) -> mujoco.MjSpec:
             raise _model_error(spec, "find the arm's joints in", KeyError(name))
         # the description's range (a continuous joint gets the one legws lets it use), so
         # MuJoCo, mink's limits and the bridges' guard hold the same numbers
-        joint.range = [lo, hi]
+        # (radians; in degrees for a model whose compiler reads angles in degrees)
+        joint.range = np.degrees([lo, hi]) if robot.compiler.degree else [lo, hi]
         joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     for geom in list(robot.geoms):
         body = geom.parent.name
