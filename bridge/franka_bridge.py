@@ -662,6 +662,10 @@ class FrankaArm:
         self._control: Any = None
         self.motions = 0  # motions started
         self.cycles = 0  # control cycles written
+        #: the lowest share of the robot's last 100 cycles that got a command in time
+        #: (libfranka's ``control_command_success_rate``), during a motion
+        self.success_rate = 1.0
+        self._log = Throttled()
         self._thread = threading.Thread(target=self._run, name="franka-control", daemon=True)
 
     def start(self) -> None:
@@ -719,6 +723,7 @@ class FrankaArm:
 
     def _run(self) -> None:
         idle_since = None
+        in_motion = 0
         while not self._quit.is_set():
             try:
                 if self._control is None:
@@ -738,9 +743,14 @@ class FrankaArm:
                         )
                         self.motions += 1
                         idle_since = None
+                        in_motion = 0
                     continue
                 state, period = self._control.readOnce()
                 self._keep(state)
+                in_motion += 1
+                if in_motion > 200:  # the rate is over the last 100 cycles
+                    rate = float(state.control_command_success_rate)
+                    self.success_rate = min(self.success_rate, rate)
                 now = self.clock()
                 dt = period.to_sec() or CONTROL_PERIOD
                 target = self._live_target(now)
@@ -763,7 +773,7 @@ class FrankaArm:
                 self.ramp.reset()
                 with self._lock:
                     self._fault = f"{type(err).__name__}: {err}"
-                log(f"motion ended: {type(err).__name__}: {str(err)[:300]}")
+                self._log("fault", f"motion ended: {type(err).__name__}: {str(err)[:300]}")
                 time.sleep(0.01)
 
 
@@ -1353,7 +1363,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         arm.close()
         gripper.close()
-    log(f"stopped ({arm.motions} motions, {arm.cycles} control cycles)")
+    log(
+        f"stopped ({arm.motions} motions, {arm.cycles} control cycles, commands in time "
+        f">= {100 * arm.success_rate:.0f} %)"
+    )
     return 0
 
 

@@ -5,6 +5,7 @@ functions, no device at all), and its refusals at start-up (the real program, ex
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import importlib
 import importlib.util
@@ -227,3 +228,25 @@ def test_bad_limits_exit_2_naming_the_flag() -> None:
     done = _run("--robot-ip", "127.0.0.1", "--joint-speed-cap", "5", "--insecure-transport")
     assert done.returncode == 2
     assert "joint_speed_cap must be in" in done.stderr
+
+
+def test_standalone_and_python_3_9_syntax() -> None:
+    """pylibfranka's floor is Python 3.9; the file imports zenoh and the standard library
+    at its top, pylibfranka in main()."""
+    tree = ast.parse(BRIDGE.read_text(encoding="utf-8"), feature_version=(3, 9))
+    top: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.Import):
+            top |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            top.add(node.module.split(".")[0])
+        elif isinstance(node, ast.Try):  # tomllib, optional
+            continue
+    assert top - set(sys.stdlib_module_names) - {"__future__"} == {"zenoh"}
+    inner = {
+        alias.name
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Import)
+        for alias in node.names
+    }
+    assert "pylibfranka" in inner

@@ -312,7 +312,7 @@ def test_the_joint_and_endpoint_speed_caps(rig: Rig) -> None:
     states = d.since(t)
     assert any("joint_speed" in s.limited for s in states)
     assert "ee_speed" not in {name for s in states for name in s.limited}
-    assert 0.3 < moved(before, d.latest())[6] < 0.8 * (d.since(last)[0].stamp - states[0].stamp)
+    assert 0.2 < moved(before, d.latest())[6] < 0.8 * (d.since(last)[0].stamp - states[0].stamp)
     time.sleep(0.5)
     # the base's turn at 0.8 rad/s moves the endpoint (0.55 m out) at 0.44 m/s: held to
     # the endpoint cap, 0.2 m/s, from the arm's Jacobian
