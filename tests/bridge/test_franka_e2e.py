@@ -50,8 +50,10 @@ SIM_SERVER = ROOT / "bridge" / "franka" / "sim_server.py"
 BRIDGE = ROOT / "bridge" / "franka_bridge.py"
 ROBOT = "panda"
 #: The workspace the test gives the bridge (table coordinates): franka-sim's start pose
-#: puts the endpoint 0.73 m above the base, above the profile's default box.
-WORKSPACE = ("0.2", "1.0", "-0.6", "0.6", "0.0", "0.95")
+#: puts the endpoint 0.73 m above the base, above the profile's default box; and 0.554 m
+#: in front of it, at x = 0.674 on the table (the base at x = 0.12), 0.046 m from the
+#: box's front face (0.70 + the margin, 0.02).
+WORKSPACE = ("0.2", "0.70", "-0.6", "0.6", "0.0", "0.95")
 #: franka-sim's start posture (its idle hold), rad.
 SIM_START = (0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785)
 #: An arm at rest moves less than this in 0.5 s, rad (franka-sim's hold settles by a
@@ -227,8 +229,9 @@ class Rig:
     started: float
 
 
-@pytest.fixture(scope="module")
-def rig() -> Iterator[Rig]:
+@contextlib.contextmanager
+def running_rig() -> Iterator[Rig]:
+    """franka-sim, the bridge and the daemon's session; every process ended on the way out."""
     t0 = time.monotonic()
     host = loopback_address()
     port = free_port()
@@ -267,7 +270,7 @@ def moved(a: BridgeState, b: BridgeState) -> list[float]:
     return [y - x for x, y in zip(a.q, b.q, strict=True)]
 
 
-def test_heartbeat_is_the_simulated_arm(rig: Rig) -> None:
+def heartbeat_is_the_simulated_arm(rig: Rig) -> None:
     d = rig.daemon
     time.sleep(0.5)
     t = time.monotonic()
@@ -281,7 +284,7 @@ def test_heartbeat_is_the_simulated_arm(rig: Rig) -> None:
     assert last.gripper == "unknown"  # never commanded
 
 
-def test_commands_drive_the_arm_and_it_stops_when_they_stop(rig: Rig) -> None:
+def commands_drive_the_arm_and_it_stops_when_they_stop(rig: Rig) -> None:
     d = rig.daemon
     before = d.latest()
     last = d.drive([0.3, 0.0, 0.0, 0.0, 0.0, 0.0, -0.3], 1.0)
@@ -304,7 +307,7 @@ def test_commands_drive_the_arm_and_it_stops_when_they_stop(rig: Rig) -> None:
     assert not any(s.limited for s in d.since(last - 1.0))
 
 
-def test_the_joint_and_endpoint_speed_caps(rig: Rig) -> None:
+def the_joint_and_endpoint_speed_caps(rig: Rig) -> None:
     d = rig.daemon
     # the wrist's roll over the bridge's 0.8 rad/s (the endpoint is on its axis)
     before, t = d.latest(), time.monotonic()
@@ -324,7 +327,7 @@ def test_the_joint_and_endpoint_speed_caps(rig: Rig) -> None:
     time.sleep(0.5)
 
 
-def test_the_latched_stop(rig: Rig) -> None:
+def the_latched_stop(rig: Rig) -> None:
     d = rig.daemon
     d.stop()
     d.wait(lambda s: s.stopped_by == "operator", 2.0, "the stop latched")
@@ -341,7 +344,32 @@ def test_the_latched_stop(rig: Rig) -> None:
         d.drive([-0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.1)
 
 
-def test_the_franka_hand(rig: Rig) -> None:
+def the_workspace_stops_the_arm_at_its_face(rig: Rig) -> None:
+    """The shoulder's pitch moves the endpoint forward (0.29 m/rad) and down: the box's
+    front face is 0.046 m ahead, about 0.16 rad of joint 2."""
+    d = rig.daemon
+    before, t = d.latest(), time.monotonic()
+    d.drive([0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0], 1.5)
+    states = d.since(t)
+    assert any("workspace" in s.limited for s in states)
+    time.sleep(0.3)
+    stopped = d.latest()
+    assert 0.05 < moved(before, stopped)[1] < 0.25
+    d.drive([0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0], 0.5)  # further out: refused
+    time.sleep(0.3)
+    assert abs(moved(stopped, d.latest())[1]) < REST
+    back = d.latest()
+    d.drive([0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0], 0.5)  # back in: allowed
+    time.sleep(0.3)
+    assert moved(back, d.latest())[1] < -0.1
+    # and to where it was
+    deadline = time.monotonic() + 3.0
+    while d.latest().q[1] - before.q[1] < -0.02 and time.monotonic() < deadline:
+        d.drive([0.0, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0], 0.05)
+    time.sleep(0.3)
+
+
+def the_franka_hand(rig: Rig) -> None:
     d = rig.daemon
     d.command([0.0] * 7, gripper="closed")
     d.wait(lambda s: s.gripper == "closed", 5.0, "the hand closed")
@@ -349,13 +377,26 @@ def test_the_franka_hand(rig: Rig) -> None:
     d.wait(lambda s: s.gripper == "open", 5.0, "the hand open")
 
 
-def test_within_libfrankas_limits_and_a_clean_exit(rig: Rig) -> None:
+def within_libfrankas_limits_and_a_clean_exit(rig: Rig) -> None:
     """Last: franka-sim checks every command against the FCI's limits (and logs any it
     breaks, not enforced), and the bridge stops on SIGTERM with its motion ended."""
     assert rig.bridge.stop() == 0, rig.bridge.log()
     assert "franka_bridge: stopped (" in rig.bridge.log()
-    assert "Traceback" not in rig.bridge.log()
-    sim_log = rig.sim.log()
-    assert "motion limit violated" not in sim_log, sim_log
+    assert not [line for line in rig.bridge.lines if "Traceback" in line], rig.bridge.log()
+    broken = [line for line in rig.sim.lines if "motion limit violated" in line]
+    assert not broken, "\n".join(broken[:10])
     print(f"set-up (franka-sim and the bridge started): {rig.started:.1f} s")
     print(json.dumps({"bridge": rig.bridge.lines[-1:], "franka-sim": rig.sim.lines[-5:]}))
+
+
+def test_the_bridge_drives_franka_sim() -> None:
+    """One arm, one bridge, the phases in order (each leaves the arm at rest, near where it
+    started, for the next)."""
+    with running_rig() as rig:
+        heartbeat_is_the_simulated_arm(rig)
+        the_workspace_stops_the_arm_at_its_face(rig)
+        commands_drive_the_arm_and_it_stops_when_they_stop(rig)
+        the_joint_and_endpoint_speed_caps(rig)
+        the_latched_stop(rig)
+        the_franka_hand(rig)
+        within_libfrankas_limits_and_a_clean_exit(rig)
