@@ -18,6 +18,7 @@ from types import ModuleType
 
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -250,3 +251,17 @@ def test_standalone_and_python_3_9_syntax() -> None:
         for alias in node.names
     }
     assert "pylibfranka" in inner
+
+
+def test_the_deployment_files_are_authenticated_by_the_daemons_rule(tmp_path: Path) -> None:
+    from legws_daemon.cli.main import run as legws
+    from legws_daemon.transport.security import authentication_problem
+
+    assert legws(["secure", "init", str(tmp_path / "dep"), "--port", "7447"]) == 0
+    for name in ("bridge", "daemon", "operator"):
+        config = zenoh.Config.from_file(str(tmp_path / "dep" / f"{name}.json5"))
+        assert fb.authentication_problem(config) is None
+    plain = fb.zenoh_config(None, ["tcp/127.0.0.1:7447"], [])
+    assert fb.authentication_problem(plain) == authentication_problem(plain)
+    assert json.loads(plain.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(plain.get_json("scouting/gossip/enabled")) is False

@@ -5,7 +5,9 @@ Three processes, as on a bench: franka-sim (``bridge/franka/sim_server.py`` in
 physics at 1 kHz), the bridge (``bridge/franka_bridge.py`` in ``.venv-franka``, talking to it
 through pylibfranka), and this test as the daemon: a zenoh peer on loopback (no scouting)
 that sends commands made and serialised by the daemon's own contract code and validates
-every state with the daemon's own parser. Nothing is faked: the simulated arm is driven by
+every state with the daemon's own parser. The transport is the deployment's: the files of
+``legws secure init`` (mutual TLS on loopback, each side's access control), the test holding
+the daemon's identity and the bridge its own. Nothing is faked: the simulated arm is driven by
 what the bridge writes to libfranka and is measured by what libfranka reads back.
 
 Skipped, with the reason, when the two venvs are not there (``bridge/franka/setup-venvs.sh``
@@ -31,6 +33,7 @@ from typing import IO
 import pytest
 import zenoh
 
+from legws_daemon.cli.main import run as legws
 from legws_daemon.formats.bridge_messages import (
     BridgeCommand,
     BridgeState,
@@ -39,8 +42,7 @@ from legws_daemon.formats.bridge_messages import (
     parse_state,
 )
 from legws_daemon.formats.messages import dump
-from legws_daemon.formats.profile import TransportSpec
-from legws_daemon.transport.session import config_from_spec, open_session
+from legws_daemon.transport.session import open_session
 from tests.net import free_port
 
 ROOT = Path(__file__).parents[2]
@@ -160,7 +162,7 @@ class Daemon:
     def __post_init__(self) -> None:
         self.commands = self.session.declare_publisher(f"legws/{ROBOT}/bridge/command")
         self.resumes = self.session.declare_publisher(f"legws/{ROBOT}/bridge/resume")
-        self.stops = self.session.declare_publisher(f"legws/{ROBOT}/stop/operator")
+        self.stops = self.session.declare_publisher(f"legws/{ROBOT}/stop/daemon")
         self.sub = self.session.declare_subscriber(f"legws/{ROBOT}/bridge/state", self._on_state)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
@@ -230,17 +232,19 @@ class Rig:
 
 
 @contextlib.contextmanager
-def running_rig() -> Iterator[Rig]:
-    """franka-sim, the bridge and the daemon's session; every process ended on the way out."""
+def running_rig(secure: Path) -> Iterator[Rig]:
+    """franka-sim, the bridge and the daemon's session on the deployment files made in
+    ``secure``; every process ended on the way out."""
     t0 = time.monotonic()
     host = loopback_address()
     port = free_port()
+    assert legws(["secure", "init", str(secure), "--port", str(port)]) == 0
     sim = Process("franka-sim", [str(SIM_PYTHON), str(SIM_SERVER), "--host", host])
     bridge: Process | None = None
     try:
         sim.wait_for_line("franka-sim ready", START_TIMEOUT)
-        listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"], connect=[])
-        with open_session(config_from_spec(listen)) as session:
+        daemon_config = zenoh.Config.from_file(str(secure / "daemon.json5"))
+        with open_session(daemon_config) as session:
             daemon = Daemon(session)
             bridge = Process(
                 "bridge",
@@ -251,9 +255,8 @@ def running_rig() -> Iterator[Rig]:
                     host,
                     "--realtime",
                     "ignore",
-                    "--insecure-transport",
-                    "--connect",
-                    f"tcp/127.0.0.1:{port}",
+                    "--zenoh-config",
+                    str(secure / "bridge.json5"),
                     "--workspace",
                     *WORKSPACE,
                 ],
@@ -330,7 +333,7 @@ def the_joint_and_endpoint_speed_caps(rig: Rig) -> None:
 def the_latched_stop(rig: Rig) -> None:
     d = rig.daemon
     d.stop()
-    d.wait(lambda s: s.stopped_by == "operator", 2.0, "the stop latched")
+    d.wait(lambda s: s.stopped_by == "daemon", 2.0, "the stop latched")
     before = d.latest()
     d.drive([-0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.5)  # ignored while stopped
     time.sleep(0.3)
@@ -389,10 +392,10 @@ def within_libfrankas_limits_and_a_clean_exit(rig: Rig) -> None:
     print(json.dumps({"bridge": rig.bridge.lines[-1:], "franka-sim": rig.sim.lines[-5:]}))
 
 
-def test_the_bridge_drives_franka_sim() -> None:
+def test_the_bridge_drives_franka_sim(tmp_path: Path) -> None:
     """One arm, one bridge, the phases in order (each leaves the arm at rest, near where it
     started, for the next)."""
-    with running_rig() as rig:
+    with running_rig(tmp_path / "deployment") as rig:
         heartbeat_is_the_simulated_arm(rig)
         the_workspace_stops_the_arm_at_its_face(rig)
         commands_drive_the_arm_and_it_stops_when_they_stop(rig)
