@@ -665,6 +665,8 @@ class FrankaArm:
         #: the lowest share of the robot's last 100 cycles that got a command in time
         #: (libfranka's ``control_command_success_rate``), during a motion
         self.success_rate = 1.0
+        #: the longest the loop took from a state read to its command written, s
+        self.longest_cycle = 0.0
         self._log = Throttled()
         self._thread = threading.Thread(target=self._run, name="franka-control", daemon=True)
 
@@ -746,6 +748,7 @@ class FrankaArm:
                         in_motion = 0
                     continue
                 state, period = self._control.readOnce()
+                read_at = time.perf_counter()
                 self._keep(state)
                 in_motion += 1
                 if in_motion > 200:  # the rate is over the last 100 cycles
@@ -766,6 +769,7 @@ class FrankaArm:
                     command.motion_finished = True
                 self._control.writeOnce(command)
                 self.cycles += 1
+                self.longest_cycle = max(self.longest_cycle, time.perf_counter() - read_at)
                 if finished:
                     self._control = None
             except Exception as err:  # the library's errors: a reflex, the network, a command
@@ -1365,7 +1369,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         gripper.close()
     log(
         f"stopped ({arm.motions} motions, {arm.cycles} control cycles, commands in time "
-        f">= {100 * arm.success_rate:.0f} %)"
+        f">= {100 * arm.success_rate:.0f} %, the longest cycle {1e3 * arm.longest_cycle:.2f} ms)"
     )
     return 0
 
