@@ -403,3 +403,16 @@ def test_the_bridge_drives_franka_sim(tmp_path: Path) -> None:
         the_latched_stop(rig)
         the_franka_hand(rig)
         within_libfrankas_limits_and_a_clean_exit(rig)
+
+
+def test_franka_sim_serves_loopback_only() -> None:
+    done = subprocess.run(
+        [str(SIM_PYTHON), str(SIM_SERVER), "--host", "0.0.0.0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert "--host must be a loopback address" in done.stderr
