@@ -7,6 +7,8 @@
    seed) and ``legws eval --robot ARM`` of its best verified layout (N picks per goal, every
    pick from home): commit on the true goal, T_infer, completion of the picks acted on
    (Clopper–Pearson bound where every one completed), failures by kind.
+3. The nearest reach: one pick of the LEGO brick at 18, 22, 26 and 30 cm from the arm's axis
+   (four placements each) with the arm's ``min_reach`` lifted: what each arm's rule is from.
 
 Usage:
     python benchmarks/arms.py [--arms sawyer,panda,ur5e,kinova3] [--seeds 3]
@@ -110,12 +112,57 @@ def tiers(arm: str, episodes: int, workdir: Path) -> dict[str, Any]:
     return out
 
 
+#: The LEGO brick's distances from the arm's axis (m) and (y, yaw) placements of the probe.
+NEAR_DISTANCES = (0.18, 0.22, 0.26, 0.30)
+NEAR_PLACES = ((-0.03, 1.37), (0.0, 0.0), (0.1, 0.8), (-0.15, -0.7))
+
+
+def near(arm_name: str) -> list[dict[str, Any]]:
+    """One pick of the LEGO brick at each distance from the arm's axis and placement, with
+    the arm's ``min_reach`` lifted (what the rule is measured from)."""
+    import dataclasses
+
+    import legws_daemon.arms as arms
+    from legws_daemon.scene.catalog import load_scene
+    from legws_daemon.scene.scene import ObjectPose
+    from legws_daemon.sim.protocol import Evaluator
+
+    arms.arm_names()  # the registry loaded, then this arm without its nearest reach
+    spec = arms.arm(arm_name)
+    arms._REGISTRY[arm_name] = dataclasses.replace(spec, min_reach=0.0)
+    try:
+        scene = load_scene("lego")
+        ev = Evaluator(scene, arm=arm_name)
+        layout = scene.default_layout()
+        out = []
+        for d in NEAR_DISTANCES:
+            for y, yaw in NEAR_PLACES:
+                trial = {**layout, "red_brick": ObjectPose(spec.mount.x + d, y, yaw)}
+                check = ev.check(trial)["red_brick"]
+                row: dict[str, Any] = {"distance": d, "y": y, "yaw": yaw}
+                if not check.feasible:
+                    row["outcome"] = "infeasible"
+                else:
+                    report = ev.evaluate(trial, [0, 1], 1)
+                    pick = next(p for p in report.picks if p.true_goal == "red_brick")
+                    row["outcome"] = "completed" if pick.completed else pick.failure
+                out.append(row)
+        counts: dict[float, dict[str, int]] = {}
+        for row in out:
+            c = counts.setdefault(row["distance"], {})
+            c[row["outcome"]] = c.get(row["outcome"], 0) + 1
+        print(arm_name, "near", json.dumps(counts), flush=True)
+        return out
+    finally:
+        arms._REGISTRY[arm_name] = spec
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arms", default="sawyer,panda,ur5e,kinova3")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--episodes-per-goal", type=int, default=10)
-    ap.add_argument("--parts", default="demos,tiers")
+    ap.add_argument("--parts", default="demos,tiers,near")
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "results" / "arms.json")
     a = ap.parse_args()
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="legws-bench-cache-")
@@ -131,6 +178,8 @@ def main() -> None:
             entry["demos"] = demos(arm, a.seeds)
         if "tiers" in parts:
             entry["tiers"] = tiers(arm, a.episodes_per_goal, work)
+        if "near" in parts:
+            entry["near"] = near(arm)
         a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps(results, indent=1) + "\n")  # after every arm: resumable
     print(markdown(results))

@@ -27,5 +27,9 @@ ARM = ArmSpec(
     flange_yaw=2.3,
     free_joints=(6,),
     mount=Mount(x=0.12),
+    # nearer than 25 cm to its axis the elbow (joint 4, at most -0.07 rad) folds against its
+    # limit and a straight approach stalls (measured: picks 18 cm from the axis fail, from
+    # 26 cm on every one completes; benchmarks/arms.py, docs/robots.md)
+    min_reach=0.25,
     hardware_joint_names=tuple(f"panda_joint{i}" for i in range(1, 8)),
 )

@@ -14,7 +14,7 @@ same place on the table whatever arm stands at it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,9 @@ class ArmSpec:
             primitives, the Sawyer's); empty when the description ships collision meshes.
         primitive_bodies: more bodies whose primitive collision geoms the meshes replace.
         max_endpoint_speed: the guard's default cap on the endpoint's speed, m/s.
+        min_reach: the nearest a grasp may be to the base's vertical axis, horizontally,
+            m: nearer, the elbow folds against its limit and the straight approach stalls
+            (measured per arm; the feasibility check and the reachability map refuse it).
         hardware_joint_names: the joint names of the real arm's interface, when they are
             not the MJCF's.
         model_xml: an MJCF given inline instead of the fetched folder (an arm described
@@ -83,6 +86,7 @@ class ArmSpec:
     mesh_collision_bodies: frozenset[str] = frozenset()
     primitive_bodies: frozenset[str] = frozenset()
     max_endpoint_speed: float = 0.25
+    min_reach: float = 0.0
     hardware_joint_names: tuple[str, ...] | None = None
     model_xml: str | None = None
 
@@ -109,6 +113,16 @@ class ArmSpec:
             raise ValueError(f"arm {self.name}: free_joints names a joint it does not have")
         if self.hardware_joint_names is not None and len(self.hardware_joint_names) != n:
             raise ValueError(f"arm {self.name}: hardware_joint_names must name {n} joints")
+
+    def facts(self) -> dict:  # type: ignore[type-arg]
+        """Everything the description says, JSON-ready (for the cache keys of what depends
+        on the arm: maps, plans, optimisation runs); an inline model by its length only
+        (its digest is the model's)."""
+        out = asdict(self)
+        out["model_xml"] = None if self.model_xml is None else len(self.model_xml)
+        out["mesh_collision_bodies"] = sorted(self.mesh_collision_bodies)
+        out["primitive_bodies"] = sorted(self.primitive_bodies)
+        return out
 
     @property
     def dof(self) -> int:

@@ -31,6 +31,7 @@ import numpy as np
 
 from legws_daemon import __version__
 from legws_daemon.arms import DEFAULT_ARM
+from legws_daemon.arms import arm as arm_spec
 from legws_daemon.core.certificate import certify
 from legws_daemon.core.commit import (
     certify_commit,
@@ -45,7 +46,7 @@ from legws_daemon.formats.files import output_folder, read_limited, write_atomic
 from legws_daemon.formats.goalset import goalset_to_data, load_goalset
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.validation import read_json
-from legws_daemon.robot.assets import model_digest
+from legws_daemon.robot.assets import arm_key
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.planner import FEASIBILITY, MotionPlanner, stand_in_planner
@@ -89,8 +90,8 @@ def settings_key(scene: Scene, settings: dict[str, Any]) -> str:
     code's version. Cheap, so that a cached run needs no simulator."""
     h = hashlib.sha256()
     h.update(read_limited(Path(scene.source), "scene"))
-    # every file of the arm's model, verified
-    h.update(model_digest(None, settings.get("arm", DEFAULT_ARM)).encode())
+    # every file of the arm's model, verified, and its whole description
+    h.update(arm_key(arm_spec(settings.get("arm", DEFAULT_ARM))).encode())
     extra = {"version": __version__, "tcp": TCP_OFFSET, "gap": FINGER_GAP,
              "feasibility": FEASIBILITY}  # fmt: skip
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())

@@ -29,9 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from legws_daemon.arms import DEFAULT_ARM
+from legws_daemon.arms import arm as arm_spec
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, read_limited, write_atomic
-from legws_daemon.robot.assets import model_digest
+from legws_daemon.robot.assets import arm_key
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.planner import FEASIBILITY
 from legws_daemon.scene.scene import Scene
@@ -61,8 +62,8 @@ def plan_key(graph: TaskGraph, scene: Scene, settings: dict[str, Any]) -> str:
     source = Path(graph.source)
     h.update(read_limited(source, "task graph") if source.is_file() else repr(graph).encode())
     h.update(b"\0" + read_limited(Path(scene.source), "scene") + b"\0")
-    # every file of the arm's model, verified
-    h.update(model_digest(None, settings.get("arm", DEFAULT_ARM)).encode())
+    # every file of the arm's model, verified, and its whole description
+    h.update(arm_key(arm_spec(settings.get("arm", DEFAULT_ARM))).encode())
     extra = {"tcp": TCP_OFFSET, "gap": FINGER_GAP, "feasibility": FEASIBILITY}
     h.update(json.dumps({**settings, **extra}, sort_keys=True).encode())
     return h.hexdigest()[:20]

@@ -116,6 +116,14 @@ def description_digest(spec: ArmSpec) -> str:
     return model_digest(None, spec.name)
 
 
+def arm_key(spec: ArmSpec) -> str:
+    """sha256 of an arm's model files and its whole description (what a map, a plan or a
+    run made for the arm depends on)."""
+    h = hashlib.sha256(description_digest(spec).encode())
+    h.update(json.dumps(spec.facts(), sort_keys=True).encode())
+    return h.hexdigest()
+
+
 def _spec(name: str) -> ArmSpec:
     try:
         return arm(name)

@@ -18,7 +18,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
+from legws_daemon.arms import ArmSpec
 from legws_daemon.core.geometry import FloatArray, rot_z, rotation_angle
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.robot.kinematics import solve_ik
@@ -94,6 +96,14 @@ def check_grasps(
     return out
 
 
+def far_enough(spec: ArmSpec, positions: ArrayLike) -> NDArray[np.bool_]:
+    """Whether each grasp position ``(..., 3)`` is at least the arm's ``min_reach`` from
+    its base's vertical axis (horizontally)."""
+    p = np.asarray(positions, dtype=np.float64)
+    d = np.hypot(p[..., 0] - spec.mount.x, p[..., 1] - spec.mount.y)
+    return np.asarray(d >= spec.min_reach)
+
+
 def check_grasp(
     world: World,
     name: str,
@@ -106,7 +116,16 @@ def check_grasp(
     """Check one pose: IK from each seed toward each symmetric equivalent (nearest to
     ``reference`` first), the first reachable, collision-free configuration with a straight
     approach wins. Why not (of the best attempt): it collides, else it has no straight
-    approach, else it is out of reach. Leaves the arm where the last attempt ended."""
+    approach, else it is out of reach; or, before any IK, it is nearer the arm's base than
+    the arm grasps (``min_reach``). Leaves the arm where the last attempt ended."""
+    spec = world.spec
+    if not far_enough(spec, position):
+        d = float(np.hypot(position[0] - spec.mount.x, position[1] - spec.mount.y))
+        why = (
+            f"too close to the arm's base: {d * 100:.0f} cm from its axis, the {spec.title} "
+            f"grasps from {spec.min_reach * 100:.0f} cm"
+        )
+        return GraspCheck(name, False, why, seeds[0], rotation)
     best_err = np.inf
     best_q = seeds[0]
     best_R = rotation

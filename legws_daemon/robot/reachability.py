@@ -73,9 +73,9 @@ from legws_daemon.core.geometry import FloatArray, rot_z
 from legws_daemon.errors import LegwsError
 from legws_daemon.formats.files import output_folder, regular_file, write_atomic
 from legws_daemon.formats.nesting import check_json_nesting
-from legws_daemon.robot.assets import assets_dir, description_digest
+from legws_daemon.robot.assets import arm_key, assets_dir
 from legws_daemon.robot.batch_kinematics import BatchKinematics, batch_ik
-from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, ik_seeds
+from legws_daemon.robot.feasibility import TOL_POSITION, TOL_ROTATION, far_enough, ik_seeds
 from legws_daemon.robot.gripper import FINGER_GAP, TCP_OFFSET
 from legws_daemon.robot.world import World
 from legws_daemon.scene.grasps import GRASP_KINDS, SIDE_MIN_HEIGHT, derive_grasp
@@ -475,6 +475,7 @@ class _Solver:
                 kinematics=self.kin,
             )
             hit = (ep <= TOL_POSITION) & (er <= TOL_ROTATION)
+            hit &= far_enough(self.world.spec, positions[chunk])
             for i in np.flatnonzero(hit):
                 hit[i] = not self.touches(q[i])
             ok[chunk], qs[chunk] = hit, q
@@ -624,23 +625,16 @@ def _check_kinematics(world: World, kin: BatchKinematics, q_home: FloatArray) ->
 
 
 def cache_key(world: World, q_home: ArrayLike, grid: ReachabilityGrid = DEFAULT_GRID) -> str:
-    """Hash of what a map depends on: robot description (its files and the arm's
-    registration: joints, limits, mount, hand), gripper, collision meshes in use, table,
-    home configuration, tolerances, grid and the map's format."""
+    """Hash of what a map depends on: robot description (its files and the arm's whole
+    registration: joints, limits, mount, hand, nearest reach), gripper, collision meshes in
+    use, table, home configuration, tolerances, grid and the map's format."""
     ws = world.scene.workspace
     spec = world.spec
     h = hashlib.sha256()
-    h.update(description_digest(spec).encode())  # every file of the model, verified
+    # every file of the model, verified, and the arm's whole description
+    h.update(arm_key(spec).encode())
     facts = {
         "format": FORMAT_VERSION,
-        "arm": {
-            "name": spec.name,
-            "joints": list(spec.joint_names),
-            "limits": [list(lim) for lim in spec.position_limits],
-            "mount": [spec.mount.x, spec.mount.y, spec.mount.z, spec.mount.yaw],
-            "hand": [spec.hand_body, list(spec.tcp_quat), spec.flange_yaw],
-            "collision": sorted(spec.mesh_collision_bodies | spec.primitive_bodies),
-        },
         "tcp_offset": TCP_OFFSET,
         "finger_gap": FINGER_GAP,
         "meshes": int(world.model.nmesh),

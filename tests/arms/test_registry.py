@@ -14,6 +14,7 @@ import pytest
 
 from legws_daemon.arms import DEFAULT_ARM, ArmSpec, arm, arm_names
 from legws_daemon.robot.batch_kinematics import BatchKinematics
+from legws_daemon.robot.feasibility import check_grasp, far_enough, ik_seeds
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.world import World, robot_model
 from legws_daemon.scene.catalog import load_scene
@@ -93,3 +94,21 @@ def test_each_arm_is_its_model_and_reaches_the_tea_home_clear_of_the_table(name:
         np.testing.assert_allclose(ee[i], world.ee_position(), atol=1e-12)
         np.testing.assert_allclose(R[i], world.ee_rotation(), atol=1e-12)
         np.testing.assert_allclose(J[i], world.jacobian(), atol=1e-12)
+
+
+def test_a_grasp_nearer_the_base_than_the_arm_reaches_is_refused_by_check_and_map() -> None:
+    panda = arm("panda")
+    assert panda.min_reach == 0.25 and arm("sawyer").min_reach == 0.0
+    near = [panda.mount.x + 0.18, 0.0, 0.01]
+    far = [panda.mount.x + 0.26, 0.0, 0.01]
+    assert far_enough(panda, np.array([near, far])).tolist() == [False, True]
+    assert far_enough(arm("sawyer"), np.array([near])).tolist() == [True]
+    scene = load_scene("lego")
+    world = World(scene, arm="panda", visual=False)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    check = check_grasp(world, "red_brick", np.array(near), np.diag([1.0, -1.0, -1.0]), 2,
+                        scene.home.rotation, ik_seeds(world, q_home))  # fmt: skip
+    assert not check.feasible
+    assert check.reason == (
+        "too close to the arm's base: 18 cm from its axis, the Franka Panda grasps from 25 cm"
+    )
