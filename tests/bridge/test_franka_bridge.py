@@ -265,3 +265,39 @@ def test_the_deployment_files_are_authenticated_by_the_daemons_rule(tmp_path: Pa
     assert fb.authentication_problem(plain) == authentication_problem(plain)
     assert json.loads(plain.get_json("scouting/multicast/enabled")) is False
     assert json.loads(plain.get_json("scouting/gossip/enabled")) is False
+
+
+def test_the_rate_the_latch_and_the_ttl_on_receipt() -> None:
+    """The receipt rules of :class:`FrankaBridge` (its control loop not started: no arm)."""
+    config = fb.zenoh_config(None, [], [])
+    with contextlib.closing(zenoh.open(config)) as session:
+        arm = fb.FrankaArm(robot=None, library=None)
+        bridge = fb.FrankaBridge(session, "panda", arm, model=None, gripper=fb.GripperDriver(None))
+        try:
+            now = 10.0
+            for _ in range(fb.COMMAND_BURST):  # the burst passes at once
+                bridge.handle_command(payload(), now)
+            assert bridge.deadman.live(now) is not None
+            bridge.handle_command(payload(), now)  # one more: refused, the arm stops
+            assert bridge.counts["rate"] == 1 and bridge.deadman.live(now) is None
+            later = now + 1.0  # the bucket refilled; a long ttl is cut to max_ttl
+            bridge.handle_command(payload(ttl=0.9), later)
+            assert bridge.counts["ttl"] == 1
+            assert bridge.deadman.expires == pytest.approx(later + fb.TTL_CAP)
+            bridge.handle_stop("legws/panda/stop/observer", b"not json")
+            assert bridge.stopped_by == "observer" and bridge.invalid_stops == 1
+            assert bridge.deadman.live(later) is None
+            bridge.handle_command(payload(), later + 0.1)  # ignored while stopped
+            assert bridge.deadman.live(later + 0.1) is None
+            bridge.handle_resume(b'{"schema": 1}')  # no seq: rejected, still stopped
+            assert bridge.stopped_by == "observer" and bridge.rejected_resumes == 1
+            bridge.handle_resume(b'{"schema": 1, "seq": 1, "stamp": 0}')
+            assert bridge.stopped_by is None
+            bridge.handle_command(payload(dq=[1.5, 0, 0, 0, 0, 0, 0]), later + 0.2)
+            live = bridge.deadman.live(later + 0.2)
+            assert live is not None and live.dq[0] == pytest.approx(fb.JOINT_SPEED_CAP)
+            assert bridge.counts["joint_speed"] == 1
+            bridge.handle_command(b"{}", later + 0.3)  # rejected: the arm stops
+            assert bridge.rejected == 1 and bridge.deadman.live(later + 0.3) is None
+        finally:
+            bridge.close()
