@@ -246,11 +246,14 @@ def test_a_profile_name_typo_says_did_you_mean() -> None:
     with pytest.raises(InputError) as info:
         load_profile_named("simm")
     assert str(info.value) == (
-        "profile: unknown hardware profile 'simm'; did you mean 'sim'? known: panda_sim, sawyer, sim"
+        "profile: unknown hardware profile 'simm'; did you mean 'sim'? known: "
+        "panda_sim, sawyer, sim"
     )
     with pytest.raises(InputError) as info:
         load_profile_named("moon")
-    assert str(info.value) == "profile: unknown hardware profile 'moon'; known: panda_sim, sawyer, sim"
+    assert str(info.value) == (
+        "profile: unknown hardware profile 'moon'; known: panda_sim, sawyer, sim"
+    )
 
 
 def test_a_profile_file_name_typo_says_did_you_mean(tmp_path: Path) -> None:
