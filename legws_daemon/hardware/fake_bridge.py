@@ -3,13 +3,18 @@
 It plays the part of ``bridge/intera_bridge.py`` for tests and for trying the ``sawyer``
 profile on a desk: a thread integrates the commanded joint velocities at its own rate and
 publishes the joint state, its heartbeat. Like a real bridge it enforces its own limits
-whatever it is sent (:class:`~legws_daemon.safety.bridge_guard.BridgeGuard`: the command
-rate, joint speed, ttl, the endpoint's speed and workspace, checked on every integration
-step with the forward kinematics of its own joints), stops on any sample on
+whatever it is sent (the one guard of every bridge, :mod:`legws_daemon.safety.limits`,
+through :class:`~legws_daemon.safety.bridge_guard.BridgeGuard`: the command rate, joint
+speed, ttl, the endpoint's speed and workspace, checked on every integration step with the
+forward kinematics of its own joints), stops on any sample on
 ``legws/<robot>/stop/*`` until a resume on ``legws/<robot>/bridge/resume``, and reports
 both in its state (``stopped_by``, ``limited``). Faults can be injected: a lost heartbeat
 (:meth:`FakeBridge.stop_publishing`), an emergency stop (:meth:`FakeBridge.set_estop`), a
 disabled robot (:meth:`FakeBridge.set_enabled`).
+
+Time is an injected clock (``clock``, default ``time.monotonic``): a test that holds it
+moves the arm by advancing it, and publishes states with :meth:`FakeBridge.tick`
+(``start(thread=False)``), so nothing it asserts depends on the wall clock.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+from collections.abc import Callable
 from types import TracebackType
 from typing import Literal
 
@@ -27,7 +33,6 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
-    JOINT_SPEED_LIMITS,
     BridgeState,
     GripperState,
     Limit,
@@ -63,6 +68,8 @@ class FakeBridge:
             defaults).
         workspace: the box the endpoint stays in, grown by ``limits.workspace_margin``
             (a profile's ``[workspace]``; default: the profile default).
+        clock: monotonic seconds: the command's life, the rate, the integration, the
+            gripper (default ``time.monotonic``); the state's ``stamp`` stays wall time.
 
     Attributes:
         rejected: commands that failed validation (each one stopped the arm).
@@ -89,6 +96,7 @@ class FakeBridge:
         rate_hz: float = 200.0,
         limits: BridgeLimitsSpec | None = None,
         workspace: WorkspaceBox | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not 1.0 <= rate_hz <= 1000.0:
             raise InputError(f"must be in [1, 1000] Hz, got {rate_hz:g}", field="rate_hz")
@@ -104,6 +112,7 @@ class FakeBridge:
             if np.any(start < self.lower) or np.any(start > self.upper):
                 raise InputError("outside the joint position limits", field="q0")
         self._session = session
+        self.clock = clock
         keys = bridge_keys(robot)
         self.state_key = keys["state"]
         self.command_key = keys["command"]
@@ -121,9 +130,10 @@ class FakeBridge:
             self.limits,
             self.workspace,
             ee_position,
+            spec=world.spec,
             lower=self.lower,
             upper=self.upper,
-            speed_limits=JOINT_SPEED_LIMITS,
+            clock=clock,
         )
         self.rejected = 0
         self.received = 0
@@ -134,7 +144,7 @@ class FakeBridge:
         self.rejected_resumes = 0
         self._lock = threading.Lock()
         self._q = np.array(start, dtype=np.float64)
-        self._t = time.monotonic()  # integrated up to this time
+        self._t = clock()  # integrated up to this time
         self._gripper_target: Literal["open", "closed"] = "open"
         self._gripper_done = 0.0  # monotonic time the gripper reaches its target
         self._enabled = True
@@ -145,12 +155,13 @@ class FakeBridge:
         self._thread: threading.Thread | None = None
         self._subscribers: list[zenoh.Subscriber[None]] = []
         self._publisher: zenoh.Publisher | None = None
+        self._previous = (self._t, self._q.copy())  # the previous state's time and angles
 
     # --- life cycle ---------------------------------------------------------------
-    def start(self) -> None:
+    def start(self, thread: bool = True) -> None:
         """Subscribe to commands, stops and resumes, and start integrating and publishing
-        (idempotent)."""
-        if self._thread is not None:
+        (idempotent); ``thread=False``: no thread, the caller publishes with :meth:`tick`."""
+        if self._thread is not None or self._publisher is not None:
             return
         self._publisher = self._session.declare_publisher(self.state_key)
         self._subscribers = [
@@ -159,6 +170,10 @@ class FakeBridge:
             self._session.declare_subscriber(self.resume_key, self._on_resume),
         ]
         self._stop.clear()
+        with self._lock:
+            self._previous = (self.clock(), self._q.copy())
+        if not thread:
+            return
         self._thread = threading.Thread(target=self._run, name="fake-bridge", daemon=True)
         self._thread.start()
 
@@ -202,7 +217,7 @@ class FakeBridge:
     def set_estop(self, engaged: bool) -> None:
         """Engage (which also disables the robot, as Intera does) or release the e-stop."""
         with self._lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock())
             self._estop = engaged
             if engaged:
                 self._enabled = False
@@ -213,7 +228,7 @@ class FakeBridge:
         with self._lock:
             if enabled and self._estop:
                 raise LegwsError("cannot enable the robot while its emergency stop is engaged")
-            self._advance(time.monotonic())
+            self._advance(self.clock())
             self._enabled = enabled
             if not enabled:
                 self.guard.clear()
@@ -223,13 +238,13 @@ class FakeBridge:
     def q(self) -> FloatArray:
         """The joint angles now, rad."""
         with self._lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock())
             return self._q.copy()
 
     @property
     def gripper(self) -> GripperState:
         with self._lock:
-            return self._gripper_state(time.monotonic())
+            return self._gripper_state(self.clock())
 
     @property
     def stopped_by(self) -> str | None:
@@ -241,7 +256,7 @@ class FakeBridge:
     def limited(self) -> dict[Limit, int]:
         """Per limit, how many times it was enforced since the start."""
         with self._lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock())
             return dict(self.guard.counts)
 
     def _gripper_state(self, now: float) -> GripperState:
@@ -251,7 +266,7 @@ class FakeBridge:
     def _on_command(self, sample: zenoh.Sample) -> None:
         """zenoh callback: a valid command within the rate replaces the current one (as
         the guard allows); an invalid one, or one over the rate, stops."""
-        now = time.monotonic()
+        now = self.clock()
         try:
             command = parse_command(sample.payload.to_bytes(), self.command_key)
         except InputError as err:
@@ -276,7 +291,7 @@ class FakeBridge:
 
     def _on_stop(self, sample: zenoh.Sample) -> None:
         """zenoh callback: any sample on a stop key stops and latches, valid or not."""
-        now = time.monotonic()
+        now = self.clock()
         key = str(sample.key_expr)
         try:
             parse_stop(sample.payload.to_bytes(), key)
@@ -292,7 +307,7 @@ class FakeBridge:
 
     def _on_resume(self, sample: zenoh.Sample) -> None:
         """zenoh callback: a valid resume message clears a latched stop."""
-        now = time.monotonic()
+        now = self.clock()
         try:
             parse_resume(sample.payload.to_bytes(), self.resume_key)
         except InputError:
@@ -347,23 +362,30 @@ class FakeBridge:
             publishing = self._publishing
         return (dump(state) if publishing else b""), q
 
+    def tick(self) -> bool:
+        """Advance to the clock's time and publish one state (none while the heartbeat is
+        stopped); ``False`` when the session is closed or the bridge not started."""
+        now = self.clock()
+        payload, q = self._tick(now, self._previous)
+        self._previous = (now, q)
+        publisher = self._publisher
+        if publisher is None:
+            return False
+        if payload:
+            try:
+                publisher.put(payload)
+            except zenoh.ZError:
+                return False  # the session was closed under us
+        return True
+
     def _run(self) -> None:
-        now = time.monotonic()
-        with self._lock:
-            previous = (now, self._q.copy())
-        deadline = now
+        """Tick every period of the wall clock (the pacing only: the state is the clock's)."""
+        deadline = time.monotonic()
         while True:
             deadline += self.period
             if self._stop.wait(max(0.0, deadline - time.monotonic())):
                 return
-            now = time.monotonic()
-            if now - deadline > self.period:
-                deadline = now  # late: resynchronise instead of bursting
-            payload, q = self._tick(now, previous)
-            previous = (now, q)
-            publisher = self._publisher
-            if payload and publisher is not None:
-                try:
-                    publisher.put(payload)
-                except zenoh.ZError:
-                    return  # the session was closed under us
+            if time.monotonic() - deadline > self.period:
+                deadline = time.monotonic()  # late: resynchronise instead of bursting
+            if not self.tick():
+                return

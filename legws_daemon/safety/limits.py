@@ -138,7 +138,7 @@ def _norm(v: Vector) -> float:
 
 def box_distance(p: Vector, lower: Vector, upper: Vector) -> float:
     """The distance from ``p`` to the box ``[lower, upper]`` (0 inside)."""
-    return math.sqrt(sum(max(lo - x, x - hi, 0.0) ** 2 for x, lo, hi in zip(lower, p, upper)))
+    return math.sqrt(sum(max(lo - x, x - hi, 0.0) ** 2 for x, lo, hi in zip(p, lower, upper)))
 
 
 def cap_speeds(dq: Vector, caps: Vector) -> tuple[tuple[float, ...], bool]:

@@ -245,15 +245,15 @@ def test_clear_and_bad_arguments() -> None:
     g.receive(joints(0.1), 0.2, 0.0)
     g.clear()
     assert g.live is None
-    assert g.receive(joints(math.nan), 0.2, 0.1) == "ignored"
-    assert g.receive(joints(0.1), math.inf, 0.2) == "ignored"
+    assert g.receive(joints(math.nan), 0.2, 0.1) == "rejected"
+    assert g.receive(joints(0.1), math.inf, 0.2) == "rejected"
     assert g.live is None
     g.receive(joints(0.1), 0.2, 0.3)
     assert g.step([math.nan] * 7, 0.3, 0.31).duration == 0.0
     assert g.live is None
     with pytest.raises(InputError, match="burst"):
         BridgeGuard(LIMITS_SPEC, BOX, linear_arm, burst=0)
-    with pytest.raises(InputError, match="7 values"):
+    with pytest.raises(InputError, match="7 values each"):
         BridgeGuard(LIMITS_SPEC, BOX, linear_arm, lower=[0.0] * 6)
 
 

@@ -120,6 +120,21 @@ def test_each_rule_and_its_reason() -> None:
     assert g.step([math.nan] * 7).reason == "invalid joint state"
 
 
+def test_box_distance() -> None:
+    lower, upper = (0.18, -0.57, -0.02), (0.97, 0.57, 0.62)
+    assert L.box_distance(CENTER, lower, upper) == 0.0
+    assert L.box_distance((1.0, 0.6, 0.3), lower, upper) == pytest.approx(math.hypot(0.03, 0.03))
+    assert L.box_distance((0.1, 0.0, 0.3), lower, upper) == pytest.approx(0.08)
+
+
+def test_from_outside_only_steps_no_farther_are_taken() -> None:
+    g = guard()
+    q = joints((1.2 - CENTER[0]) / GAIN)  # 0.23 m beyond the margin's face
+    for dq, allowed in ((joints(-0.2), True), (joints(0.0, 0.2), True), (joints(0.2), False)):
+        g.command(dq, 0.2, 0.0)
+        assert g.step(q, 0.0, PERIOD).moving is allowed, dq
+
+
 def test_the_rate_is_a_token_bucket_on_the_clock() -> None:
     clock = Clock()
     g = guard(clock)
