@@ -6,9 +6,8 @@ Joint order and the base frame are Intera's (``right_j0`` .. ``right_j6``). Both
 are JSON with ``"schema": 1``, validated on receipt; a payload that does not validate is an
 :class:`~legws_daemon.errors.InputError` naming the field, and is never used.
 
-The constants below are the contract's limits. The standalone robot-side program
-(``bridge/intera_bridge.py``) repeats them, and the tests check both copies against the
-kinematic model (:mod:`legws_daemon.robot.world`).
+The joint tables below are the Sawyer's description (:func:`legws_daemon.arms.arm`), the
+one every part reads; the bridges read them there too.
 """
 
 from __future__ import annotations
@@ -17,16 +16,18 @@ from typing import Annotated, Literal
 
 from pydantic import AllowInfNan, Field, Strict, StrictBool, model_validator
 
+from legws_daemon.arms import arm
 from legws_daemon.formats.messages import Seq, _Message, parse
 from legws_daemon.formats.validation import Finite, field_error
 
+_SAWYER = arm("sawyer")
 #: Intera's joint names, in the order of every joint vector on the wire.
-JOINT_NAMES: tuple[str, ...] = tuple(f"right_j{i}" for i in range(7))
-#: Joint speed limits, rad/s (Intera specification; same as ``robot.world.JOINT_SPEED_LIMITS``).
-JOINT_SPEED_LIMITS: tuple[float, ...] = (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545)
-#: Joint position limits, rad (the Sawyer description's ranges).
-JOINT_LOWER: tuple[float, ...] = (-3.0503, -3.8095, -3.0426, -3.0439, -2.9761, -2.9761, -4.7124)
-JOINT_UPPER: tuple[float, ...] = (3.0503, 2.2736, 3.0426, 3.0439, 2.9761, 2.9761, 4.7124)
+JOINT_NAMES: tuple[str, ...] = _SAWYER.hardware_joints
+#: Joint speed limits, rad/s (the Sawyer's description: Intera's specification).
+JOINT_SPEED_LIMITS: tuple[float, ...] = _SAWYER.speed_limits
+#: Joint position limits, rad (the Sawyer's description).
+JOINT_LOWER: tuple[float, ...] = _SAWYER.lower
+JOINT_UPPER: tuple[float, ...] = _SAWYER.upper
 #: A commanded joint speed may exceed its limit by this much (floating-point slack), rad/s.
 SPEED_TOLERANCE = 1e-6
 #: Longest time-to-live of one command, s: no single message may keep the arm moving longer.
