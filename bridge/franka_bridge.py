@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import math
 import os
@@ -335,15 +336,6 @@ class Limits:
         if len(self.mount) != 4 or not all(math.isfinite(v) for v in self.mount):
             raise ValueError("mount must be four finite numbers: x y z yaw")
 
-    def joint_caps(self) -> list[float]:
-        """Each joint's speed cap: the lower of ``joint_speed_cap`` and its specification."""
-        return [min(self.joint_speed_cap, limit) for limit in SPEED_LIMITS]
-
-    def box(self) -> tuple[list[float], list[float]]:
-        """The workspace grown by the margin: (lower, upper) corners."""
-        m = self.workspace_margin
-        return [lo - m for lo, _ in self.workspace], [hi + m for _, hi in self.workspace]
-
     def describe(self) -> str:
         box = " ".join(f"{axis} [{lo:g}, {hi:g}]" for axis, (lo, hi) in zip("xyz", self.workspace))
         mount = " ".join(f"{v:g}" for v in self.mount)
@@ -407,36 +399,6 @@ def profile_limits(path: str) -> Limits:
         return Limits(**values)
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
-
-
-def cap_speeds(dq: Sequence[float], caps: Sequence[float]) -> tuple[list[float], bool]:
-    """``dq`` scaled down uniformly (direction kept) so no joint is over its cap; and
-    whether it was."""
-    ratio = max(abs(v) / cap for v, cap in zip(dq, caps))
-    if ratio <= 1.0:
-        return [float(v) for v in dq], False
-    return [max(-cap, min(cap, v / ratio)) for v, cap in zip(dq, caps)], True
-
-
-class TokenBucket:
-    """``rate_hz`` tokens a second, at most ``burst`` saved (full at the start)."""
-
-    def __init__(self, rate_hz: float, burst: int) -> None:
-        self.rate_hz = rate_hz
-        self.burst = burst
-        self._tokens = float(burst)
-        self._time: float | None = None
-
-    def take(self, now: float) -> bool:
-        """One token for a command arriving at ``now``; ``False``: none left."""
-        if self._time is not None and now > self._time:
-            self._tokens = min(float(self.burst), self._tokens + (now - self._time) * self.rate_hz)
-        if self._time is None or now > self._time:
-            self._time = now
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            return True
-        return False
 
 
 class Ramp:
@@ -504,15 +466,6 @@ def guard_joint_limits(
     return out
 
 
-def box_distance(p: Sequence[float], lower: Sequence[float], upper: Sequence[float]) -> float:
-    """The distance from ``p`` to the box (0 inside)."""
-    return math.sqrt(sum(max(lo - x, x - hi, 0.0) ** 2 for x, lo, hi in zip(p, lower, upper)))
-
-
-def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(sum(x * x for x in v))
-
-
 def linear_jacobian(jacobian: Sequence[float]) -> list[list[float]]:
     """The 3 x 7 linear rows of libfranka's zero Jacobian (42 values, column-major)."""
     return [[float(jacobian[6 * j + r]) for j in range(len(JOINT_NAMES))] for r in range(3)]
@@ -523,63 +476,23 @@ def endpoint_position(o_t_ee: Sequence[float]) -> list[float]:
     return [float(o_t_ee[12]), float(o_t_ee[13]), float(o_t_ee[14])]
 
 
-class EndpointGuard:
-    """The endpoint rules, on the arm's own kinematics (libfranka's ``O_T_EE`` and zero
-    Jacobian at the measured joints), once per tick, in table coordinates (the base at the
-    mount).
+class TableFrame:
+    """The arm's base frame to table coordinates (the base at the mount, turned by its
+    yaw): the workspace box is in table coordinates, like the profile's."""
 
-    * **EE speed**: the endpoint velocity of the target, ``J(q) dq``, over the cap scales
-      the target down to it (``ee_speed``).
-    * **Workspace** (the box grown by the margin): the endpoint predicted one period plus
-      the ramp's braking time ahead must stay inside the box or, outside it, come no
-      farther from it; otherwise the arm stops (``workspace``).
-    """
-
-    def __init__(self, limits: Limits, period: float, ramp: Ramp) -> None:
-        self.cap = limits.ee_speed_cap
-        self.lower, self.upper = limits.box()
-        self.period = period
-        self.ramp = ramp
-        x, y, z, yaw = limits.mount
-        self._origin = (x, y, z)
+    def __init__(self, mount: Sequence[float]) -> None:
+        x, y, z, yaw = mount
+        self._origin = (float(x), float(y), float(z))
         self._cos, self._sin = math.cos(yaw), math.sin(yaw)
 
     def to_table(self, v: Sequence[float], point: bool) -> list[float]:
+        """A point (``point``) or a vector of the base frame, in table coordinates."""
         x = self._cos * v[0] - self._sin * v[1]
         y = self._sin * v[0] + self._cos * v[1]
         if not point:
             return [x, y, float(v[2])]
         ox, oy, oz = self._origin
         return [ox + x, oy + y, oz + float(v[2])]
-
-    def inside(self, p: Sequence[float]) -> bool:
-        return all(lo <= x <= hi for x, lo, hi in zip(p, self.lower, self.upper))
-
-    def distance(self, p: Sequence[float]) -> float:
-        return box_distance(p, self.lower, self.upper)
-
-    def limit(
-        self, target: Sequence[float], position: Sequence[float], jacobian: Sequence[float]
-    ) -> tuple[list[float] | None, list[str]]:
-        """``target`` within the endpoint rules (``None``: the arm stops) and the limits
-        enforced, given the endpoint's base-frame ``position`` and the zero Jacobian."""
-        enforced = []
-        rows = linear_jacobian(jacobian)
-        velocity = self.to_table([sum(r * v for r, v in zip(row, target)) for row in rows], False)
-        speed = _norm(velocity)
-        scale = 1.0
-        if speed > self.cap:
-            scale = self.cap / speed
-            enforced.append("ee_speed")
-        here = self.to_table(position, True)
-        scaled = [scale * v for v in target]
-        horizon = self.period + self.ramp.braking_time(scaled)
-        ahead = [p + scale * v * horizon for p, v in zip(here, velocity)]
-        if not self.inside(ahead) and (
-            self.inside(here) or self.distance(ahead) > self.distance(here)
-        ):
-            return None, [*enforced, "workspace"]
-        return scaled, enforced
 
 
 def robot_status(mode_name: str, fault: str | None) -> tuple[bool, bool]:
@@ -851,36 +764,41 @@ class GripperDriver:
                 self._busy, self._failed, self._done = False, failed, request
 
 
-class Deadman:
-    """The current command and its expiry."""
+def load_guard() -> Any:
+    """legws' one guard of every bridge (``legws_daemon/safety/limits.py``, standard library
+    only): ``legws_limits.py`` beside this file (a robot PC's copy), else the repository's."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    for path in (
+        os.path.join(here, "legws_limits.py"),
+        os.path.join(here, os.pardir, "legws_daemon", "safety", "limits.py"),
+    ):
+        if os.path.isfile(path):
+            spec = importlib.util.spec_from_file_location("legws_limits", path)
+            if spec is None or spec.loader is None:
+                continue
+            module = importlib.util.module_from_spec(spec)
+            sys.modules["legws_limits"] = module  # its dataclasses look their module up
+            spec.loader.exec_module(module)
+            return module
+    raise ImportError(
+        "legws' bridge limits not found: copy legws_daemon/safety/limits.py beside this "
+        "file as legws_limits.py"
+    )
 
-    def __init__(self) -> None:
-        self.command: Command | None = None
-        self.expires = -math.inf
 
-    def accept(self, command: Command, now: float, ttl_cap: float) -> None:
-        self.command = command
-        self.expires = now + min(command.ttl, ttl_cap)
-
-    def clear(self) -> None:
-        self.command = None
-        self.expires = -math.inf
-
-    def live(self, now: float) -> Command | None:
-        if self.command is not None and now >= self.expires:
-            self.command = None
-        return self.command
+guard_module = load_guard()
 
 
 class FrankaBridge:
     """The bridge's work: commands, stops and resumes in (zenoh threads); every tick the
     live command as the control loop's target within the limits, and the state out.
 
-    The rules, in order. On a command: the contract's validation (rejected: the arm stops),
-    the rate (refused: the arm stops), the stop latch and shutdown (ignored), the joint
-    speed cap (scaled), the ttl cap. Every tick: the command's life, the joint position
-    limits (with the braking distance), the endpoint speed (scaled), the workspace (the arm
-    stops).
+    The limits are legws' one guard of every bridge (:func:`load_guard`: validity, rate,
+    stop latch, joint speed, command life; then every tick the deadman, the joint position
+    limits, the endpoint speed and the workspace on the commanded step's kinematics, here
+    libfranka's endpoint and zero Jacobian at the measured joints, linearised, in table
+    coordinates). The bridge adds the contract's message checks before it and, after it,
+    no joint whose braking distance reaches its position limit.
 
     Args:
         session: an open zenoh session (closed by the caller).
@@ -916,19 +834,33 @@ class FrankaBridge:
         self.wall = wall
         self.period = period
         self.limits = limits if limits is not None else Limits()
-        self.deadman = Deadman()
-        self.bucket = TokenBucket(self.limits.command_rate_hz, self.limits.burst)
-        self.endpoint = EndpointGuard(self.limits, period, arm.ramp)
-        self.joint_caps = self.limits.joint_caps()
+        self.frame = TableFrame(self.limits.mount)
+        self._linear: tuple[tuple[float, ...], list[float], list[list[float]]] | None = None
+        lim = self.limits
+        self.guard = guard_module.Guard(
+            LOWER,
+            UPPER,
+            SPEED_LIMITS,
+            guard_module.BridgeLimits(
+                joint_speed_cap=lim.joint_speed_cap,
+                ee_speed_cap=lim.ee_speed_cap,
+                workspace=lim.workspace,
+                workspace_margin=lim.workspace_margin,
+                max_ttl=lim.max_ttl,
+                command_rate_hz=lim.command_rate_hz,
+                burst=lim.burst,
+            ),
+            clock=clock,
+            ee_position=self._ee_position,
+            period=period,
+        )
+        self.counts = self.guard.counts
         self.rejected = 0
         self.accepted = 0
         self.stops = 0
         self.invalid_stops = 0
         self.resumes = 0
         self.rejected_resumes = 0
-        self.stopped_by: str | None = None
-        self.counts = dict.fromkeys(LIMITS, 0)
-        self._limited: set[str] = set()
         self._lock = threading.Lock()
         self._gripper_request: str | None = None
         self._halted = False
@@ -941,9 +873,18 @@ class FrankaBridge:
             session.declare_subscriber(self.resume_key, self._on_resume),
         ]
 
-    def _report(self, limit: str) -> None:
-        self.counts[limit] += 1
-        self._limited.add(limit)
+    @property
+    def stopped_by(self) -> str | None:
+        return self.guard.stopped_by  # type: ignore[no-any-return]
+
+    def _ee_position(self, q: Sequence[float]) -> list[float] | None:
+        """The endpoint at ``q`` in table coordinates: libfranka's endpoint and Jacobian at
+        this tick's measured joints, to first order (the guard's steps are short)."""
+        if self._linear is None:
+            return None
+        q0, p0, rows = self._linear
+        dq = [a - b for a, b in zip(q, q0)]
+        return [p + sum(r * d for r, d in zip(row, dq)) for p, row in zip(p0, rows)]
 
     def _on_command(self, sample: zenoh.Sample) -> None:
         self.handle_command(sample.payload.to_bytes(), self.clock())
@@ -954,10 +895,6 @@ class FrankaBridge:
     def _on_resume(self, sample: zenoh.Sample) -> None:
         self.handle_resume(sample.payload.to_bytes())
 
-    def _brake(self) -> None:
-        self.deadman.clear()
-        self.arm.set_target(None, -math.inf)
-
     def handle_command(self, payload: bytes, now: float) -> None:
         """Accept a valid command within the limits; a rejected or refused one stops the arm."""
         try:
@@ -965,25 +902,16 @@ class FrankaBridge:
         except CommandError as err:
             with self._lock:
                 self.rejected += 1
-                self._brake()
+                self.guard.clear()
             self._log("rejected", f"command rejected: {err}")
             return
         with self._lock:
             self.accepted += 1
-            if not self.bucket.take(now):
-                self._brake()
-                self._report("rate")
+            if self._halted:
+                self.guard.admit(now)  # the rate still measures the sender
                 return
-            if self._halted or self.stopped_by is not None:
-                return
-            dq, capped = cap_speeds(command.dq, self.joint_caps)
-            if capped:
-                self._report("joint_speed")
-                command = replace(command, dq=tuple(dq))
-            if command.ttl > self.limits.max_ttl:
-                self._report("ttl")
-            self.deadman.accept(command, now, self.limits.max_ttl)
-            if command.gripper is not None:
+            verdict = self.guard.command(command.dq, command.ttl, now)
+            if verdict == "accepted" and command.gripper is not None:
                 self._gripper_request = command.gripper
 
     def handle_stop(self, key: str, payload: bytes) -> None:
@@ -998,14 +926,13 @@ class FrankaBridge:
             self.stops += 1
             if not valid:
                 self.invalid_stops += 1
-            self._brake()
-            if self.stopped_by is None:
-                self.stopped_by = role
+            self.guard.stop(role)
+        self.arm.set_target(None, -math.inf)
         self._log("stop", f"stopped by {role} ({key})")
 
     def handle_resume(self, payload: bytes) -> None:
-        """A valid resume clears the latched stop (no command comes back) and recovers
-        the arm from a reflex."""
+        """A valid resume (the daemon's) clears every latched stop (no command comes back)
+        and recovers the arm from a reflex."""
         try:
             check_resume(payload)
         except CommandError as err:
@@ -1015,7 +942,7 @@ class FrankaBridge:
             return
         with self._lock:
             self.resumes += 1
-            self.stopped_by = None
+            self.guard.resume()
         state = self.arm.latest()
         if state is not None and (state.fault is not None or state.mode == "Reflex"):
             self.arm.recover()
@@ -1027,37 +954,49 @@ class FrankaBridge:
         state = self.arm.latest()
         if state is None or now - state.received > STATE_STALE:
             with self._lock:
-                self._brake()
+                self.guard.clear()
+            self.arm.set_target(None, -math.inf)
             return  # no fresh state of the robot: no heartbeat either
         enabled, estop = robot_status(state.mode, state.fault)
         with self._lock:
-            command = None
-            if not self._halted and self.stopped_by is None and enabled and not estop:
-                command = self.deadman.live(now)
             target: list[float] | None = None
-            if command is not None:
-                target = guard_joint_limits(state.q, command.dq, self.arm.ramp.accel, self.period)
-                if any(target):
-                    try:
-                        jacobian = self.model.zero_jacobian(state.raw)
-                    except Exception as err:  # no model: no motion
-                        self._log("model", f"no Jacobian ({type(err).__name__}); holding")
-                        target = None
-                    else:
-                        target, enforced = self.endpoint.limit(
-                            target, endpoint_position(state.o_t_ee), jacobian
-                        )
-                        for limit in enforced:
-                            self._report(limit)
-            if target is None or not any(target):
-                if target is None and command is not None:
-                    self.deadman.clear()  # the workspace (or no model): the arm stops
-                self.arm.set_target(None, -math.inf)
+            expires = -math.inf
+            if self._halted or not enabled or estop:
+                self.guard.clear()
+            elif self.guard.live is not None:
+                live = self.guard.live
+                try:
+                    jacobian = self.model.zero_jacobian(state.raw)
+                except Exception as err:  # no model: no endpoint, the guard stops the arm
+                    self._log("model", f"no Jacobian ({type(err).__name__}); holding")
+                    self._linear = None
+                else:
+                    rows = linear_jacobian(jacobian)
+                    columns = [self.frame.to_table(c, False) for c in zip(*rows)]
+                    self._linear = (
+                        state.q,
+                        self.frame.to_table(endpoint_position(state.o_t_ee), True),
+                        [list(r) for r in zip(*columns)],
+                    )
+                horizon = self.period + self.arm.ramp.braking_time(live.dq)
+                step = self.guard.step(state.q, now, now + self.period, horizon=horizon)
+                if step.moving:
+                    target = guard_joint_limits(
+                        state.q, step.velocity, self.arm.ramp.accel, self.period
+                    )
+                    after = self.guard.live
+                    expires = (
+                        min(after.expires, now + HANDOFF)
+                        if after is not None
+                        else now + step.duration
+                    )
+            if target is not None and any(target):
+                self.arm.set_target(target, expires)
             else:
-                self.arm.set_target(target, min(self.deadman.expires, now + HANDOFF))
+                self.arm.set_target(None, -math.inf)
             request, self._gripper_request = self._gripper_request, None
-            stopped_by = self.stopped_by
-            limited, self._limited = tuple(self._limited), set()
+            stopped_by = self.guard.stopped_by
+            limited = self.guard.take_limited()
         if request is not None and request != self.gripper.requested and enabled and not estop:
             self.gripper.command(request)
         try:
@@ -1069,7 +1008,7 @@ class FrankaBridge:
                 self.gripper.status(),
                 enabled,
                 estop,
-                stopped_by,
+                stopped_by if stopped_by in STOP_ROLES or stopped_by is None else "unknown",
                 limited,
             )
         except ValueError as err:
@@ -1084,7 +1023,8 @@ class FrankaBridge:
         """Stop for good (shutdown): brake, no further command is applied."""
         with self._lock:
             self._halted = True
-            self._brake()
+            self.guard.clear()
+        self.arm.set_target(None, -math.inf)
 
     def close(self) -> None:
         """Halt and undeclare; the session is closed by its owner."""

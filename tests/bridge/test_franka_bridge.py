@@ -154,35 +154,51 @@ def test_no_joint_is_driven_into_its_limit() -> None:
     assert fb.guard_joint_limits(q, [0.1, 0, 0, 0, 0, 0, 0], accel, 0.01)[0] == 0.1
 
 
-def _jacobian(columns: list[tuple[float, float, float]]) -> list[float]:
-    """A zero Jacobian in libfranka's layout (42 values, column-major) from linear columns."""
-    out: list[float] = []
-    for x, y, z in columns:
-        out += [x, y, z, 0.0, 0.0, 0.0]
-    return out
+def test_libfrankas_column_major_jacobian() -> None:
+    """42 values, column by column (joint by joint), linear rows first in each column."""
+    jacobian = [float(10 * joint + row) for joint in range(7) for row in range(6)]
+    rows = fb.linear_jacobian(jacobian)
+    assert rows[0] == [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    assert rows[2] == [2.0, 12.0, 22.0, 32.0, 42.0, 52.0, 62.0]
+    pose = [float(i) for i in range(16)]
+    assert fb.endpoint_position(pose) == [12.0, 13.0, 14.0]
 
 
-def test_the_endpoint_rules() -> None:
+def test_the_endpoint_rules_on_the_arms_jacobian() -> None:
+    """legws' guard judging the commanded step on the bridge's first-order kinematics
+    (libfranka's endpoint and zero Jacobian at the measured joints, in table coordinates)."""
     limits = fb.Limits(workspace=((0.2, 1.0), (-0.6, 0.6), (0.0, 0.95)), mount=(0.12, 0, 0, 0))
-    guard = fb.EndpointGuard(limits, 0.01, fb.default_ramp())
-    # joint 1 turns the endpoint 0.55 m out: 0.8 rad/s is 0.44 m/s, held to 0.2
-    jac = _jacobian([(0.0, 0.55, 0.0)] + [(0.0, 0.0, 0.0)] * 6)
-    here = [0.55, 0.0, 0.73]
-    out, enforced = guard.limit([0.8, 0, 0, 0, 0, 0, 0], here, jac)
-    assert enforced == ["ee_speed"]
-    assert out is not None and out[0] * 0.55 == pytest.approx(0.2)
-    # toward the box's face (y 0.62 with the margin): refused when the braking would cross
-    edge = [0.55, 0.60, 0.73]
-    out, enforced = guard.limit([0.3, 0, 0, 0, 0, 0, 0], edge, jac)
-    assert out is None and enforced == ["workspace"]
-    out, enforced = guard.limit([-0.3, 0, 0, 0, 0, 0, 0], edge, jac)
-    assert out is not None and enforced == []
+    config = fb.zenoh_config(None, [], [])
+    with contextlib.closing(zenoh.open(config)) as session:
+        arm = fb.FrankaArm(robot=None, library=None)
+        bridge = fb.FrankaBridge(
+            session, "panda", arm, None, fb.GripperDriver(None), limits=limits, clock=lambda: 0.0
+        )
+        guard = bridge.guard
+        q0 = (0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785)
+        # joint 1 turns the endpoint, 0.55 m out, sideways: 0.8 rad/s is 0.44 m/s
+        rows = [[0.0] * 7, [0.55] + [0.0] * 6, [0.0] * 7]
+        try:
+            bridge._linear = (q0, [0.67, 0.0, 0.73], rows)
+            guard.command([0.8, 0, 0, 0, 0, 0, 0], 0.1, 0.0)
+            step = guard.step(q0, 0.0, 0.01)
+            assert step.moving and step.velocity[0] * 0.55 == pytest.approx(0.2, rel=1e-6)
+            assert guard.take_limited() == ("ee_speed",)
+            # at the box's side (y 0.62 with the margin): outward refused, inward allowed
+            bridge._linear = (q0, [0.67, 0.61, 0.73], rows)
+            guard.command([0.3, 0, 0, 0, 0, 0, 0], 0.1, 0.0)
+            assert not guard.step(q0, 0.0, 0.01, horizon=0.1).moving
+            assert guard.take_limited() == ("workspace",) and guard.live is None
+            guard.command([-0.3, 0, 0, 0, 0, 0, 0], 0.1, 0.0)
+            assert guard.step(q0, 0.0, 0.01, horizon=0.1).moving
+            # no Jacobian yet: no endpoint to judge by, no motion
+            bridge._linear = None
+            guard.command([0.3, 0, 0, 0, 0, 0, 0], 0.1, 0.0)
+            assert guard.step(q0, 0.0, 0.01).reason == "no endpoint"
+        finally:
+            bridge.close()
     # the mount turned a quarter: the base's x is the table's y
-    turned = fb.EndpointGuard(
-        fb.Limits(workspace=limits.workspace, mount=(0.12, 0, 0, math.pi / 2)),
-        0.01,
-        fb.default_ramp(),
-    )
+    turned = fb.TableFrame((0.12, 0.0, 0.0, math.pi / 2))
     assert turned.to_table([0.5, 0.0, 0.7], True) == pytest.approx([0.12, 0.5, 0.7])
 
 
@@ -200,7 +216,6 @@ def test_the_limits_from_a_profile(tmp_path: Path) -> None:
     profile.write_text("[bridge]\njoint_speed_cap = 0.5\n[workspace]\nz = [0.0, 0.9]\n")
     limits = fb.profile_limits(str(profile))
     assert limits.joint_speed_cap == 0.5 and limits.workspace[2] == (0.0, 0.9)
-    assert limits.joint_caps() == [0.5] * 7
     profile.write_text("[bridge]\nspeed = 1\n")
     with pytest.raises(ValueError, match=r"bridge\.speed: unknown field"):
         fb.profile_limits(str(profile))
@@ -268,36 +283,46 @@ def test_the_deployment_files_are_authenticated_by_the_daemons_rule(tmp_path: Pa
 
 
 def test_the_rate_the_latch_and_the_ttl_on_receipt() -> None:
-    """The receipt rules of :class:`FrankaBridge` (its control loop not started: no arm)."""
+    """The receipt rules of :class:`FrankaBridge`, legws' guard behind the contract's checks
+    (its control loop not started: no arm)."""
     config = fb.zenoh_config(None, [], [])
     with contextlib.closing(zenoh.open(config)) as session:
         arm = fb.FrankaArm(robot=None, library=None)
         bridge = fb.FrankaBridge(session, "panda", arm, model=None, gripper=fb.GripperDriver(None))
+        guard = bridge.guard
         try:
             now = 10.0
             for _ in range(fb.COMMAND_BURST):  # the burst passes at once
                 bridge.handle_command(payload(), now)
-            assert bridge.deadman.live(now) is not None
+            assert guard.live is not None
             bridge.handle_command(payload(), now)  # one more: refused, the arm stops
-            assert bridge.counts["rate"] == 1 and bridge.deadman.live(now) is None
+            assert bridge.counts["rate"] == 1 and guard.live is None
             later = now + 1.0  # the bucket refilled; a long ttl is cut to max_ttl
             bridge.handle_command(payload(ttl=0.9), later)
             assert bridge.counts["ttl"] == 1
-            assert bridge.deadman.expires == pytest.approx(later + fb.TTL_CAP)
+            assert guard.live.expires == pytest.approx(later + fb.TTL_CAP)
             bridge.handle_stop("legws/panda/stop/observer", b"not json")
             assert bridge.stopped_by == "observer" and bridge.invalid_stops == 1
-            assert bridge.deadman.live(later) is None
+            assert guard.live is None
             bridge.handle_command(payload(), later + 0.1)  # ignored while stopped
-            assert bridge.deadman.live(later + 0.1) is None
+            assert guard.live is None
             bridge.handle_resume(b'{"schema": 1}')  # no seq: rejected, still stopped
             assert bridge.stopped_by == "observer" and bridge.rejected_resumes == 1
             bridge.handle_resume(b'{"schema": 1, "seq": 1, "stamp": 0}')
             assert bridge.stopped_by is None
             bridge.handle_command(payload(dq=[1.5, 0, 0, 0, 0, 0, 0]), later + 0.2)
-            live = bridge.deadman.live(later + 0.2)
-            assert live is not None and live.dq[0] == pytest.approx(fb.JOINT_SPEED_CAP)
+            assert guard.live is not None
+            assert guard.live.dq[0] == pytest.approx(fb.JOINT_SPEED_CAP)
             assert bridge.counts["joint_speed"] == 1
             bridge.handle_command(b"{}", later + 0.3)  # rejected: the arm stops
-            assert bridge.rejected == 1 and bridge.deadman.live(later + 0.3) is None
+            assert bridge.rejected == 1 and guard.live is None
         finally:
             bridge.close()
+
+
+def test_the_guard_is_legws_one() -> None:
+    from legws_daemon.safety import limits
+
+    assert fb.guard_module.Guard.__qualname__ == limits.Guard.__qualname__
+    assert fb.guard_module.LIMITS == fb.LIMITS
+    assert fb.guard_module.BridgeLimits().describe() == limits.BridgeLimits().describe()
