@@ -24,12 +24,15 @@ Two loops. The **control loop** (:class:`FrankaArm`, its own thread, 1 kHz: libf
 jerk- and acceleration-limited ramp (libfranka refuses discontinuous commands) and brakes
 to zero when the target expires, so a stalled bridge stops the arm within a few
 milliseconds of the target's life. The **bridge tick** (:class:`FrankaBridge`, 100 Hz) turns
-the live command into that target within the bridge's own limits (joint speed, endpoint
-speed and workspace from the arm's own Jacobian, joint position limits with the braking
-distance, command life and rate, the stop latch) and publishes the state.
+the live command into that target within the bridge's own limits, legws' one guard of
+every bridge (``legws_daemon/safety/limits.py``: rate, stop latch, joint speed, command
+life, joint position limits, endpoint speed and workspace, here on the arm's own endpoint
+and Jacobian), no joint braking into its position limit, and publishes the state.
 
-Standalone on purpose: it imports only pylibfranka (at start-up, in :func:`main`), zenoh and
-the standard library. Its logic is tested in the legws repository with the real zenoh
+Standalone on purpose: it imports only pylibfranka (at start-up, in :func:`main`), zenoh,
+the standard library and legws' guard, itself standard library only, by its path
+(``legws_limits.py`` beside this file on a robot PC, else the repository's). Its logic is
+tested in the legws repository with the real zenoh
 and, end to end, against franka-sim (a libfranka protocol server on MuJoCo,
 ``tests/bridge/test_franka_e2e.py``).
 
