@@ -789,7 +789,11 @@ def load_guard() -> Any:
     )
 
 
-guard_module = load_guard()
+try:
+    guard_module: Any = load_guard()
+    GUARD_PROBLEM: str | None = None
+except ImportError as _err:  # main() says it in one line
+    guard_module, GUARD_PROBLEM = None, str(_err)
 
 
 class FrankaBridge:
@@ -1247,6 +1251,8 @@ def open_gripper(library: Any, address: str) -> GripperDriver:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the bridge until SIGINT/SIGTERM; returns the exit code."""
     args = parse_args(list(sys.argv[1:] if argv is None else argv))
+    if guard_module is None:
+        return _fail(str(GUARD_PROBLEM))
     try:
         config = zenoh_config(args.zenoh_config, args.connect, args.listen)
     except Exception as err:  # zenoh raises its own error types for bad JSON5 or keys

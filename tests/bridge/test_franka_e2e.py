@@ -300,10 +300,11 @@ def commands_drive_the_arm_and_it_stops_when_they_stop(rig: Rig) -> None:
     step = moved(before, later)
     # 1 s at 0.3 rad/s (franka-sim's joint 7 velocity reading is off by ~0.07 rad/s at
     # rest, so its motion is judged by the angle)
-    # (at most what was commanded, its last ttl and the braking; at least half of it when
-    # a loaded machine slows franka-sim's physics below real time)
-    assert 0.15 < step[0] < 0.36
-    assert -0.36 < step[6] < -0.15
+    # (at most what was commanded, its last ttl and the braking; at least a third of it
+    # when a loaded machine slows franka-sim's physics below real time, or the bridge's
+    # tick past its target's 30 ms life, and the arm brakes and starts again)
+    assert 0.1 < step[0] < 0.36, (step, rig.sim.lines[-5:])
+    assert -0.36 < step[6] < -0.1, (step, rig.sim.lines[-5:])
     assert max(abs(v) for v in step[1:6]) < 0.01  # the others held
     drift = moved(rest, later)
     assert max(abs(v) for v in drift) < REST, f"still moving after its commands: {drift}"
@@ -416,3 +417,32 @@ def test_franka_sim_serves_loopback_only() -> None:
     )
     assert done.returncode == 2
     assert "--host must be a loopback address" in done.stderr
+
+
+def test_the_bridge_on_a_robot_pc_takes_the_guard_beside_it(tmp_path: Path) -> None:
+    """Its two files copied alone, run by the robot PC's Python (pylibfranka and zenoh,
+    no legws): the guard beside it is found; without it, the bridge says what to copy."""
+    (tmp_path / "franka_bridge.py").write_bytes(BRIDGE.read_bytes())
+
+    def run() -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [str(BRIDGE_PYTHON), str(tmp_path / "franka_bridge.py"), "--robot-ip", "127.0.0.1"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            stdin=subprocess.DEVNULL,
+            check=False,
+        )
+
+    missing = run()
+    assert missing.returncode == 2
+    assert missing.stderr.startswith("franka_bridge.py: error: legws' bridge limits not found")
+    assert "copy legws_daemon/safety/limits.py beside this file as legws_limits.py" in (
+        missing.stderr
+    )
+    assert missing.stderr.count("\n") == 1
+    limits = ROOT / "legws_daemon" / "safety" / "limits.py"
+    (tmp_path / "legws_limits.py").write_bytes(limits.read_bytes())
+    found = run()  # the guard loads; then the loopback default is refused, as it should
+    assert found.returncode == 2, found.stderr
+    assert "the transport is not authenticated" in found.stderr
