@@ -376,3 +376,29 @@ def test_the_bucket_admits_at_most_the_burst_plus_the_rate(gaps: list[float]) ->
             assert j - i + 1 <= COMMAND_BURST + 60.0 * (admitted[j] - ti) + 1e-9
     refused = len(times) - len(admitted)
     assert g.counts["rate"] == refused
+
+
+# --- the chain a bridge without MuJoCo computes its endpoint with ---------------------------
+def test_the_shipped_chain_is_the_models_kinematics() -> None:
+    """bridge/chains/sawyer.json is the model's (regenerate: ``python -c "from
+    legws_daemon.safety.bridge_guard import write_chain; write_chain()"``), and its forward
+    kinematics (standard library) is MuJoCo's to 1e-12 m over the joint ranges."""
+    import json
+
+    from legws_daemon.safety.bridge_guard import CHAIN_DIR, chain_links
+    from legws_daemon.safety.limits import Chain
+
+    shipped = json.loads((CHAIN_DIR / "sawyer.json").read_text(encoding="utf-8"))
+    model = json.loads(json.dumps(chain_links()))
+    for ours, theirs in zip(shipped["links"], model, strict=True):
+        assert ours.keys() == theirs.keys()
+        for key, value in ours.items():
+            expected = theirs[key] if key == "joint" else pytest.approx(theirs[key], abs=1e-15)
+            assert value == expected
+    chain = Chain.from_json(json.dumps(shipped))
+    world, _ = sawyer()
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        q = rng.uniform(JOINT_LOWER, JOINT_UPPER)
+        world.set_q(q)
+        np.testing.assert_allclose(chain.position(q.tolist()), world.ee_position(), atol=1e-12)
