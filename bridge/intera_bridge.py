@@ -19,16 +19,19 @@ commands with the robot's command timeout, enable and state, e-stop, the end-eff
 * Its own limits, whatever it is sent (the profile's ``[bridge]`` and ``[workspace]``:
   flags, or ``--profile PATH``): commands beyond a rate are refused and stop the arm;
   joint speeds are scaled down to a cap; a command moves the arm at most ``max_ttl``; the
-  endpoint's speed, predicted from Intera's measured endpoint twist, is held
-  to a cap; a step whose predicted endpoint (``endpoint_pose()`` + velocity x period)
-  leaves the workspace box (+ margin) stops the arm (:class:`EndpointGuard`). The
-  state's ``limited`` lists what was enforced.
+  endpoint's speed is held to a cap and a step whose endpoint leaves the workspace box
+  (+ margin) stops the arm, both judged by the forward kinematics of the commanded step
+  (the arm's chain, ``bridge/chains/sawyer.json``; without it, the weaker mode on Intera's
+  measured endpoint twist). These rules are legws's one guard of every bridge,
+  ``legws_daemon/safety/limits.py``. The state's ``limited`` lists what was enforced.
 * ``legws/<robot>/stop/*`` (subscribed): any sample stops the arm and latches; commands
   are ignored until a valid ``legws/<robot>/bridge/resume``. The state's ``stopped_by``
   names the role (the key's last chunk).
 
 Standalone on purpose: it imports only rospy, the ROS messages (``std_msgs``,
-``sensor_msgs`` and Intera's ``intera_core_msgs``), zenoh and the standard library. The
+``sensor_msgs`` and Intera's ``intera_core_msgs``), zenoh, the standard library and two
+standard-library parts of legws found in the folder above this file's (the checkout, with
+``legws_daemon/safety/limits.py``, ``legws_daemon/arms`` and ``bridge/chains``). The
 message checks and the deadman are plain functions and classes, tested in the legws
 repository with fake ROS modules, and the whole file against a real ROS master and a
 simulated Sawyer (``bridge/ros/sim_sawyer.py``).
@@ -76,14 +79,27 @@ try:  # Python >= 3.11: --profile reads a legws hardware profile
 except ImportError:  # ROS Noetic's Python 3.8: give the limits as flags
     tomllib = None  # type: ignore[assignment]
 
+# The limits and the joint tables every legws bridge shares (standard library, Python 3.8):
+# legws_daemon/safety/limits.py and legws_daemon/arms, found in the folder above this one
+# (the checkout this file is in, or the folder `legws bridge bundle` writes).
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+from legws_daemon.arms import arm  # noqa: E402
+from legws_daemon.safety import limits as guard_limits  # noqa: E402
+
+ARM = arm("sawyer")
+#: The chain of the arm's forward kinematics (base frame to the daemon's EE point).
+CHAIN_FILE = os.path.join(_ROOT, "bridge", "chains", ARM.name + ".json")
+
 SCHEMA = 1
 #: Intera's joint names: the order of every joint vector on the wire.
-JOINT_NAMES = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "right_j5", "right_j6")
+JOINT_NAMES = ARM.hardware_joints
 #: Joint speed limits, rad/s (Intera specification).
-SPEED_LIMITS = (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545)
+SPEED_LIMITS = ARM.speed_limits
 #: Joint position limits, rad.
-LOWER = (-3.0503, -3.8095, -3.0426, -3.0439, -2.9761, -2.9761, -4.7124)
-UPPER = (3.0503, 2.2736, 3.0426, 3.0439, 2.9761, 2.9761, 4.7124)
+LOWER = ARM.lower
+UPPER = ARM.upper
 #: A commanded speed may exceed its limit by this much (floating-point slack), rad/s.
 SPEED_TOLERANCE = 1e-6
 #: Longest time-to-live of one command, s.
@@ -107,30 +123,13 @@ LIMITS = ("joint_speed", "ee_speed", "workspace", "ttl", "rate")
 
 # The bridge's own limits: the defaults of a legws profile's [bridge] and [workspace]
 # tables (legws_daemon/formats/profile.py); --profile or the flags set others.
-#: Each joint's speed at most this (and at most its specification), rad/s.
-JOINT_SPEED_CAP = 0.8
-#: The endpoint's measured linear speed at most this, m/s.
-EE_SPEED_CAP = 0.2
-#: The box the endpoint stays in (base frame, m): x, y, z ranges ...
-WORKSPACE = ((0.20, 0.95), (-0.55, 0.55), (0.0, 0.60))
-#: ... grown by this, m.
-WORKSPACE_MARGIN = 0.02
-#: A command moves the arm at most this long after its receipt, s.
-TTL_CAP = 0.2
-#: Commands per second at most ...
-COMMAND_RATE_HZ = 60.0
-#: ... and this many more in a burst (the token bucket's depth).
-COMMAND_BURST = 5
-#: The farthest the endpoint is from any joint axis (the Sawyer's reach, a tool), m: a
-#: motion not measured yet moves the endpoint at most this x the sum of its joint speeds.
-REACH = 1.5
-#: A command this parallel (cosine) to the joint velocities applied is predicted from the
-#: measured endpoint velocity.
-PARALLEL = 0.99
-#: A motion not measured yet may carry the endpoint this far out of the box (+ margin), m.
-PROBE = 0.0005
-#: Outside the box (+ margin) by more than this less PROBE, nothing new moves, m.
-OUTSIDE_LIMIT = 0.005
+JOINT_SPEED_CAP = guard_limits.JOINT_SPEED_CAP
+EE_SPEED_CAP = guard_limits.EE_SPEED_CAP
+WORKSPACE = guard_limits.WORKSPACE
+WORKSPACE_MARGIN = guard_limits.WORKSPACE_MARGIN
+TTL_CAP = guard_limits.TTL_CAP
+COMMAND_RATE_HZ = guard_limits.COMMAND_RATE_HZ
+COMMAND_BURST = guard_limits.COMMAND_BURST
 
 
 class CommandError(ValueError):
@@ -280,58 +279,8 @@ def stop_role(key: str) -> str:
     return role if role in STOP_ROLES else "unknown"
 
 
-@dataclass(frozen=True)
-class Limits:
-    """The limits the bridge enforces itself (a legws profile's ``[bridge]`` and
-    ``[workspace]``; the defaults are the profile's)."""
-
-    joint_speed_cap: float = JOINT_SPEED_CAP  # rad/s, each joint (and its specification)
-    ee_speed_cap: float = EE_SPEED_CAP  # m/s, the endpoint's measured speed
-    workspace: tuple[tuple[float, float], ...] = WORKSPACE  # x, y, z ranges, base frame, m
-    workspace_margin: float = WORKSPACE_MARGIN  # m, the box grows by this
-    max_ttl: float = TTL_CAP  # s
-    command_rate_hz: float = COMMAND_RATE_HZ  # commands/s
-    burst: int = COMMAND_BURST  # commands beyond the rate in a burst
-
-    def __post_init__(self) -> None:
-        """The profile's ranges; a ValueError names the field."""
-        ranges = (
-            ("joint_speed_cap", self.joint_speed_cap, 0.0, max(SPEED_LIMITS), False),
-            ("ee_speed_cap", self.ee_speed_cap, 0.0, 2.0, False),
-            ("workspace_margin", self.workspace_margin, 0.0, 0.2, True),
-            ("max_ttl", self.max_ttl, 0.0, MAX_TTL, False),
-            ("command_rate_hz", self.command_rate_hz, 0.0, 1000.0, False),
-        )
-        for name, value, lo, hi, closed in ranges:
-            number = float(value)
-            above = number >= lo if closed else number > lo
-            if not (math.isfinite(number) and above and number <= hi):
-                opening = "[" if closed else "("
-                raise ValueError(f"{name} must be in {opening}{lo:g}, {hi:g}], got {value!r}")
-        if isinstance(self.burst, bool) or not isinstance(self.burst, int) or self.burst < 1:
-            raise ValueError(f"burst must be an integer >= 1, got {self.burst!r}")
-        if len(self.workspace) != 3:
-            raise ValueError("workspace must have x, y and z ranges")
-        for axis, (lo, hi) in zip("xyz", self.workspace):
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-                raise ValueError(f"workspace {axis} must be [low, high] with low < high")
-
-    def joint_caps(self) -> list[float]:
-        """Each joint's speed cap: the lower of ``joint_speed_cap`` and its specification."""
-        return [min(self.joint_speed_cap, limit) for limit in SPEED_LIMITS]
-
-    def box(self) -> tuple[list[float], list[float]]:
-        """The workspace grown by the margin: (lower, upper) corners."""
-        m = self.workspace_margin
-        return [lo - m for lo, _ in self.workspace], [hi + m for _, hi in self.workspace]
-
-    def describe(self) -> str:
-        box = " ".join(f"{axis} [{lo:g}, {hi:g}]" for axis, (lo, hi) in zip("xyz", self.workspace))
-        return (
-            f"joint speed <= {self.joint_speed_cap:g} rad/s, EE speed <= {self.ee_speed_cap:g} "
-            f"m/s, EE in {box} m + {self.workspace_margin:g} m, ttl <= {self.max_ttl:g} s, "
-            f"<= {self.command_rate_hz:g} commands/s (burst {self.burst})"
-        )
+#: The bridge's own limits (a profile's [bridge] and [workspace]): the module's.
+Limits = guard_limits.BridgeLimits
 
 
 _PROFILE_BRIDGE_KEYS = (
@@ -393,122 +342,6 @@ def profile_limits(path: str) -> Limits:
         raise ValueError(f"{path}: {err}") from None
 
 
-def cap_speeds(dq: Sequence[float], caps: Sequence[float]) -> tuple[list[float], bool]:
-    """``dq`` scaled down uniformly (direction kept) so no joint is over its cap; and
-    whether it was."""
-    ratio = max(abs(v) / cap for v, cap in zip(dq, caps))
-    if ratio <= 1.0:
-        return [float(v) for v in dq], False
-    return [max(-cap, min(cap, v / ratio)) for v, cap in zip(dq, caps)], True
-
-
-class TokenBucket:
-    """``rate_hz`` tokens a second, at most ``burst`` saved (full at the start)."""
-
-    def __init__(self, rate_hz: float, burst: int) -> None:
-        self.rate_hz = rate_hz
-        self.burst = burst
-        self._tokens = float(burst)
-        self._time: float | None = None
-
-    def take(self, now: float) -> bool:
-        """One token for a command arriving at ``now``; ``False``: none left."""
-        if self._time is not None and now > self._time:
-            self._tokens = min(float(self.burst), self._tokens + (now - self._time) * self.rate_hz)
-        if self._time is None or now > self._time:
-            self._time = now
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            return True
-        return False
-
-
-def box_distance(p: Sequence[float], lower: Sequence[float], upper: Sequence[float]) -> float:
-    """The distance from ``p`` to the box (0 inside)."""
-    return math.sqrt(sum(max(lo - x, x - hi, 0.0) ** 2 for x, lo, hi in zip(p, lower, upper)))
-
-
-class EndpointGuard:
-    """The endpoint rules, on Intera's measured endpoint state, once per tick.
-
-    The measured endpoint velocity is that of the joint velocities applied at the previous
-    tick. A new command *parallel* to those (cosine >= :data:`PARALLEL`; the daemon's
-    commands change slowly) is predicted from it, in proportion to its size; any other
-    (the first tick of a motion, a new direction) is judged by the worst case,
-    :data:`REACH` x the sum of its joint speeds, until the next tick measures it.
-
-    * **EE speed**: the predicted speed over the cap scales the command down to it
-      (``ee_speed``). An unmeasured command's first tick is not slowed: the cap holds
-      from the tick that measures it (the robot's own acceleration limits bound that tick).
-    * **Workspace** (the box grown by the margin): a predicted position one period ahead
-      that leaves the box, or, outside it, is farther from it, stops the arm (``workspace``).
-      An unmeasured command moves the endpoint at most to the box's face, or
-      :data:`PROBE` past it, in its first tick (``workspace`` when that slows it); outside
-      the box by more than :data:`OUTSIDE_LIMIT` - :data:`PROBE`, nothing new moves.
-    """
-
-    def __init__(self, limits: Limits, period: float) -> None:
-        self.cap = limits.ee_speed_cap
-        self.lower, self.upper = limits.box()
-        self.period = period
-
-    def inside(self, p: Sequence[float]) -> bool:
-        return all(lo <= x <= hi for x, lo, hi in zip(p, self.lower, self.upper))
-
-    def distance(self, p: Sequence[float]) -> float:
-        """From ``p`` to the box (0 inside), m."""
-        return box_distance(p, self.lower, self.upper)
-
-    def room(self, p: Sequence[float]) -> float:
-        """From ``p`` (inside) to the box's nearest face, m."""
-        return min(min(x - lo, hi - x) for x, lo, hi in zip(p, self.lower, self.upper))
-
-    def limit(
-        self,
-        dq: Sequence[float],
-        applied: Sequence[float],
-        position: Sequence[float],
-        linear: Sequence[float],
-    ) -> tuple[list[float] | None, list[str]]:
-        """``dq`` within the endpoint rules (``None``: the arm stops) and the limits
-        enforced, given the joint velocities ``applied`` at the previous tick and the
-        endpoint's measured ``position`` and ``linear`` velocity."""
-        enforced = []
-        size, before = _norm(dq), _norm(applied)
-        parallel = size > 0.0 and before > 0.0
-        if parallel:
-            parallel = sum(a * b for a, b in zip(dq, applied)) >= PARALLEL * size * before
-        if parallel:  # predicted from the measurement
-            velocity = [size / before * v for v in linear]
-            speed = _norm(velocity)
-            scale = 1.0 if speed <= self.cap else self.cap / speed
-            if scale < 1.0:
-                enforced.append("ee_speed")
-            predicted = [p + scale * v * self.period for p, v in zip(position, velocity)]
-            if not self.inside(predicted) and (
-                self.inside(position) or self.distance(predicted) > self.distance(position)
-            ):
-                return None, [*enforced, "workspace"]
-            return [scale * v for v in dq], enforced
-        worst = REACH * sum(abs(v) for v in dq)  # not measured yet: the worst case, m/s
-        scale = 1.0
-        if self.inside(position):
-            allowed = max(self.room(position), PROBE)
-        elif self.distance(position) + PROBE <= OUTSIDE_LIMIT:
-            allowed = PROBE
-        else:
-            return None, ["workspace"]
-        travel = scale * worst * self.period
-        if travel > allowed:
-            scale *= allowed / travel
-            enforced.append("workspace")
-        return [scale * v for v in dq], enforced
-
-
-def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(sum(x * x for x in v))
-
-
 def endpoint_state(limb: Any) -> tuple[list[float], list[float]] | None:
     """Intera's endpoint position and linear velocity (base frame), or ``None`` when the
     robot has not reported them (yet) or they are not finite."""
@@ -524,41 +357,13 @@ def endpoint_state(limb: Any) -> tuple[list[float], list[float]] | None:
     return position, linear
 
 
-def guard_limits(q: Sequence[float], dq: Sequence[float]) -> list[float]:
-    """``dq`` with the joints at (or past) a position limit not driven further out."""
-    out = []
-    for qi, vi, lo, hi in zip(q, dq, LOWER, UPPER):
-        outward = (vi > 0.0 and qi >= hi - LIMIT_GUARD) or (vi < 0.0 and qi <= lo + LIMIT_GUARD)
-        out.append(0.0 if outward else float(vi))
-    return out
-
-
-class Deadman:
-    """The current command and its expiry: velocities only while a fresh command lives."""
-
-    def __init__(self) -> None:
-        self._command: Command | None = None
-        self._expires = 0.0
-
-    def accept(self, command: Command, now: float, ttl_cap: float = MAX_TTL) -> None:
-        """A valid command replaces the current one; it lives ``ttl`` seconds from ``now``
-        (at most ``ttl_cap``)."""
-        self._command = command
-        self._expires = now + min(command.ttl, ttl_cap)
-
-    def clear(self) -> None:
-        """Stop: a rejected command, a disabled robot or a shutdown."""
-        self._command = None
-
-    def velocities(self, now: float, q: Sequence[float], can_move: bool) -> list[float] | None:
-        """The joint velocities to apply now, or ``None`` when the arm must hold still."""
-        if self._command is None or not can_move:
-            self._command = None
-            return None
-        if now >= self._expires:
-            self._command = None
-            return None
-        return guard_limits(q, self._command.dq)
+def load_chain(path: str = CHAIN_FILE) -> guard_limits.Chain | None:
+    """The arm's forward kinematics (``None``: no chain file, the weaker measured mode)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return guard_limits.Chain.from_json(f.read())
+    except FileNotFoundError:
+        return None
 
 
 def state_message(
@@ -950,6 +755,7 @@ class SawyerBridge:
         wall: Callable[[], float] = time.time,
         limits: Limits | None = None,
         period: float = 1.0 / STATE_RATE_HZ,
+        chain: guard_limits.Chain | None = None,
     ) -> None:
         self.state_key = f"legws/{robot}/bridge/state"
         self.command_key = f"legws/{robot}/bridge/command"
@@ -961,24 +767,29 @@ class SawyerBridge:
         self.clock = clock
         self.wall = wall
         self.limits = limits if limits is not None else Limits()
-        self.deadman = Deadman()
-        self.bucket = TokenBucket(self.limits.command_rate_hz, self.limits.burst)
-        self.endpoint = EndpointGuard(self.limits, period)
-        self.joint_caps = self.limits.joint_caps()
+        self.chain = chain
+        # the one guard of every legws bridge: forward kinematics of the commanded step
+        # with a chain; without one, the weaker mode on Intera's measured endpoint twist
+        self.guard = guard_limits.Guard.for_arm(
+            ARM,
+            self.limits,
+            clock=clock,
+            ee_position=chain.position if chain is not None else None,
+            period=period,
+            limit_margin=LIMIT_GUARD,
+        )
+        self.joint_caps = list(self.guard.joint_caps)
         self.rejected = 0
         self.accepted = 0  # valid commands (also those refused or ignored)
         self.stops = 0
         self.invalid_stops = 0
         self.resumes = 0
         self.rejected_resumes = 0
-        self.stopped_by: str | None = None
-        self.counts = dict.fromkeys(LIMITS, 0)  # per limit, times enforced
-        self._limited: set[str] = set()  # since the previous state message
+        self.counts = self.guard.counts  # per limit, times enforced
         self._lock = threading.Lock()  # the deadman, the latch, the limits, the gripper request
         self._motion = threading.Lock()  # the limb's commands (tick vs. halt at shutdown)
         self._gripper_request: str | None = None
         self._moving = False
-        self._applied = [0.0] * len(JOINT_NAMES)  # the joint velocities sent last, rad/s
         self._halted = False
         self._seq = 0
         self._publisher = session.declare_publisher(self.state_key)
@@ -988,10 +799,10 @@ class SawyerBridge:
             session.declare_subscriber(self.resume_key, self._on_resume),
         ]
 
-    def _report(self, limit: str) -> None:
-        """Count an enforced limit (the lock held)."""
-        self.counts[limit] += 1
-        self._limited.add(limit)
+    @property
+    def stopped_by(self) -> str | None:
+        """The role of the first latched stop (``None``: none)."""
+        return self.guard.stopped_by
 
     def _on_command(self, sample: zenoh.Sample) -> None:
         self.handle_command(sample.payload.to_bytes(), self.clock())
@@ -1009,24 +820,17 @@ class SawyerBridge:
         except CommandError as err:
             with self._lock:
                 self.rejected += 1
-                self.deadman.clear()
+                self.guard.clear()
             rospy.logwarn_throttle(1.0, f"legws bridge: command rejected: {err}")
             return
         with self._lock:
             self.accepted += 1
-            if not self.bucket.take(now):
-                self.deadman.clear()
-                self._report("rate")
+            if not self.guard.admit(now):
+                return  # over the rate: refused, the arm stopped
+            if self._halted:
                 return
-            if self._halted or self.stopped_by is not None:
-                return
-            dq, capped = cap_speeds(command.dq, self.joint_caps)
-            if capped:
-                self._report("joint_speed")
-                command = replace(command, dq=tuple(dq))
-            if command.ttl > self.limits.max_ttl:
-                self._report("ttl")
-            self.deadman.accept(command, now, self.limits.max_ttl)
+            if self.guard.accept(command.dq, command.ttl, now) != "accepted":
+                return  # a latched stop: ignored, its gripper request too
             if command.gripper is not None:
                 self._gripper_request = command.gripper
 
@@ -1043,9 +847,7 @@ class SawyerBridge:
             self.stops += 1
             if not valid:
                 self.invalid_stops += 1
-            self.deadman.clear()
-            if self.stopped_by is None:
-                self.stopped_by = role
+            self.guard.stop(role)
         rospy.logwarn_throttle(1.0, f"legws bridge: stopped by {role} ({key})")
 
     def handle_resume(self, payload: bytes) -> None:
@@ -1059,7 +861,7 @@ class SawyerBridge:
             return
         with self._lock:
             self.resumes += 1
-            self.stopped_by = None
+            self.guard.resume()  # the daemon's resume (bridge/resume) clears every stop
 
     def tick(self) -> None:
         """Apply the live command within the limits (or hold still), drive the gripper,
@@ -1076,27 +878,21 @@ class SawyerBridge:
         with self._motion:
             with self._lock:
                 velocities = None
-                if not self._halted and self.stopped_by is None:
-                    velocities = self.deadman.velocities(now, q, enabled and not estop)
-                if endpoint is not None:
-                    if velocities is not None and any(velocities):
-                        velocities, enforced = self.endpoint.limit(
-                            velocities, self._applied, *endpoint
-                        )
-                        for limit in enforced:
-                            self._report(limit)
-                        if velocities is None:  # the workspace: the arm stops
-                            self.deadman.clear()
-                elif velocities is not None:
-                    velocities = None  # no endpoint state to judge the step by: hold
+                if self._halted or not enabled or estop:
+                    self.guard.clear()  # never moves while disabled or e-stopped
+                elif endpoint is None and self.guard.live is not None:
+                    # no endpoint state from Intera (the robot not reporting): hold
                     rospy.logwarn_throttle(1.0, "legws bridge: no endpoint state; holding")
+                else:
+                    step = self.guard.step(q, now, horizon=self.guard.period, measured=endpoint)
+                    if step.moving:
+                        velocities = list(step.velocity)
                 request, self._gripper_request = self._gripper_request, None
-                stopped_by = self.stopped_by
-                limited, self._limited = tuple(self._limited), set()
+                stopped_by = self.guard.stopped_by
+                limited = self.guard.take_limited()
             if velocities is not None:
                 self.limb.set_joint_velocities(dict(zip(JOINT_NAMES, velocities)))
                 self._moving = True
-                self._applied = velocities
             elif self._moving:
                 self._hold()
         if request is not None and request != self.gripper.requested and enabled and not estop:
@@ -1126,14 +922,13 @@ class SawyerBridge:
         self.limb.set_joint_velocities(dict.fromkeys(JOINT_NAMES, 0.0))
         self.limb.exit_control_mode()
         self._moving = False
-        self._applied = [0.0] * len(JOINT_NAMES)
 
     def halt(self) -> None:
         """Stop for good (shutdown): zero velocities, no further command is applied."""
         with self._motion:
             with self._lock:
                 self._halted = True
-                self.deadman.clear()
+                self.guard.clear()
             if self._moving:
                 self._hold()
 
@@ -1370,8 +1165,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as err:
         return _fail(f"cannot open a zenoh session: {_first_line(err)}")
     try:
+        chain = load_chain()
+        if chain is None:
+            rospy.logwarn(
+                f"legws bridge: no {CHAIN_FILE}: the endpoint is judged by Intera's measured "
+                "twist, a tick behind (the weaker mode)"
+            )
         bridge = SawyerBridge(
-            session, args.robot, limb, gripper, enabler, limits=args.limits, period=1.0 / args.rate
+            session,
+            args.robot,
+            limb,
+            gripper,
+            enabler,
+            limits=args.limits,
+            period=1.0 / args.rate,
+            chain=chain,
         )
         try:
             rospy.on_shutdown(bridge.halt)  # zero velocities while ROS can still send them

@@ -362,7 +362,17 @@ def test_standalone_and_python_3_8_syntax() -> None:
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
     outside = imported - set(sys.stdlib_module_names) - {"__future__"}
-    assert outside == {"rospy", "intera_core_msgs", "sensor_msgs", "std_msgs", "zenoh"}
+    # legws_daemon: the standard-library limit module and arm tables every bridge shares
+    # (tests/safety/test_limits.py runs them under Python 3.8)
+    assert outside == {
+        "rospy",
+        "intera_core_msgs",
+        "sensor_msgs",
+        "std_msgs",
+        "zenoh",
+        "legws_daemon",
+    }
+    assert "from legws_daemon.safety import limits as guard_limits" in source
 
 
 def test_constants_are_the_contract(bridge_module: types.ModuleType) -> None:
@@ -462,8 +472,14 @@ class Clock:
 
 
 def make_bridge(
-    b: types.ModuleType, session: zenoh.Session, limits: Any = None
+    b: types.ModuleType,
+    session: zenoh.Session,
+    limits: Any = None,
+    measured: bool = False,
+    period: float = 0.01,
 ) -> tuple[Any, FakeLimb, FakeEnable, FakeGripper, Clock]:
+    """The bridge as it runs (its endpoint by the arm's chain), or in the weaker measured
+    mode (``measured``: Intera's endpoint twist)."""
     clock = Clock()
     limb, enable, gripper = FakeLimb(clock=clock), FakeEnable(), FakeGripper()
     bridge = b.SawyerBridge(
@@ -475,8 +491,10 @@ def make_bridge(
         clock=clock,
         wall=clock,
         limits=limits,
-        period=0.01,
+        period=period,
+        chain=None if measured else b.load_chain(),
     )
+    assert (bridge.chain is None) is measured
     return bridge, limb, enable, gripper, clock
 
 
@@ -613,7 +631,7 @@ def test_default_limits_are_the_profiles(bridge_module: types.ModuleType) -> Non
     assert b.parse_args([]).limits == limits
     assert b.STOP_ROLES == contract.STOP_ROLES
     assert typing.get_args(contract.Limit) == b.LIMITS
-    assert limits.joint_caps() == [min(0.8, s) for s in contract.JOINT_SPEED_LIMITS]
+    assert limits.joint_caps(b.SPEED_LIMITS) == tuple(min(0.8, s) for s in b.SPEED_LIMITS)
 
 
 def test_limits_from_a_profile_and_flags(bridge_module: types.ModuleType, tmp_path: Path) -> None:
@@ -725,12 +743,33 @@ def test_commands_over_the_rate_are_refused_and_stop_the_arm(
     bridge.close()
 
 
+def test_the_endpoint_speed_is_held_to_the_cap_from_the_first_tick(
+    bridge_module: types.ModuleType, session: zenoh.Session
+) -> None:
+    """The base joint at 0.8 rad/s would swing the endpoint at ~0.44 m/s: the chain's
+    forward kinematics of the commanded step holds it to 0.2 m/s from the first tick."""
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    states = States(session)
+    speeds = []
+    for k in range(20):
+        if k % 5 == 0:
+            bridge.handle_command(payload(seq=k, dq=[0.8, 0, 0, 0, 0, 0, 0], ttl=0.1), clock.now)
+        bridge.tick()
+        speeds.append(float(np.linalg.norm(limb.ee()[1])))
+        clock.now += 0.01
+    assert max(speeds) <= 0.2 * (1 + 1e-3)
+    assert min(speeds) >= 0.2 * 0.99
+    assert wait_for(lambda: len(states.snapshot()) == 20)
+    assert all(s.limited == ("ee_speed",) for s in states.snapshot())
+    bridge.close()
+
+
 def test_the_measured_endpoint_speed_is_held_to_the_cap(
     bridge_module: types.ModuleType, session: zenoh.Session
 ) -> None:
-    """The base joint at 0.8 rad/s swings the endpoint at ~0.44 m/s: the first tick is a
-    tick behind the measurement; from the next one the arm is scaled to 0.2 m/s."""
-    bridge, limb, _, _, clock = make_bridge(bridge_module, session)
+    """The weaker mode (no chain): the first tick is a tick behind the measurement; from
+    the next one the arm is scaled to 0.2 m/s."""
+    bridge, limb, _, _, clock = make_bridge(bridge_module, session, measured=True)
     states = States(session)
     speeds = []
     for k in range(20):
@@ -751,8 +790,9 @@ def test_the_measured_endpoint_speed_is_held_to_the_cap(
     bridge.close()
 
 
+@pytest.mark.parametrize("measured", [False, True])
 def test_a_predicted_step_out_of_the_workspace_stops_the_arm(
-    bridge_module: types.ModuleType, session: zenoh.Session
+    bridge_module: types.ModuleType, session: zenoh.Session, measured: bool
 ) -> None:
     """The endpoint 1 cm from the box's (+ margin) face, pushed out at 0.1 m/s: it stops
     at the face; each new push out moves it at most a tick's travel; back in is allowed."""
@@ -760,7 +800,7 @@ def test_a_predicted_step_out_of_the_workspace_stops_the_arm(
     p0, _ = FakeLimb().ee()
     face = float(p0[0]) + 0.01
     limits = b.Limits(workspace=((0.2, face - 0.02), (-0.55, 0.55), (0.0, 0.6)))
-    bridge, limb, _, _, clock = make_bridge(b, session, limits)
+    bridge, limb, _, _, clock = make_bridge(b, session, limits, measured=measured)
     world = World(load_scene("desk"), visual=False)
     world.set_q(HOME_Q)
     out = list(np.linalg.pinv(world.jacobian()[:3]) @ np.array([0.1, 0.0, 0.0]))
@@ -772,7 +812,8 @@ def test_a_predicted_step_out_of_the_workspace_stops_the_arm(
         clock.now += 0.01
         x.append(float(limb.ee()[0][0]))
     assert bridge.counts["workspace"] >= 1
-    assert max(x) <= face + 0.1 * 0.01 + 1e-4  # at most one tick of travel past the face
+    # the chain: never past the face; measured: at most one tick of travel past it
+    assert max(x) <= face + (0.1 * 0.01 + 1e-4 if measured else 1e-9)
     assert x[-1] == pytest.approx(max(x), abs=1e-6)  # stopped, not drifting on
     assert limb.recorded()[-1][0] == "exit_control_mode"
     back = [-v for v in out]
@@ -784,9 +825,10 @@ def test_a_predicted_step_out_of_the_workspace_stops_the_arm(
     bridge.close()
 
 
+@pytest.mark.parametrize("measured", [False, True])
 @pytest.mark.parametrize("pattern", ["same", "in-and-out"])
 def test_pushing_out_again_and_again_stays_within_a_bound(
-    bridge_module: types.ModuleType, session: zenoh.Session, pattern: str
+    bridge_module: types.ModuleType, session: zenoh.Session, pattern: str, measured: bool
 ) -> None:
     """A sender that keeps pushing out (a fresh command after every stop, or one out and
     one in): each motion not yet measured may pass the face by PROBE; outside by
@@ -795,7 +837,9 @@ def test_pushing_out_again_and_again_stays_within_a_bound(
     p0, _ = FakeLimb().ee()
     face = float(p0[0]) + 0.01
     limits = b.Limits(workspace=((0.2, face - 0.02), (-0.55, 0.55), (0.0, 0.6)))
-    bridge, limb, _, _, clock = make_bridge(b, session, limits)
+    # the chain's check looks one period ahead: the period of these ticks, 60 Hz
+    period = 0.01 if measured else 1.0 / 60.0
+    bridge, limb, _, _, clock = make_bridge(b, session, limits, measured=measured, period=period)
     world = World(load_scene("desk"), visual=False)
     world.set_q(HOME_Q)
     inverse = np.linalg.pinv(world.jacobian()[:3])
@@ -806,7 +850,8 @@ def test_pushing_out_again_and_again_stays_within_a_bound(
         bridge.tick()
         clock.now += 1.0 / 60.0
         x.append(float(limb.ee()[0][0]))
-    assert max(x) <= face + b.OUTSIDE_LIMIT + 1e-4
+    bound = b.guard_limits.OUTSIDE_LIMIT + 1e-4 if measured else 1e-9
+    assert max(x) <= face + bound  # the chain: never past the face
     assert bridge.counts["workspace"] > 100
     bridge.close()
 
