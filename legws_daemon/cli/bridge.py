@@ -177,3 +177,45 @@ def fake_cmd(
         f"fake bridge stopped: {received} commands received, {rejected} rejected; "
         f"limits enforced: {enforced}"
     )
+
+
+#: What a robot's PC needs beside a bridge script: the standard-library parts of legws it
+#: imports (the one guard, the arm descriptions), in the checkout's layout.
+BUNDLE_FILES = (
+    "legws_daemon/__init__.py",
+    "legws_daemon/safety/__init__.py",
+    "legws_daemon/safety/limits.py",
+)
+
+
+def write_bundle(out: Path, arm_name: str = "sawyer") -> list[Path]:
+    """Copy ``bridge/intera_bridge.py``, the limit module and the arm tables into ``out``
+    (the checkout's layout: the bridge finds them in the folder above its own), and write
+    the arm's chain from its model. The files written."""
+    import shutil
+
+    from legws_daemon.safety.bridge_guard import write_chain
+
+    root = Path(__file__).parents[2]
+    written = []
+    arms = sorted((root / "legws_daemon" / "arms").glob("*.py"))
+    for src in [root / "bridge" / "intera_bridge.py", *(root / f for f in BUNDLE_FILES), *arms]:
+        dst = out / src.relative_to(root)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dst)
+        written.append(dst)
+    written.append(write_chain(arm_name, out / "bridge" / "chains"))
+    return written
+
+
+@bridge_group.command("bundle")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder to write.")
+def bundle_cmd(out: Path) -> None:
+    """Write what the robot's PC needs to run bridge/intera_bridge.py without legws
+    installed: the script, the one limit module, the arm tables and the arm's kinematic
+    chain (from its model). Copy the folder; run `python3 OUT/bridge/intera_bridge.py`."""
+    if out.exists() and any(out.iterdir()):
+        raise InputError(f"{out} exists and is not empty", field="--out")
+    files = write_bundle(out)
+    script = out / "bridge" / "intera_bridge.py"
+    echo(f"bridge bundle: {len(files)} files in {out}; run python3 {script}")

@@ -228,9 +228,9 @@ def chain_links(arm_name: str = "sawyer") -> list[dict[str, object]]:
 CHAIN_DIR = Path(__file__).parents[2] / "bridge" / "chains"
 
 
-def write_chain(arm_name: str = "sawyer") -> Path:
-    """Write ``bridge/chains/<arm>.json`` from the arm's model."""
-    path = CHAIN_DIR / f"{arm_name}.json"
+def write_chain(arm_name: str = "sawyer", folder: Path = CHAIN_DIR) -> Path:
+    """Write ``<folder>/<arm>.json`` (default ``bridge/chains``) from the arm's model."""
+    path = folder / f"{arm_name}.json"
     path.parent.mkdir(exist_ok=True)
     rows = [json.dumps(_no_negative_zero(link)) for link in chain_links(arm_name)]
     text = f'{{"arm": {json.dumps(arm_name)}, "links": [\n  ' + ",\n  ".join(rows) + "\n]}\n"

@@ -127,3 +127,45 @@ def test_the_command_module_loads_neither_zenoh_nor_mujoco() -> None:
         [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60
     )
     assert proc.stdout.split() == ["False", "False"], proc.stderr
+
+
+def test_a_bundle_runs_the_bridge_without_legws(tmp_path: Path) -> None:
+    """``legws bridge bundle``: the bundled intera_bridge.py imports its guard, arm tables
+    and chain from the bundle (ROS faked, zenoh real), not from this checkout."""
+    out = tmp_path / "bundle"
+    done = subprocess.run(
+        [str(LEGWS), "bridge", "bundle", "--out", str(out)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert (out / "bridge" / "chains" / "sawyer.json").is_file()
+    stubs = tmp_path / "stubs"
+    for pkg, names in {
+        "rospy": [],
+        "intera_core_msgs": ["EndpointState", "IOComponentCommand", "IODeviceStatus",
+                             "IONodeStatus", "JointCommand", "RobotAssemblyState"],
+        "sensor_msgs": ["JointState"],
+        "std_msgs": ["Bool", "Empty", "Float64"],
+    }.items():  # fmt: skip
+        (stubs / pkg).mkdir(parents=True)
+        (stubs / pkg / "__init__.py").write_text("")
+        if names:
+            (stubs / pkg / "msg.py").write_text("".join(f"class {n}: pass\n" for n in names))
+    script = (
+        "import sys, importlib.util\n"
+        f"sys.path.insert(0, {str(stubs)!r})\n"
+        f"path = {str(out / 'bridge/intera_bridge.py')!r}\n"
+        "spec = importlib.util.spec_from_file_location('b', path)\n"
+        "b = sys.modules['b'] = importlib.util.module_from_spec(spec)\n"
+        "spec.loader.exec_module(b)\n"
+        "print(b.guard_limits.__file__)\n"
+        "print(b.arm.__module__, sys.modules['legws_daemon.arms'].__file__)\n"
+        "print(b.load_chain().position([0.0] * 7))\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path, timeout=60
+    )
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    assert lines[0] == str(out / "legws_daemon" / "safety" / "limits.py")
+    assert lines[1].endswith(str(out / "legws_daemon" / "arms" / "__init__.py"))
+    assert len(eval(lines[2])) == 3  # the chain's endpoint at zero
