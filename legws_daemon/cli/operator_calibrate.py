@@ -34,6 +34,7 @@ from legws_daemon.formats.printable import echo
 if TYPE_CHECKING:
     from legws_daemon.autonomy.calibration import Reach
     from legws_daemon.autonomy.events import Event
+    from legws_daemon.telemetry.rerun_log import RerunLog
 
 #: Exit code of a calibration interrupted before its last target (the CLI's for SIGINT).
 EXIT_INTERRUPTED = 130
@@ -190,7 +191,7 @@ def calibrate_cmd(
         require_motion_allowed,
         require_secure_transport,
     )
-    from legws_daemon.daemon.service import CalibrationSpec, DaemonConfig, DaemonService, Telemetry
+    from legws_daemon.daemon.service import CalibrationSpec, DaemonConfig, DaemonService
     from legws_daemon.formats.files import output_path
     from legws_daemon.formats.operator_file import check_name
     from legws_daemon.formats.profile import load_profile_named
@@ -222,7 +223,7 @@ def calibrate_cmd(
     stop = threading.Event()
     install_stop_handlers(stop)
     with ExitStack() as stack:
-        telemetry: Telemetry | None = None
+        telemetry: RerunLog | None = None
         if rerun_target:
             from legws_daemon.telemetry.rerun_log import RerunLog
 

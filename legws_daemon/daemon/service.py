@@ -58,7 +58,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -112,16 +112,20 @@ from legws_daemon.formats.messages import (
 )
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.profile import ProfileSpec
-from legws_daemon.hardware.base import Adapter, adapter_class
+from legws_daemon.hardware.base import Adapter, RobotState, adapter_class
 from legws_daemon.hardware.sim import SimAdapter
-from legws_daemon.robot.visual import RobotVisual, finger_half_gap, robot_visual
+from legws_daemon.robot.visual import finger_half_gap, robot_visual
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.targets import Held
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from legws_daemon.transport.session import keys, open_session, payload_bytes
+
+if TYPE_CHECKING:  # the recording's module imports rerun: only the CLI that records loads it
+    from legws_daemon.telemetry.rerun_log import RerunLog
 
 log = logging.getLogger("legws.daemon")
 #: Rerun text-log level of each event kind (INFO when not listed).
@@ -183,56 +187,6 @@ def _waiting(why: str | None) -> str | None:
     return WAITING[why] if why is not None else None
 
 
-class Telemetry(Protocol):
-    """What the loop logs to (the Rerun recording)."""
-
-    def log_setup(
-        self,
-        *,
-        scene: Scene,
-        goals: Any,
-        goal_objects: dict[str, str],
-        planned: Layout,
-        p_thresh: float,
-        params_json: str,
-        stage: str | None = None,
-    ) -> None: ...
-
-    def log_tick(
-        self,
-        tick: int,
-        t: float,
-        *,
-        link_positions: FloatArray,
-        link_rotations: FloatArray,
-        ee_position: FloatArray,
-        ee_quaternion: FloatArray,
-        objects: dict[str, tuple[FloatArray, FloatArray]],
-        posterior: dict[str, float] | None,
-        joystick: FloatArray | None,
-        command: FloatArray,
-        mode: str,
-        slack: float | None,
-        committed: str | None,
-        tick_seconds: float | None = None,
-        gripper_half_gap: float | None = None,
-        phase: str | None = None,
-        operator: str | None = None,
-        fault: str | None = None,
-        stage: str | None = None,
-    ) -> None: ...
-
-    def log_robot(self, visual: RobotVisual) -> None: ...
-
-    def log_text(self, tick: int, t: float, level: str, text: str) -> None: ...
-
-    def check(self) -> str | None:
-        """``None`` while the recording takes data, else the problem (worker thread)."""
-        ...
-
-    def close(self) -> None: ...
-
-
 def _operator_text(operator: Mapping[str, str | None] | None) -> str | None:
     """Who holds the joystick lease, in a few words (``None``: nobody)."""
     if not operator:
@@ -265,7 +219,7 @@ class DaemonConfig:
     layout: Layout
     params: Params
     zenoh_config: zenoh.Config
-    telemetry: Telemetry | None = None
+    telemetry: RerunLog | None = None
     duration: float | None = None
     trace: LineFile | None = None
     graph: TaskGraph | None = None
@@ -439,7 +393,8 @@ class DaemonService:
         tel = self.config.telemetry
         if tel is not None and self.worker is not None:
             tick = self.controller.ticks if self.controller is not None else 0
-            self.worker.submit(tel.log_text, tick, time.monotonic() - self._t0, severity, text)
+            t = time.monotonic() - self._t0
+            self.worker.submit(lambda: tel.log_text(tick, t, severity, text))
         hook = self.config.on_event
         if hook is not None:
             try:
@@ -831,7 +786,7 @@ class DaemonService:
         if tel is None or c is None or self.worker is None or not c.stage.targets:
             return  # the task is done: no decision
         goals = c.stage.goals_home  # None: a single candidate, a stage without inference
-        self.worker.submit(
+        setup = functools.partial(
             tel.log_setup,
             scene=c.scene,
             goals=goals if goals is not None else c.stage.goal_names,
@@ -841,6 +796,7 @@ class DaemonService:
             params_json=json.dumps(c.params.as_dict()),
             stage=c.stage.name,
         )
+        self.worker.submit(setup)
 
     @staticmethod
     def _observed_objects(c: Controller) -> dict[str, tuple[FloatArray, FloatArray]]:
@@ -872,17 +828,28 @@ class DaemonService:
             return
         try:
             objects = c.adapter.object_poses() or self._observed_objects(c)
+            snapshot = self._snapshot(c, rec, rec.state, slack, objects)
         except Exception as err:  # drawing must not stop control: reported as telemetry
             worker.record_error(f"tick snapshot: {type(err).__name__}: {err}")
             return
-        worker.submit(
-            tel.log_tick,
-            rec.tick,
-            time.monotonic() - self._t0,
-            link_positions=rec.state.links.positions,
-            link_rotations=rec.state.links.rotations,
-            ee_position=rec.state.ee_position,
-            ee_quaternion=rec.state.ee_quaternion,
+        worker.submit(lambda: tel.log_tick(snapshot), droppable=True)
+
+    def _snapshot(
+        self,
+        c: Controller,
+        rec: TickRecord,
+        state: RobotState,
+        slack: float | None,
+        objects: Mapping[str, tuple[FloatArray, FloatArray]],
+    ) -> TickSnapshot:
+        """What the recording shows of this tick (built once, on the loop's thread)."""
+        return TickSnapshot(
+            tick=rec.tick,
+            t=time.monotonic() - self._t0,
+            link_positions=state.links.positions,
+            link_rotations=state.links.rotations,
+            ee_position=state.ee_position,
+            ee_quaternion=state.ee_quaternion,
             objects=objects,
             posterior=rec.posterior if rec.mode == Mode.TELEOP or rec.committed else None,
             joystick=rec.joystick,
@@ -891,7 +858,7 @@ class DaemonService:
             slack=slack,
             committed=rec.committed,
             tick_seconds=self.ticker.last_duration,
-            gripper_half_gap=finger_half_gap(rec.state.gripper_closed, _held_width(c.held)),
+            gripper_half_gap=finger_half_gap(state.gripper_closed, _held_width(c.held)),
             phase=rec.phase,
             operator=_operator_text(self.inbox.operator()),
             fault=c.fault,
@@ -900,7 +867,6 @@ class DaemonService:
             corrections=self._corrections(c),
             calibration=self._calibration_marker(c),
             operator_model=self._operator_lines(),
-            droppable=True,
         )
 
     @staticmethod

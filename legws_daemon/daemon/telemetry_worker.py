@@ -18,15 +18,15 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 #: Droppable snapshots waiting for the recording, at most (about 5 s at 50 Hz).
 QUEUE_SIZE = 256
 #: Seconds between health checks after a failed one (a failing sink may block its check).
 FAILED_CHECK_EVERY = 10.0
 
-#: A queued call: function, positional and keyword arguments, droppable.
-_Item = tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any], bool]
+#: A queued call (with its arguments bound: the caller's types are checked where it binds
+#: them), and whether it is droppable.
+_Item = tuple[Callable[[], object], bool]
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,18 +77,17 @@ class TelemetryWorker:
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def submit(
-        self, fn: Callable[..., Any], *args: Any, droppable: bool = False, **kwargs: Any
-    ) -> None:
-        """Queue one call; a ``droppable`` call is dropped when :data:`QUEUE_SIZE` droppable
-        calls are already waiting. Never blocks."""
+    def submit(self, job: Callable[[], object], *, droppable: bool = False) -> None:
+        """Queue one call, its arguments bound (``lambda: log.log_tick(snapshot)``); a
+        ``droppable`` call is dropped when :data:`QUEUE_SIZE` droppable calls are already
+        waiting. Never blocks."""
         if droppable:
             with self._lock:
                 if self._droppable >= QUEUE_SIZE:
                     self.dropped += 1
                     return
                 self._droppable += 1
-        self._queue.put((fn, args, kwargs, droppable))
+        self._queue.put((job, droppable))
 
     def record_error(self, error: str) -> None:
         """Count a telemetry problem found elsewhere (e.g. preparing a snapshot on the loop
@@ -121,12 +120,12 @@ class TelemetryWorker:
             self._maybe_check()
 
     def _call(self, item: _Item) -> None:
-        fn, args, kwargs, droppable = item
+        job, droppable = item
         if droppable:
             with self._lock:
                 self._droppable -= 1
         try:
-            fn(*args, **kwargs)
+            job()
         except Exception as err:  # a recording problem must not end telemetry
             self.record_error(f"{type(err).__name__}: {err}")
 

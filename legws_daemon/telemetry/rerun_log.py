@@ -82,6 +82,7 @@ from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.telemetry import rrd_file
 from legws_daemon.telemetry.robot_drawing import RobotDrawing
+from legws_daemon.telemetry.snapshot import TickSnapshot
 
 if TYPE_CHECKING:  # MuJoCo (under robot.visual) loads only where the meshes are made
     from legws_daemon.robot.visual import RobotVisual
@@ -901,70 +902,35 @@ class RerunLog:
 
     # --- per tick ------------------------------------------------------------------------------
 
-    def log_tick(
-        self,
-        tick: int,
-        t: float,
-        *,
-        link_positions: FloatArray,
-        link_rotations: FloatArray,
-        ee_position: FloatArray,
-        ee_quaternion: FloatArray,
-        objects: dict[str, tuple[FloatArray, FloatArray]],
-        posterior: dict[str, float] | None,
-        joystick: FloatArray | None,
-        command: FloatArray,
-        mode: str,
-        slack: float | None,
-        committed: str | None,
-        tick_seconds: float | None = None,
-        gripper_half_gap: float | None = None,
-        phase: str | None = None,
-        operator: str | None = None,
-        fault: str | None = None,
-        stage: str | None = None,
-        placement: tuple[str, ...] | None = None,
-        corrections: Mapping[str, tuple[FloatArray, FloatArray]] | None = None,
-        calibration: tuple[tuple[float, float, float], str] | None = None,
-        operator_model: tuple[str, ...] | None = None,
-    ) -> None:
-        """Log one control tick (see the module docstring for the entities). Never raises.
-
-        ``posterior`` is ``None`` when nothing is being inferred (the objects are then
-        labelled with their names only, and the plot has a gap). ``gripper_half_gap`` is half
-        the fingers' opening (m, :func:`~legws_daemon.robot.visual.finger_half_gap`);
-        ``phase``, ``operator``, ``fault`` (``None``: none) and ``stage`` (the task's
-        current stage, also one without inference; default: the last set up) fill the
-        status panel. ``placement``: the lines of a tracker's placement report (the
-        verdict, then each object not in place), shown in the status panel;
-        ``corrections``: the misplaced objects' moves, from where each stands to where it
-        should (``world/placement``). ``calibration``: the calibration target shown and its
-        label (``world/calibration/target``, and a status line with its distance from the
-        EE); ``operator_model``: lines about the operator model the certificates are for
-        (the status panel)."""
+    def log_tick(self, snap: TickSnapshot) -> None:
+        """Log one control tick (see the module docstring for the entities, and
+        :class:`~legws_daemon.telemetry.snapshot.TickSnapshot` for the fields). Never
+        raises."""
         if self._closed:
             return
-        posterior = posterior or None  # an empty posterior (no goals in the stage) is none
+        posterior = snap.posterior or None  # an empty posterior (no goals in the stage): none
+        tick, t, mode = snap.tick, snap.t, snap.mode
         try:
             self._set_time(tick, t)
             for path in self._pending_clears:
                 self._stream.log(path, rr.Clear(recursive=False))
             self._pending_clears.clear()
-            self._robot.log_poses(tick, link_positions, link_rotations)
-            if gripper_half_gap is not None:
-                self._robot.log_fingers(float(gripper_half_gap))
-            ee = self._log_ee(t, ee_position, ee_quaternion, joystick, mode)
-            self._log_objects(objects, posterior, committed)
-            self._log_arrows(ee, joystick, command)
-            self._log_plots(tick, posterior, slack, tick_seconds)
+            self._robot.log_poses(tick, snap.link_positions, snap.link_rotations)
+            if snap.gripper_half_gap is not None:
+                self._robot.log_fingers(float(snap.gripper_half_gap))
+            ee = self._log_ee(t, snap.ee_position, snap.ee_quaternion, snap.joystick, mode)
+            self._log_objects(snap.objects, posterior, snap.committed)
+            self._log_arrows(ee, snap.joystick, snap.command)
+            self._log_plots(tick, posterior, snap.slack, snap.tick_seconds)
             if mode != self._mode:
                 self._stream.log("status/mode", rr.TextLog(f"mode {mode}", level="INFO"))
                 self._mode = mode
-            lines = (*(placement or ()), *self._calibration_lines(calibration, ee),
-                     *(operator_model or ()))  # fmt: skip
-            self._log_status((mode, operator, phase, fault, stage), committed, lines)
-            self._log_corrections(corrections or {})
-            self._log_calibration(calibration)
+            lines = (*(snap.placement or ()), *self._calibration_lines(snap.calibration, ee),
+                     *(snap.operator_model or ()))  # fmt: skip
+            fields = (mode, snap.operator, snap.phase, snap.fault, snap.stage)
+            self._log_status(fields, snap.committed, lines)
+            self._log_corrections(snap.corrections or {})
+            self._log_calibration(snap.calibration)
             self._logged += 1
         except Exception as exc:  # telemetry must never stop the control loop
             self._drop("tick", exc)

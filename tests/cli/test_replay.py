@@ -12,6 +12,7 @@ import rerun as rr
 
 from legws_daemon.formats.log_lines import commit_text
 from legws_daemon.telemetry.rerun_log import RerunLog
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.cli.helpers import Result, assert_bad_input
 from tests.telemetry.helpers import log_episode, record, straight_episode, tick_kwargs
 
@@ -171,7 +172,7 @@ def older(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int]:
         log.log_text(n, n * 0.05, "INFO", "stage_done stage=choose goal=banana action=pick")
         log.log_text(n, n * 0.05, "INFO", commit_text("bowl", 1.0, how="single"))
         for k in range(10):
-            log.log_tick(n + k, (n + k) * 0.05, **tick_kwargs(ep, k, None))
+            log.log_tick(TickSnapshot(n + k, (n + k) * 0.05, **tick_kwargs(ep, k, None)))
         log.log_text(n + 9, (n + 9) * 0.05, "INFO", "stage_done stage=into goal=bowl action=place")
         log_episode(log, ep, tick0=n + 10, stage="choose")
     return path, n

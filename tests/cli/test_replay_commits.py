@@ -26,6 +26,7 @@ from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.observer import IntentObserver
 from legws_daemon.formats.log_lines import How, commit_text
 from legws_daemon.telemetry.rerun_log import RerunLog
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.cli.helpers import Result
 from tests.telemetry.helpers import Episode, setup, straight_episode, tick_kwargs
 
@@ -93,7 +94,7 @@ def _log_stage(
             how, goal = line
             p = posterior[goal] if posterior else 1.0
             log.log_text(tick, t, "INFO", commit_text(goal, round(p, 4), how=how))
-        log.log_tick(tick, t, **tick_kwargs(steered, k, posterior))
+        log.log_tick(TickSnapshot(tick, t, **tick_kwargs(steered, k, posterior)))
     return Logged(ep, path, tick0, stop)
 
 

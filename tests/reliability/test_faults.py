@@ -669,13 +669,13 @@ def test_a_stuck_recording_never_blocks_the_loop_and_its_problems_are_reported()
     gate = threading.Event()
     done: list[int] = []
     worker = TelemetryWorker(check=lambda: "the recording does not take data", check_every=0.05)
-    worker.submit(gate.wait, 30)  # the worker hangs in a call (a sink that blocks)
+    worker.submit(lambda: gate.wait(30))  # the worker hangs in a call (a sink that blocks)
 
     def loop_side() -> None:
         for i in range(QUEUE_SIZE + 100):
-            worker.submit(done.append, i, droppable=True)
+            worker.submit(functools.partial(done.append, i), droppable=True)
         for _ in range(1000):
-            worker.submit(done.append, -1)  # commits, faults: never dropped
+            worker.submit(lambda: done.append(-1))  # commits, faults: never dropped
 
     submitter = threading.Thread(target=loop_side)
     submitter.start()

@@ -23,6 +23,7 @@ from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from legws_daemon.telemetry.rerun_log import RerunLog
 from legws_daemon.telemetry.rrd_file import rerun_cli
+from legws_daemon.telemetry.snapshot import TickSnapshot
 
 #: The ``rerun`` executable the daemon uses (``rerun rrd verify`` works headless).
 RERUN = rerun_cli()
@@ -149,7 +150,7 @@ def log_episode(
             if commit_tick is None:
                 commit_tick = tick
                 log.log_commit(tick, tick * ep.params.dt, goal, float(post[observer.committed]))
-        log.log_tick(tick, tick * ep.params.dt, **kwargs)
+        log.log_tick(TickSnapshot(tick, tick * ep.params.dt, **kwargs))
     last = tick0 + len(ep.positions) - 1
     log.log_text(last, last * ep.params.dt, "warning", "episode end")
     return commit_tick

@@ -12,6 +12,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.log_lines import reach_text, reached_text
 from legws_daemon.telemetry.operator_trace import recorded_segments
 from legws_daemon.telemetry.rerun_log import RerunLog, commit_text
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.telemetry.helpers import setup, straight_episode, tick_kwargs
 
 
@@ -19,7 +20,7 @@ def _ticks(log: RerunLog, ep, first: int, n: int, mode: str, stick: np.ndarray |
     for k in range(n):
         kwargs = tick_kwargs(ep, k, None)
         kwargs.update(mode=mode, joystick=stick)
-        log.log_tick(first + k, (first + k) * 0.05, **kwargs)
+        log.log_tick(TickSnapshot(first + k, (first + k) * 0.05, **kwargs))
 
 
 def test_completed_decisions_and_calibration_reaches_are_segments(tmp_path: Path) -> None:

@@ -30,6 +30,7 @@ from legws_daemon.telemetry.recording import (
     stage_labels,
 )
 from legws_daemon.telemetry.rerun_log import RerunLog, commit_text
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.telemetry.helpers import (
     Episode,
     record,
@@ -112,7 +113,7 @@ def test_commits_with_their_time_and_how(tmp_path: Path, first: Episode) -> None
     path = tmp_path / "confirmed.rrd"
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, first, "s0")
-        log.log_tick(0, 0.0, **tick_kwargs(first, 0, None))
+        log.log_tick(TickSnapshot(0, 0.0, **tick_kwargs(first, 0, None)))
         log.log_text(3, 0.15, "INFO", commit_text("banana", 0.61, how="confirmed"))
         log.log_commit(7, 0.35, "cereal_box", 0.93)
         log.log_text(9, 0.45, "INFO", commit_text("banana", 1.0, how="single"))
@@ -162,7 +163,7 @@ def test_the_posterior_is_absent_while_not_inferring(tmp_path: Path, first: Epis
             post = (
                 {"banana": 0.25 + k / 10, "cereal_box": 0.75 - k / 10} if k in (1, 2, 4) else None
             )
-            log.log_tick(k, k * 0.05, **tick_kwargs(first, k, post))
+            log.log_tick(TickSnapshot(k, k * 0.05, **tick_kwargs(first, k, post)))
     posterior = read_posterior(path, 0)
     assert posterior.ticks.tolist() == [1, 2, 4]
     assert posterior.row_at(3) == 1 and posterior.row_at(0) is None
@@ -276,7 +277,7 @@ def test_a_single_candidate_stage_has_no_goal_set(tmp_path: Path, first: Episode
             params_json=json.dumps(PARAMS.as_dict()),
             stage="take",
         )
-        log.log_tick(0, 0.0, **tick_kwargs(first, 0, None))
+        log.log_tick(TickSnapshot(0, 0.0, **tick_kwargs(first, 0, None)))
     a, b = read_stages(path)
     assert (a.inference, a.candidates) == (True, first.goals.names)
     assert (b.name, b.inference, b.goals, b.candidates) == ("take", False, None, ("banana",))
@@ -299,9 +300,9 @@ def test_a_recording_without_ticks(tmp_path: Path, first: Episode) -> None:
 def test_ticks_before_the_first_setup_belong_to_no_stage(tmp_path: Path, first: Episode) -> None:
     path = tmp_path / "early.rrd"
     with RerunLog(f"save:{path}", robot="r") as log:
-        log.log_tick(0, 0.0, **tick_kwargs(first, 0, None))
+        log.log_tick(TickSnapshot(0, 0.0, **tick_kwargs(first, 0, None)))
         setup(log, first)
-        log.log_tick(1, 0.05, **tick_kwargs(first, 1, None))
+        log.log_tick(TickSnapshot(1, 0.05, **tick_kwargs(first, 1, None)))
     assert read_ee_path(path).ticks.tolist() == [0, 1]
     assert read_ee_path(path, 0).ticks.tolist() == [1]
 
@@ -346,7 +347,7 @@ ep = straight_episode()
 log = RerunLog("save:" + sys.argv[1], robot="r")
 setup(log, ep)
 for k in range(20):
-    log.log_tick(k, k * 0.05, **tick_kwargs(ep, k, None))
+    log.log_tick(TickSnapshot(k, k * 0.05, **tick_kwargs(ep, k, None)))
 log.flush()
 os.kill(os.getpid(), signal.SIGKILL)
 """

@@ -27,6 +27,7 @@ from legws_daemon.telemetry.rerun_log import (
     parse_target,
     parse_targets,
 )
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.telemetry.helpers import (
     Episode,
     arm_visual,
@@ -216,8 +217,8 @@ def test_the_fingers_follow_the_opening(tmp_path: Path, episode: Episode) -> Non
         log.log_robot(arm_visual())
         setup(log, episode)
         for tick, gap in enumerate([0.042, 0.042, 0.0421, 0.02, 0.004]):
-            log.log_tick(tick, tick * 0.05, **{**tick_kwargs(episode, 0, None),
-                                               "gripper_half_gap": gap})  # fmt: skip
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **{**tick_kwargs(episode, 0, None),
+                                               "gripper_half_gap": gap}))  # fmt: skip
     rows = _rows(path, "world/robot/right_hand/fingers", "Boxes3D:centers")
     assert [t for t, _ in rows] == [0, 3, 4]  # sent when the opening changed
     fingers = arm_visual().fingers
@@ -232,7 +233,7 @@ def test_without_inference_objects_show_their_names_only(tmp_path: Path, episode
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode)
         kwargs = tick_kwargs(episode, 0, None)
-        log.log_tick(0, 0.0, **{**kwargs, "mode": "stopped"})
+        log.log_tick(TickSnapshot(0, 0.0, **{**kwargs, "mode": "stopped"}))
     labels = _rows(path, "world/objects/banana", "Boxes3D:labels")
     assert [x for _, x in labels] == [["banana"]]
     assert not _rows(path, "plots/posterior/banana", "Scalars:scalars")
@@ -243,10 +244,10 @@ def test_status_panel_and_timing(tmp_path: Path, episode: Episode) -> None:
     with RerunLog(f"save:{path}", robot="r", tick_period=0.05) as log:
         setup(log, episode, stage="pick")
         base = tick_kwargs(episode, 0, None)
-        log.log_tick(0, 0.0, **base)
-        log.log_tick(1, 0.05, **{**base, "tick_seconds": 0.08})  # an overrun
-        log.log_tick(2, 0.10, **base)  # nothing changed: no new panel
-        log.log_tick(3, 0.15, **{**base, "mode": "stopped", "fault": "bridge | lost"})
+        log.log_tick(TickSnapshot(0, 0.0, **base))
+        log.log_tick(TickSnapshot(1, 0.05, **{**base, "tick_seconds": 0.08}))  # an overrun
+        log.log_tick(TickSnapshot(2, 0.10, **base))  # nothing changed: no new panel
+        log.log_tick(TickSnapshot(3, 0.15, **{**base, "mode": "stopped", "fault": "bridge | lost"}))
     docs = _rows(path, "status", "TextDocument:text")
     assert [t for t, _ in docs] == [0, 3]
     assert "**mode** teleop · **phase** infer · **stage** pick" in docs[0][1][0]
@@ -268,10 +269,18 @@ def test_placement_guidance_is_in_the_panel_and_drawn_as_arrows(
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode, stage="pick")
         base = tick_kwargs(episode, 0, None)
-        log.log_tick(0, 0.0, **base)  # no tracker yet
-        log.log_tick(1, 0.05, **base, placement=lines, corrections={"banana": (at, to)})
-        log.log_tick(2, 0.10, **base, placement=lines, corrections={"banana": (at, to)})
-        log.log_tick(3, 0.15, **base, placement=("placement certified: J +0.05",), corrections={})
+        log.log_tick(TickSnapshot(0, 0.0, **base))  # no tracker yet
+        log.log_tick(
+            TickSnapshot(1, 0.05, **base, placement=lines, corrections={"banana": (at, to)})
+        )
+        log.log_tick(
+            TickSnapshot(2, 0.10, **base, placement=lines, corrections={"banana": (at, to)})
+        )
+        log.log_tick(
+            TickSnapshot(
+                3, 0.15, **base, placement=("placement certified: J +0.05",), corrections={}
+            )
+        )
     docs = _rows(path, "status", "TextDocument:text")
     assert [t for t, _ in docs] == [0, 1, 3]  # re-sent only when the lines change
     assert "banana: 6 cm right" in docs[1][1][0]
@@ -320,11 +329,11 @@ def test_log_tick_never_raises(tmp_path: Path, episode: Episode) -> None:
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode)
         good = tick_kwargs(episode, 0, None)
-        log.log_tick(0, 0.0, **good)
-        log.log_tick(1, 0.05, **{**good, "ee_position": np.zeros(2)})
-        log.log_tick(2, 0.10, **{**good, "link_positions": "not an array"})
-        log.log_tick(3, 0.15, **{**good, "objects": {"bowl": (np.zeros(3), None)}})
-        log.log_tick(4, 0.20, **good)
+        log.log_tick(TickSnapshot(0, 0.0, **good))
+        log.log_tick(TickSnapshot(1, 0.05, **{**good, "ee_position": np.zeros(2)}))
+        log.log_tick(TickSnapshot(2, 0.10, **{**good, "link_positions": "not an array"}))
+        log.log_tick(TickSnapshot(3, 0.15, **{**good, "objects": {"bowl": (np.zeros(3), None)}}))
+        log.log_tick(TickSnapshot(4, 0.20, **good))
         assert log.dropped == 3
         log.log_text(5, 0.25, "INFO", None)  # type: ignore[arg-type]
     assert verify(path).returncode == 0
@@ -336,10 +345,10 @@ def test_close_is_idempotent_and_later_calls_are_ignored(tmp_path: Path, episode
     path = tmp_path / "closed.rrd"
     log = RerunLog(f"save:{path}", robot="r")
     setup(log, episode)
-    log.log_tick(0, 0.0, **tick_kwargs(episode, 0, None))
+    log.log_tick(TickSnapshot(0, 0.0, **tick_kwargs(episode, 0, None)))
     log.close()
     log.close()
-    log.log_tick(1, 0.05, **tick_kwargs(episode, 1, None))
+    log.log_tick(TickSnapshot(1, 0.05, **tick_kwargs(episode, 1, None)))
     log.log_text(1, 0.05, "INFO", "ignored")
     log.flush()
     assert log.closed and log.dropped == 0
@@ -369,7 +378,7 @@ def test_link_frames_every(tmp_path: Path, episode: Episode, every: int, sent: l
         setup(log, episode)
         for tick in range(6):
             kwargs = tick_kwargs(episode, min(tick, 3), None)
-            log.log_tick(tick, tick * 0.05, **kwargs)
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **kwargs))
     assert [t for t, _ in _rows(path, "world/robot/right_l6", "Transform3D:translation")] == sent
     base = _rows(path, "world/robot/right_arm_base_link", "Transform3D:translation")
     assert [t for t, _ in base] == [0]
@@ -381,7 +390,7 @@ def test_without_meshes_the_arm_is_a_line(tmp_path: Path, episode: Episode) -> N
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode)
         for tick in range(3):
-            log.log_tick(tick, tick * 0.05, **tick_kwargs(episode, tick, None))
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **tick_kwargs(episode, tick, None)))
     assert [t for t, _ in _rows(path, "world/robot/links", "LineStrips3D:strips")] == [0, 1, 2]
 
 
@@ -431,6 +440,7 @@ _CHILD = textwrap.dedent(
     """
     import signal, sys, time
     from legws_daemon.telemetry.rerun_log import RerunLog
+    from legws_daemon.telemetry.snapshot import TickSnapshot
     from tests.telemetry.helpers import setup, straight_episode, tick_kwargs
 
     ep = straight_episode()
@@ -444,7 +454,8 @@ _CHILD = textwrap.dedent(
     setup(log, ep)
     tick = 0
     while True:
-        log.log_tick(tick, tick * 0.05, **tick_kwargs(ep, tick % len(ep.positions), None))
+        kwargs = tick_kwargs(ep, tick % len(ep.positions), None)
+        log.log_tick(TickSnapshot(tick, tick * 0.05, **kwargs))
         tick += 1
         if tick == 30:
             print("ready", flush=True)
@@ -487,8 +498,8 @@ def test_a_curve_ends_when_inference_stops(tmp_path: Path, episode: Episode) -> 
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode)
         for tick, p in enumerate([post, {**post, "banana": 0.7}, {}, None, post]):
-            log.log_tick(tick, tick * 0.05, **{**tick_kwargs(episode, 0, p),
-                                               "slack": 0.2 if tick != 1 else None})  # fmt: skip
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **{**tick_kwargs(episode, 0, p),
+                                               "slack": 0.2 if tick != 1 else None}))  # fmt: skip
     rows = _rows(path, "plots/posterior/banana", "Scalars:scalars")
     assert [t for t, _ in rows] == [0, 1, 2, 4]
     assert np.isnan(rows[2][1][0]) and rows[3][1] == [0.6]
@@ -527,7 +538,7 @@ def test_a_goal_dropped_from_the_posterior_ends_its_curve(tmp_path: Path, episod
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode)
         for tick, p in enumerate([{"cereal_box": 0.4, "banana": 0.6}, {"cereal_box": 1.0}]):
-            log.log_tick(tick, tick * 0.05, **tick_kwargs(episode, 0, p))
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **tick_kwargs(episode, 0, p)))
     assert _curve(path, "banana")[0] == (0, 0.6)
     assert np.isnan(_curve(path, "banana")[1][1]) and _curve(path, "banana")[1][0] == 1
     assert _curve(path, "cereal_box") == [(0, 0.4), (1, 1.0)]
@@ -552,7 +563,7 @@ def test_a_single_candidate_stage_is_set_up_by_its_name(tmp_path: Path) -> None:
             stage="into",
         )
         log.log_text(tick, tick * 0.05, "INFO", commit_text("bowl", 1.0, how="single"))
-        log.log_tick(tick, tick * 0.05, **tick_kwargs(ep, 0, None))
+        log.log_tick(TickSnapshot(tick, tick * 0.05, **tick_kwargs(ep, 0, None)))
     docs = [json.loads(x[0]) for _, x in _rows(path, "meta/stages", "TextDocument:text")]
     assert [(d["stage"], d["inference"], d["candidates"]) for d in docs] == [
         ("choose", True, list(ep.goals.names)),
@@ -612,11 +623,11 @@ def test_a_calibration_target_is_drawn_labelled_and_cleared_and_the_panel_says_w
     with RerunLog(f"save:{path}", robot="r") as log:
         setup(log, episode, stage="calibration")
         base = {**tick_kwargs(episode, 0, None), "mode": "calibrate"}
-        log.log_tick(0, 0.0, **base)  # no target yet
-        log.log_tick(1, 0.05, **base, calibration=(target, "target 3 of 20"))
-        log.log_tick(2, 0.10, **base, calibration=(target, "target 3 of 20"))
-        log.log_tick(3, 0.15, **base)  # reached: none until the next appears
-        log.log_tick(4, 0.20, **base, operator_model=who)
+        log.log_tick(TickSnapshot(0, 0.0, **base))  # no target yet
+        log.log_tick(TickSnapshot(1, 0.05, **base, calibration=(target, "target 3 of 20")))
+        log.log_tick(TickSnapshot(2, 0.10, **base, calibration=(target, "target 3 of 20")))
+        log.log_tick(TickSnapshot(3, 0.15, **base))  # reached: none until the next appears
+        log.log_tick(TickSnapshot(4, 0.20, **base, operator_model=who))
     points = _rows(path, "world/calibration/target", "Points3D:positions")
     assert [t for t, _ in points] == [1]  # sent once, when it appears
     np.testing.assert_allclose(points[0][1][0], target, atol=1e-6)

@@ -19,6 +19,7 @@ from PIL import Image
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.rerun_log import _PALETTE, RerunLog
 from legws_daemon.telemetry.screenshot import last_posterior_time, screenshot_recording
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.browser import require, vulkan_missing
 from tests.telemetry.helpers import arm_visual, log_episode, straight_episode, tick_kwargs
 
@@ -226,7 +227,7 @@ def idle_after(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
         first = len(ep.positions)
         for tick in range(first, first + round(IDLE / 0.05)):
             kwargs = {**tick_kwargs(ep, len(ep.positions) - 1, None), "mode": "idle"}
-            log.log_tick(tick, tick * 0.05, **kwargs)
+            log.log_tick(TickSnapshot(tick, tick * 0.05, **kwargs))
     return path, (first - 1) * 0.05
 
 
