@@ -63,9 +63,16 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+try:  # Python >= 3.11: a bridge reads a legws hardware profile
+    import tomllib
+except ImportError:  # ROS Noetic's Python 3.8: the bridge takes its limits as flags
+    tomllib = None  # type: ignore[assignment]
 
 if TYPE_CHECKING:  # annotations only: nothing here is evaluated under Python 3.8
     from collections.abc import Callable, Sequence
@@ -214,6 +221,65 @@ class BridgeLimits:
             f"m/s, EE in {box} m + {self.workspace_margin:g} m, ttl <= {self.max_ttl:g} s, "
             f"<= {self.command_rate_hz:g} commands/s (burst {self.burst})"
         )
+
+
+_PROFILE_BRIDGE_KEYS = (
+    "joint_speed_cap",
+    "ee_speed_cap",
+    "workspace_margin",
+    "max_ttl",
+    "command_rate_hz",
+)
+
+
+def _profile_number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {value!r}")
+    return float(value)
+
+
+#: Largest hardware profile read (as legws_daemon.formats.files.LIMITS).
+MAX_PROFILE_BYTES = 256 * 1024
+
+
+def profile_limits(path: str) -> BridgeLimits:
+    """The limits of a legws hardware profile (``[bridge]``, ``[workspace]``; what it
+    leaves out keeps the default). Raises ValueError (or OSError) naming the problem."""
+    if tomllib is None:
+        raise ValueError("--profile needs Python >= 3.11 (tomllib); give the limits as flags")
+    st = os.stat(path)  # a device, FIFO or huge file is refused before it is opened
+    if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_PROFILE_BYTES:
+        raise ValueError(f"{path}: expected a regular file of at most {MAX_PROFILE_BYTES} bytes")
+    with open(path, "rb") as f:
+        try:
+            doc = tomllib.load(f)
+        except tomllib.TOMLDecodeError as err:
+            raise ValueError(f"{path}: not TOML: {err}") from None
+    values: dict[str, Any] = {}
+    bridge = doc.get("bridge", {})
+    if not isinstance(bridge, dict):
+        raise ValueError(f"{path}: [bridge] must be a table")
+    for key, value in bridge.items():
+        if key not in _PROFILE_BRIDGE_KEYS:
+            raise ValueError(f"{path}: bridge.{key}: unknown field")
+        values[key] = _profile_number(value, f"{path}: bridge.{key}")
+    workspace = doc.get("workspace", {})
+    if not isinstance(workspace, dict):
+        raise ValueError(f"{path}: [workspace] must be a table")
+    ranges = []
+    for i, axis in enumerate("xyz"):
+        pair = workspace.get(axis, WORKSPACE[i])
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise ValueError(f"{path}: workspace.{axis}: expected [low, high]")
+        ranges.append(tuple(_profile_number(v, f"{path}: workspace.{axis}") for v in pair))
+    unknown = sorted(set(workspace) - {"x", "y", "z"})
+    if unknown:
+        raise ValueError(f"{path}: workspace.{unknown[0]}: unknown field")
+    values["workspace"] = tuple(ranges)
+    try:
+        return BridgeLimits(**values)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
 
 
 @dataclass(frozen=True)

@@ -623,7 +623,7 @@ def test_default_limits_are_the_profiles(bridge_module: types.ModuleType) -> Non
     b = bridge_module
     spec, box = BridgeLimitsSpec(), WorkspaceBox()
     limits = b.Limits()
-    assert set(b._PROFILE_BRIDGE_KEYS) == set(BridgeLimitsSpec.model_fields)
+    assert set(b.guard_limits._PROFILE_BRIDGE_KEYS) == set(BridgeLimitsSpec.model_fields)
     for name in BridgeLimitsSpec.model_fields:
         assert getattr(limits, name) == getattr(spec, name), name
     assert limits.workspace == (box.x, box.y, box.z)
@@ -678,7 +678,7 @@ def test_limits_from_a_profile_and_flags(bridge_module: types.ModuleType, tmp_pa
 def test_without_tomllib_the_profile_flag_says_so(
     bridge_module: types.ModuleType, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(bridge_module, "tomllib", None)  # ROS Noetic's Python 3.8
+    monkeypatch.setattr(bridge_module.guard_limits, "tomllib", None)  # Python 3.8
     with pytest.raises(ValueError, match=r"Python >= 3\.11"):
         bridge_module.profile_limits(str(PROFILE))
 
