@@ -444,7 +444,3 @@ def adapter_class(name: str) -> type[Adapter]:
         raise InputError(
             f"unknown adapter '{name}'; known: {', '.join(sorted(_REGISTRY))}", field="adapter"
         ) from None
-
-
-def known_adapters() -> list[str]:
-    return sorted(_REGISTRY)
