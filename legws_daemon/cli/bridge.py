@@ -194,7 +194,7 @@ def write_bundle(out: Path, arm_name: str = "sawyer") -> list[Path]:
     the arm's chain from its model. The files written."""
     import shutil
 
-    from legws_daemon.safety.bridge_guard import write_chain
+    from legws_daemon.robot.chain_file import write_chain
 
     root = Path(__file__).parents[2]
     written = []

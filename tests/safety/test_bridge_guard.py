@@ -381,11 +381,11 @@ def test_the_bucket_admits_at_most_the_burst_plus_the_rate(gaps: list[float]) ->
 # --- the chain a bridge without MuJoCo computes its endpoint with ---------------------------
 def test_the_shipped_chain_is_the_models_kinematics() -> None:
     """bridge/chains/sawyer.json is the model's (regenerate: ``python -c "from
-    legws_daemon.safety.bridge_guard import write_chain; write_chain()"``), and its forward
+    legws_daemon.robot.chain_file import write_chain; write_chain()"``), and its forward
     kinematics (standard library) is MuJoCo's to 1e-12 m over the joint ranges."""
     import json
 
-    from legws_daemon.safety.bridge_guard import CHAIN_DIR, chain_links
+    from legws_daemon.robot.chain_file import CHAIN_DIR, chain_links
     from legws_daemon.safety.limits import Chain
 
     shipped = json.loads((CHAIN_DIR / "sawyer.json").read_text(encoding="utf-8"))

@@ -341,6 +341,7 @@ def test_read_errors_name_the_file(tmp_path: Path) -> None:
 _CRASH = """
 import os, signal, sys
 from legws_daemon.telemetry.rerun_log import RerunLog
+from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.telemetry.helpers import setup, straight_episode, tick_kwargs
 
 ep = straight_episode()
