@@ -652,35 +652,6 @@ class Controller:
             self.adapter.halt()
 
     # --- operator commands ------------------------------------------------------------
-    def command(
-        self,
-        request: CommandRequest,
-        scenes: Callable[[str], Scene],
-        graphs: Callable[[str], tuple[TaskGraph, Scene]],
-        plans: Callable[[TaskGraph, Scene], Plan] | None = None,
-    ) -> dict[str, Any]:
-        """Carry out an operator command; returns the reply's detail.
-
-        Args:
-            request: the validated command.
-            scenes / graphs: load a scene / a task graph (and its scene) by name.
-            plans: a task graph's plan (``load_taskgraph`` with ``plan: "auto"``).
-        """
-        match request.command:
-            case "stop":
-                self.stop("operator", "the command key")
-                return {"mode": self.mode.value}
-            case "reset":
-                return self._reset()
-            case "status":
-                return {"mode": self.mode.value}
-            case "load_scene" | "load_taskgraph":
-                return self._install_now(self.prepare(request, scenes, graphs, plans))
-            case "release" | "take_control":
-                raise InputError("the operator lease is the daemon's, not the controller's")
-            case _:
-                assert_never(request.command)
-
     def stop(
         self,
         by: str,
@@ -706,7 +677,7 @@ class Controller:
         if announce:
             self.emit(Stop(self.mode.value, by, source, reason, repeats))
 
-    def _reset(self) -> dict[str, Any]:
+    def reset(self) -> dict[str, Any]:
         """Clear a stop or fault and start the task again: put back what the robot holds
         (or set it down: :mod:`.recovery`), go home, objects back at the layout (on the
         stand-in), infer from the first stage.
@@ -858,9 +829,9 @@ class Controller:
     ) -> dict[str, Any]:
         """Swap to another scene or task graph (the robot stops first), with the graph's plan
         when given; the task restarts (:meth:`prepare_load` and :meth:`install` in one)."""
-        return self._install_now(self.prepare_load(scene, graph, plan, layout))
+        return self.install_now(self.prepare_load(scene, graph, plan, layout))
 
-    def _install_now(self, prepared: PreparedLoad) -> dict[str, Any]:
+    def install_now(self, prepared: PreparedLoad) -> dict[str, Any]:
         """:meth:`install`, and the replaced adapter disconnected here and now."""
         detail, old = self.install(prepared)
         if old is not None:

@@ -660,10 +660,14 @@ class DaemonService:
                 if request.command in ("release", "take_control"):
                     reply = {"ok": True, **self._lease_command(request)}
                 else:
-                    detail = c.command(request, self.config.scene_loader, self.config.graph_loader)
+                    if request.command == "stop":
+                        c.stop("operator", "the command key")
+                        detail: dict[str, Any] = {"mode": c.mode.value}
+                    else:
+                        assert request.command == "reset", request.command
+                        detail = c.reset()
+                        detail["waiting"] = _waiting(self.inbox.poll(now)[1])
                     reply = {"ok": True, "command": request.command, **detail}
-                    if request.command == "reset":
-                        reply["waiting"] = _waiting(self.inbox.poll(now)[1])
             except LegwsError as err:
                 reply = {"ok": False, "command": request.command, "error": str(err)}
             pending.finish(reply)

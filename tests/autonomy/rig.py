@@ -179,4 +179,21 @@ class Rig:
         body: dict[str, Any] = {"schema": 1, "command": command}
         if argument is not None:
             body["argument"] = argument
-        return self.c.command(CommandRequest.model_validate(body), *LOADERS)
+        return operator_command(self.c, CommandRequest.model_validate(body))
+
+
+def operator_command(
+    c: Controller, request: CommandRequest, plans: Callable[..., Any] | None = None
+) -> dict[str, Any]:
+    """What the daemon's router does with an operator command, on the controller alone
+    (no lease, no load queue): the reply's detail."""
+    match request.command:
+        case "stop":
+            c.stop("operator", "the command key")
+            return {"mode": c.mode.value}
+        case "reset":
+            return c.reset()
+        case "load_scene" | "load_taskgraph":
+            return c.install_now(c.prepare(request, *LOADERS, plans))
+        case _:
+            raise AssertionError(f"not a controller command: {request.command}")

@@ -18,7 +18,7 @@ from legws_daemon.joystick.sim_user import CALIBRATION_TARGET, SimUser
 from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
 from tests.autonomy.operators import Bench
-from tests.autonomy.rig import LOADERS
+from tests.autonomy.rig import LOADERS, operator_command
 
 OPERATOR = OperatorModel(1.0, 0.03, 0.6, 10.0, "free")
 
@@ -127,7 +127,7 @@ def test_a_stop_drops_the_reach_under_way_and_a_reset_shows_its_target_again() -
     for _ in range(5):
         rec = b.tick(u, {})
         assert np.allclose(rec.command, 0.0)  # stopped: nothing moves
-    b.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), *LOADERS)
+    operator_command(b.c, CommandRequest.model_validate({"schema": 1, "command": "reset"}))
     assert b.c.mode == "assist"
     for _ in range(2000):  # the way home (the user holds the dead-man, hands off)
         if b.c.mode != "assist":

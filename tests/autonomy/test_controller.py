@@ -14,7 +14,7 @@ from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.robot.motion import LIFT_HEIGHT
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose, Scene
-from tests.autonomy.rig import LOADERS, Rig, stand_in_profile
+from tests.autonomy.rig import Rig, operator_command, stand_in_profile
 
 
 @pytest.fixture(scope="module")
@@ -139,9 +139,9 @@ def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:
     assert rig.kinds().count("fault") == 1
     assert "heartbeat" in (rig.c.fault or "")
     with pytest.raises(HardwareError):
-        rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), *LOADERS)
+        operator_command(rig.c, CommandRequest.model_validate({"schema": 1, "command": "reset"}))
     rig.adapter.failing = False
-    rig.c.command(CommandRequest.model_validate({"schema": 1, "command": "reset"}), *LOADERS)
+    operator_command(rig.c, CommandRequest.model_validate({"schema": 1, "command": "reset"}))
     for _ in range(1000):
         rig.c.tick(rig.sample([0.0, 0.0, 0.0]))
         if rig.c.mode == "teleop":
@@ -155,21 +155,21 @@ def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:
 
 def test_stop_holds_until_reset_and_load_scene_swaps(rig: Rig) -> None:
     req = CommandRequest.model_validate
-    rig.c.command(req({"schema": 1, "command": "stop"}), *LOADERS)
+    operator_command(rig.c, req({"schema": 1, "command": "stop"}))
     p = rig.adapter.read_state().ee_position
     for _ in range(5):
         rec = rig.c.tick(rig.sample([1.0, 0.0, 0.0]))
         np.testing.assert_array_equal(rec.command, 0.0)
     np.testing.assert_array_equal(rig.adapter.read_state().ee_position, p)
     assert rig.c.mode == "stopped"
-    out = rig.c.command(
-        req({"schema": 1, "command": "load_scene", "argument": "breakfast_easy"}), *LOADERS
+    out = operator_command(
+        rig.c, req({"schema": 1, "command": "load_scene", "argument": "breakfast_easy"})
     )
     assert out["scene"] == "breakfast_easy"
     assert rig.c.mode == "teleop"
     assert set(rig.c.posterior()) == set(load_scene("breakfast_easy").goal_names)
     with pytest.raises(InputError):
-        rig.c.command(req({"schema": 1, "command": "load_scene", "argument": "nope"}), *LOADERS)
+        operator_command(rig.c, req({"schema": 1, "command": "load_scene", "argument": "nope"}))
 
 
 def test_a_misplaced_object_is_named_when_the_certificate_is_lost(rig: Rig) -> None:

@@ -17,7 +17,7 @@ from legws_daemon.scene.scene import Scene
 from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.plan import Plan
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
-from tests.autonomy.rig import LOADERS, Rig, stand_in_profile
+from tests.autonomy.rig import Rig, operator_command, stand_in_profile
 from tests.task.test_plan_file import feeding_plan
 
 
@@ -34,7 +34,7 @@ def load(rig: Rig, plan: str | None, plans: object = None) -> dict[str, object]:
     if plan is not None:
         body["plan"] = plan
     loader = plans if plans is not None else (lambda g, s: feeding_plan())
-    return rig.c.command(CommandRequest.model_validate(body), *LOADERS, loader)  # type: ignore[arg-type]
+    return operator_command(rig.c, CommandRequest.model_validate(body), loader)  # type: ignore[arg-type]
 
 
 def test_auto_uses_the_plan_and_plan_none_drops_it_with_a_warning(rig: Rig) -> None:
@@ -94,5 +94,5 @@ def test_plan_is_only_for_load_taskgraph_and_needs_a_loader(rig: Rig) -> None:
                                   "argument": "feeding", "plan": "/tmp/x"}, "command")  # fmt: skip
     body = {"schema": 1, "command": "load_taskgraph", "argument": "feeding", "plan": "auto"}
     with pytest.raises(InputError, match="no plans"):
-        rig.c.command(CommandRequest.model_validate(body), *LOADERS)
+        operator_command(rig.c, CommandRequest.model_validate(body))
     assert load_scene("feeding").name == "feeding"

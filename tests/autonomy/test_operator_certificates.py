@@ -20,7 +20,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from tests.autonomy.operators import Bench
-from tests.autonomy.rig import LOADERS, Rig, stand_in_profile
+from tests.autonomy.rig import Rig, operator_command, stand_in_profile
 from tests.task.test_plan_file import feeding_plan
 
 #: A slower, correlated, biased person: certificates well below section 2's user's.
@@ -90,7 +90,7 @@ def test_a_dropped_plan_and_a_placement_request_name_the_operators_certificates(
                                    "argument": "feeding"}  # fmt: skip
         if plan is not None:
             body["plan"] = plan
-        c.command(CommandRequest.model_validate(body), *LOADERS, lambda g, s: feeding_plan())
+        operator_command(c, CommandRequest.model_validate(body), lambda g, s: feeding_plan())
 
     load("auto")
     planned = feeding_plan().layout_for("choose_food")
