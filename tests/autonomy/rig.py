@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, assert_never
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.params import Params
 from legws_daemon.daemon.inbox import JoystickInbox
 from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
-from legws_daemon.errors import HardwareError
+from legws_daemon.errors import HardwareError, InputError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.base import RobotState
@@ -183,17 +183,24 @@ class Rig:
 
 
 def operator_command(
-    c: Controller, request: CommandRequest, plans: Callable[..., Any] | None = None
+    c: Controller,
+    request: CommandRequest,
+    plans: Callable[..., Any] | None = None,
+    loaders: tuple[Callable[[str], Scene], Callable[[str], tuple[TaskGraph, Scene]]] = LOADERS,
 ) -> dict[str, Any]:
-    """What the daemon's router does with an operator command, on the controller alone
-    (no lease, no load queue): the reply's detail."""
+    """What the daemon does with an operator command, on the controller alone (no lease,
+    no load queue; ``loaders``: the scene and task-graph loaders): the reply's detail."""
     match request.command:
         case "stop":
             c.stop("operator", "the command key")
             return {"mode": c.mode.value}
         case "reset":
             return c.reset()
+        case "status":
+            return {"mode": c.mode.value}
         case "load_scene" | "load_taskgraph":
-            return c.install_now(c.prepare(request, *LOADERS, plans))
+            return c.install_now(c.prepare(request, *loaders, plans))
+        case "release" | "take_control":
+            raise InputError("the operator lease is the daemon's, not the controller's")
         case _:
-            raise AssertionError(f"not a controller command: {request.command}")
+            assert_never(request.command)

@@ -3,7 +3,7 @@ the safety invariants checked after every tick, and the tally of what the fuzzer
 
 The rig is the daemon's control path without zenoh: payloads go through the same calls
 the service makes (:meth:`JoystickInbox.offer`, :func:`parse` of a command or an objects
-message, :meth:`Controller.command`, :meth:`Controller.observe`) and the loop's
+message, the controller's verbs (``operator_command``), :meth:`Controller.observe`) and the loop's
 :meth:`Controller.tick`. The adapter is the real :class:`SimAdapter`; only its MuJoCo
 world is compiled once per scene name and reused (0.5 s each) when a ``load_*`` command
 swaps scenes.
@@ -216,7 +216,7 @@ class Rig:
         self.ticks += 1
         self.modes[rec.mode.value] += 1  # str keys: xdist sends the tallies home
         check_envelope(self.adapter, rec.command)
-        if self.adapter is adapter:  # (a load swaps adapters only inside command())
+        if self.adapter is adapter:  # (a load swaps adapters only inside a load)
             if rec.joints is None:  # a joint step is checked where it ends (check_envelope)
                 check_command(adapter, before.ee_position, rec.command)
             if sample is None:

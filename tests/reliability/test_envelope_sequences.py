@@ -29,7 +29,6 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 
 from legws_daemon.arms import arm
 from legws_daemon.core.geometry import quat_to_matrix
-from legws_daemon.daemon.service import catalog_scene, catalog_taskgraph
 from legws_daemon.errors import InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.robot.kinematics import LIMIT_MARGIN, home_configuration
@@ -38,6 +37,7 @@ from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import clamp_ee_velocity
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose
+from tests.autonomy.rig import operator_command
 from tests.reliability.helpers import (
     TALLIES,
     Rig,
@@ -246,7 +246,7 @@ class EnvelopeMachine(RuleBasedStateMachine):
     def operator(self, command: str) -> None:
         request = CommandRequest.model_validate({"schema": 1, "command": command})
         # refused (the robot failing): an error reply, nothing else
-        expect(LegwsError, self.rig.c.command, request, catalog_scene, catalog_taskgraph)
+        expect(LegwsError, operator_command, self.rig.c, request)
         self.step(f"operator {command}")
 
     @rule(poses=st.dictionaries(st.sampled_from(["white_mug", "black_stapler", "maroon_pen_cup"]),

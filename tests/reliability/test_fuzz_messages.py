@@ -4,7 +4,7 @@ Joystick, command and object-pose payloads of four kinds — structured-but-wron
 objects (right keys, wrong types, NaN, infinities, huge, negative, nested, extra keys,
 another schema), mutated valid payloads (byte flips, truncation, duplication), arbitrary
 bytes, and valid messages — go through the calls the service makes on receipt
-(:meth:`JoystickInbox.offer`, :func:`parse` + :meth:`Controller.command`, :func:`parse` +
+(:meth:`JoystickInbox.offer`, :func:`parse` + the controller's verbs, :func:`parse` +
 :meth:`Controller.observe`) and the loop's :meth:`Controller.tick` on the real stand-in.
 
 After every payload: nothing escapes but the project's own errors (from ``tick`` and
@@ -38,6 +38,7 @@ from legws_daemon.formats.messages import MAX_PAYLOAD, CommandRequest, ObjectsMe
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import ObjectPose, Scene
 from legws_daemon.task.graph import TaskGraph
+from tests.autonomy.rig import operator_command
 from tests.reliability.helpers import TALLIES, Rig, Tally, expect
 from tests.reliability.strategies import EDGE_TEXT, junk, leaves, mutated, nested
 
@@ -333,7 +334,7 @@ def test_command_payloads_never_crash_and_never_leave_the_envelope(
         assert snapshot(rig) == before
     if request is not None:
         # refused (an unknown name, a path, the robot failing): an error reply
-        _, refused = expect(LegwsError, rig.c.command, request, *loaders)
+        _, refused = expect(LegwsError, operator_command, rig.c, request, None, loaders)
         tally.outcomes[f"{kind} {'refused' if refused else 'done'}"] += 1
         if request.command == "stop":
             assert rig.c.mode == "stopped"
