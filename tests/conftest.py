@@ -16,6 +16,10 @@ _TMP = Path(tempfile.mkdtemp(prefix="legws-tests-"))
 for var in ("XDG_CACHE_HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME"):
     os.environ[var] = str(_TMP / var.lower())
 os.environ["MESA_SHADER_CACHE_DIR"] = str(_TMP / "mesa")
+# the processes the tests start compile each module once, into the checkout's cache (as
+# under ./dev), not from source at every start
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+os.environ.setdefault("PYTHONPYCACHEPREFIX", str(Path(__file__).parents[1] / ".cache" / "pycache"))
 os.environ.setdefault("MPLCONFIGDIR", str(_TMP / "mpl"))
 # Rerun sends no analytics when CI is set (and with its own switch off); tests never talk
 # to the internet.
