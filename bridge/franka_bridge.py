@@ -576,6 +576,8 @@ class FrankaArm:
         self._quit = threading.Event()
         self._closing = False  # end the motion as soon as the arm is at rest
         self._control: Any = None
+        self._idle_since: float | None = None  # at rest with no live target since (moving)
+        self._in_motion = 0  # control cycles of this motion
         self.motions = 0  # motions started
         self.cycles = 0  # control cycles written
         #: the lowest share of the robot's last 100 cycles that got a command in time
@@ -640,61 +642,66 @@ class FrankaArm:
         return None
 
     def _run(self) -> None:
-        idle_since = None
-        in_motion = 0
         while not self._quit.is_set():
-            try:
-                if self._control is None:
-                    state = self.robot.read_once()
-                    self._keep(state)
-                    with self._lock:
-                        recover, self._recover = self._recover, False
-                    if recover:
-                        self.robot.automatic_error_recovery()
-                        with self._lock:
-                            self._fault = None
-                        continue
-                    if self._live_target(self.clock()) is not None and not self._closing:
-                        self.ramp.reset()
-                        self._control = self.robot.start_joint_velocity_control(
-                            self.lib.ControllerMode.JointImpedance
-                        )
-                        self.motions += 1
-                        idle_since = None
-                        in_motion = 0
-                    continue
-                state, period = self._control.readOnce()
-                read_at = time.perf_counter()
+            self.cycle()
+
+    def cycle(self) -> None:
+        """One turn of the control loop (the thread's, over and over): idle, a state read
+        (and the recovery or the start of a motion when due); moving, one control cycle —
+        ``readOnce``, the ramp toward the live target (or braking), ``writeOnce`` — which
+        libfranka paces at 1 kHz. An error of the library ends the motion (the fault kept)."""
+        try:
+            if self._control is None:
+                state = self.robot.read_once()
                 self._keep(state)
-                in_motion += 1
-                if in_motion > 200:  # the rate is over the last 100 cycles
-                    rate = float(state.control_command_success_rate)
-                    self.success_rate = min(self.success_rate, rate)
-                now = self.clock()
-                dt = period.to_sec() or CONTROL_PERIOD
-                target = self._live_target(now)
-                velocities = self.ramp.step(target or [0.0] * len(JOINT_NAMES), dt)
-                finished = False
-                if target is None and self.ramp.at_rest():
-                    idle_since = now if idle_since is None else idle_since
-                    finished = now - idle_since >= IDLE_FINISH or self._closing
-                else:
-                    idle_since = None
-                command = self.lib.JointVelocities(velocities)
-                if finished:
-                    command.motion_finished = True
-                self._control.writeOnce(command)
-                self.cycles += 1
-                self.longest_cycle = max(self.longest_cycle, time.perf_counter() - read_at)
-                if finished:
-                    self._control = None
-            except Exception as err:  # the library's errors: a reflex, the network, a command
-                self._control = None
-                self.ramp.reset()
                 with self._lock:
-                    self._fault = f"{type(err).__name__}: {err}"
-                self._log("fault", f"motion ended: {type(err).__name__}: {str(err)[:300]}")
-                time.sleep(0.01)
+                    recover, self._recover = self._recover, False
+                if recover:
+                    self.robot.automatic_error_recovery()
+                    with self._lock:
+                        self._fault = None
+                    return
+                if self._live_target(self.clock()) is not None and not self._closing:
+                    self.ramp.reset()
+                    self._control = self.robot.start_joint_velocity_control(
+                        self.lib.ControllerMode.JointImpedance
+                    )
+                    self.motions += 1
+                    self._idle_since = None
+                    self._in_motion = 0
+                return
+            state, period = self._control.readOnce()
+            read_at = time.perf_counter()
+            self._keep(state)
+            self._in_motion += 1
+            if self._in_motion > 200:  # the rate is over the last 100 cycles
+                rate = float(state.control_command_success_rate)
+                self.success_rate = min(self.success_rate, rate)
+            now = self.clock()
+            dt = period.to_sec() or CONTROL_PERIOD
+            target = self._live_target(now)
+            velocities = self.ramp.step(target or [0.0] * len(JOINT_NAMES), dt)
+            finished = False
+            if target is None and self.ramp.at_rest():
+                self._idle_since = now if self._idle_since is None else self._idle_since
+                finished = now - self._idle_since >= IDLE_FINISH or self._closing
+            else:
+                self._idle_since = None
+            command = self.lib.JointVelocities(velocities)
+            if finished:
+                command.motion_finished = True
+            self._control.writeOnce(command)
+            self.cycles += 1
+            self.longest_cycle = max(self.longest_cycle, time.perf_counter() - read_at)
+            if finished:
+                self._control = None
+        except Exception as err:  # the library's errors: a reflex, the network, a command
+            self._control = None
+            self.ramp.reset()
+            with self._lock:
+                self._fault = f"{type(err).__name__}: {err}"
+            self._log("fault", f"motion ended: {type(err).__name__}: {str(err)[:300]}")
+            time.sleep(0.01)
 
 
 class GripperDriver:

@@ -6,9 +6,10 @@ drive all seven joints to their limits in 2 s. Now the bridge enforces its own l
 loopback (scouting off, a free port, always closed): the bridge listens; the attacker and
 an observer connect to it. The fake arm's joints are sampled all along, with the times
 around each sample, so every speed bound is checked against the wall clock (bounds only:
-no rate is asserted on it). Then every bridge (the fake, the Intera bridge's real classes
-with its ROS side faked; the Franka bridge's control loop not faked yet) through the one guard of
-``legws_daemon/safety/limits.py`` on a clock the test holds.
+no rate is asserted on it). Then every bridge (the fake; the Intera bridge's real classes
+with its ROS side faked; the Franka bridge's real classes and control loop with the arm
+faked at pylibfranka) through the one guard of ``legws_daemon/safety/limits.py`` on a clock
+the test holds.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from legws_daemon.arms import arm
 from legws_daemon.formats.bridge_messages import (
     JOINT_SPEED_LIMITS,
     bridge_keys,
@@ -36,6 +38,7 @@ from legws_daemon.robot.world import World
 from legws_daemon.safety.bridge_guard import grown
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
+from tests.hardware.fake_franka import LIBRARY, FakeFranka, Stepped
 from tests.hardware.helpers import StateLog, wait_for
 from tests.net import free_port
 
@@ -199,7 +202,10 @@ class Held:
 
 
 class Driven:
-    """One bridge under attack: its receipt count, its joints, a tick, its counts."""
+    """One bridge under attack: its receipt count, its joints, a tick, its counts; the arm
+    it drives (``arm``: the robot description, ``robot``: the key prefix) and ``settle``:
+    after a stop, ticks until the arm is at rest (default one tick: the fake and the Intera
+    bridge hold at once; a Franka brakes within libfranka's acceleration limits)."""
 
     def __init__(
         self,
@@ -210,9 +216,17 @@ class Driven:
         stopped_by: Callable[[], str | None],
         caps: np.ndarray,
         close: Callable[[], None],
+        arm: str = "sawyer",
+        settle: Callable[[Held], list[tuple[float, np.ndarray]]] | None = None,
     ) -> None:
         self.received, self.q, self.tick, self.counts = received, q, tick, counts
         self.stopped_by, self.caps, self.close = stopped_by, caps, close
+        self.arm, self.robot = arm, "sawyer" if arm == "sawyer" else arm
+        self.settle = settle if settle is not None else self._one_tick
+
+    def _one_tick(self, clock: Held) -> list[tuple[float, np.ndarray]]:
+        self.tick()
+        return []
 
 
 def fake_bridge(session: zenoh.Session, clock: Held, profile: ProfileSpec, _: object) -> Driven:
@@ -270,10 +284,48 @@ def intera_bridge(
     )
 
 
-def franka_bridge(*_: object) -> Driven:
-    # it runs the one guard (tests/bridge/test_franka_bridge.py::test_the_guard_is_legws_one);
-    # its tick needs libfranka's control loop and model (the Panda's endpoint and Jacobian)
-    pytest.skip("no fake of the Franka bridge's control loop and Panda model here yet")
+def franka_bridge(session: zenoh.Session, clock: Held, profile: ProfileSpec, _: object) -> Driven:
+    """bridge/franka_bridge.py's real bridge and control loop (its cycles stepped on the
+    held clock instead of its thread), the arm faked at pylibfranka (tests/hardware/
+    fake_franka.py: legws' Panda kinematics in the base frame)."""
+    from tests.bridge.test_franka_bridge import fb
+
+    panda = arm("panda")
+    robot = FakeFranka(World(load_scene("desk"), arm="panda", visual=False), panda.ready_posture)
+    loop = fb.FrankaArm(robot, LIBRARY, clock=clock)
+    ws = profile.workspace
+    limits = fb.Limits(**profile.bridge.model_dump(), workspace=(ws.x, ws.y, ws.z))
+    bridge = fb.FrankaBridge(
+        session, "panda", loop, robot, fb.GripperDriver(None), clock=clock, wall=clock,
+        limits=limits, period=0.005,
+    )  # fmt: skip
+    stepped = Stepped(loop, robot, clock.now)
+
+    def tick() -> None:
+        stepped.catch_up(clock.now)  # the arm's cycles since the last tick, then the tick
+        bridge.tick()
+
+    def settle(held: Held) -> list[tuple[float, np.ndarray]]:
+        rows = []
+        for _ in range(200):  # 1 s of the held clock at most
+            held.now += 0.005
+            tick()
+            rows.append((held.now, robot.q.copy()))
+            if loop.ramp.at_rest():
+                return rows
+        raise AssertionError(f"still moving 1 s after the stop: {loop.ramp.v}")
+
+    return Driven(
+        lambda: bridge.accepted + bridge.rejected,
+        lambda: robot.q.copy(),
+        tick,
+        lambda: dict(bridge.counts),
+        lambda: bridge.stopped_by,
+        np.array(bridge.guard.joint_caps),
+        bridge.close,
+        arm="panda",
+        settle=settle,
+    )
 
 
 @pytest.mark.parametrize("make", [fake_bridge, intera_bridge, franka_bridge])
@@ -282,59 +334,67 @@ def test_every_bridge_holds_the_one_guards_limits(
 ) -> None:
     """An attacker on the loopback transport sends every joint at its specification speed
     toward the table, ttl 1 s, 200 commands per second of the bridge's clock (over its
-    60/s), then under the rate; an observer's stop holds the arm until the daemon's
-    resume. On the held clock, step by step: no joint over its cap, the endpoint no faster
-    than its cap and never out of the box (+ margin)."""
+    60/s), then under the rate; an observer's stop holds the arm (once it is at rest) until
+    the daemon's resume. On the held clock, step by step: no joint over its cap, the
+    endpoint no faster than its cap and never out of the box (+ margin). The limits are
+    the Sawyer profile's for every arm (a profile holds limits, not an arm)."""
     profile = load_profile(PROFILE)
-    world = World(load_scene("desk"), visual=False)
     box = grown(profile.workspace, profile.bridge.workspace_margin)
     clock = Held()
     with three_peers() as (bridge_session, attacker, _):
         bridge = make(bridge_session, clock, profile, monkeypatch)
+        keys = bridge_keys(bridge.robot)
+        world = World(load_scene("desk"), arm=bridge.arm, visual=False)
+        spec = np.asarray(arm(bridge.arm).speed_limits)
+        zero = [0.0] * len(spec)
         try:
 
             def deliver(key: str, payload: bytes) -> None:
                 n = bridge.received()
                 attacker.put(key, payload)
-                if key == KEYS["command"]:
+                if key == keys["command"]:
                     assert wait_for(lambda: bridge.received() > n), "not delivered"
 
             assert wait_for(
                 lambda: (
-                    (attacker.put(KEYS["command"], command(0, [0.0] * 7, 0.05)), None)[1] is None
+                    (attacker.put(keys["command"], command(0, zero, 0.05)), None)[1] is None
                     and wait_for(lambda: bridge.received() > 0, 0.1)
                 )
             )
             clock.now += 1.0
+            bridge.tick()
             world.set_q(bridge.q())
-            outward = np.sign(np.linalg.pinv(world.jacobian()[:3]) @ [0.0, 0.0, -1.0]) * SPEC
+            outward = np.sign(np.linalg.pinv(world.jacobian()[:3]) @ [0.0, 0.0, -1.0]) * spec
             rows = [(clock.now, bridge.q())]
             for k in range(240):
                 if k < 120 or k % 4 == 0:  # 200/s, then 50/s
-                    deliver(KEYS["command"], command(k, list(outward), 1.0))
+                    deliver(keys["command"], command(k, list(outward), 1.0))
                 clock.now += 0.005
                 bridge.tick()
                 rows.append((clock.now, bridge.q()))
+            # the arm moved (the checks below are on motion, not on an arm that froze):
+            # 0.4 rad here for the fake and the Intera bridge, 0.1 for the Franka's ramp
+            assert float(np.max(np.abs(rows[-1][1] - rows[0][1]))) > 0.05
             counts = bridge.counts()
             assert counts["rate"] > 0 and counts["joint_speed"] > 0 and counts["ttl"] > 0
             assert counts["ee_speed"] > 0
-            observer_stop = stop_key("sawyer", "observer")
+            observer_stop = stop_key(bridge.robot, "observer")
             bridge_session.put(observer_stop, b"")  # a local put: delivered to its own peer
             assert wait_for(lambda: bridge.stopped_by() == "observer")
-            bridge.tick()  # the stop acts from the bridge's next tick (Intera: the hold)
+            rows += bridge.settle(clock)  # the stop acts from the bridge's next tick
             held = bridge.q()
             for k in range(20):
-                deliver(KEYS["command"], command(300 + k, list(-outward * 0.1), 1.0))
+                deliver(keys["command"], command(300 + k, list(-outward * 0.1), 1.0))
                 clock.now += 0.02
                 bridge.tick()
             np.testing.assert_array_equal(bridge.q(), held)
             resume = json.dumps({"schema": 1, "seq": 0, "stamp": 1.0}).encode()
-            bridge_session.put(KEYS["resume"], resume)  # the daemon's
+            bridge_session.put(keys["resume"], resume)  # the daemon's
             assert wait_for(lambda: bridge.stopped_by() is None)
-            deliver(KEYS["command"], command(400, list(-outward * 0.1), 1.0))
-            clock.now += 0.02
-            bridge.tick()
-            clock.now += 0.02
+            deliver(keys["command"], command(400, list(-outward * 0.1), 1.0))
+            for _ in range(2):
+                clock.now += 0.02
+                bridge.tick()
             assert not np.array_equal(bridge.q(), held)  # back toward the box: allowed
         finally:
             bridge.close()
