@@ -300,6 +300,7 @@ def test_the_rate_the_latch_and_the_ttl_on_receipt() -> None:
             later = now + 1.0  # the bucket refilled; a long ttl is cut to max_ttl
             bridge.handle_command(payload(ttl=0.9), later)
             assert bridge.counts["ttl"] == 1
+            assert guard.live is not None
             assert guard.live.expires == pytest.approx(later + fb.TTL_CAP)
             bridge.handle_stop("legws/panda/stop/observer", b"not json")
             assert bridge.stopped_by == "observer" and bridge.invalid_stops == 1
@@ -326,3 +327,69 @@ def test_the_guard_is_legws_one() -> None:
     assert fb.guard_module.Guard.__qualname__ == limits.Guard.__qualname__
     assert fb.guard_module.LIMITS == fb.LIMITS
     assert fb.guard_module.BridgeLimits().describe() == limits.BridgeLimits().describe()
+
+
+def test_the_control_loop_cycle_by_cycle(monkeypatch: pytest.MonkeyPatch) -> None:
+    """:meth:`FrankaArm.cycle` (the thread's one turn) on a fake arm at pylibfranka, on a
+    held clock: idle reads until a live target, then one motion whose velocities ramp within
+    libfranka's limits to the target, brake to rest once it expires and end the motion
+    (``motion_finished`` at rest) after :data:`IDLE_FINISH`; a library error ends the motion,
+    the fault kept (no new motion) until the recovery."""
+    from legws_daemon.robot.world import World
+    from legws_daemon.scene.catalog import load_scene
+    from tests.hardware.fake_franka import CYCLE, LIBRARY, FakeFranka
+
+    ready = _registry().arm("panda").ready_posture
+    now = [10.0]
+    robot = FakeFranka(World(load_scene("desk"), arm="panda", visual=False), ready)
+    loop = fb.FrankaArm(robot, LIBRARY, clock=lambda: now[0])
+    speeds: list[np.ndarray] = []
+
+    def run(cycles: int) -> None:
+        for _ in range(cycles):
+            loop.cycle()
+            now[0] += CYCLE
+            speeds.append(robot.dq.copy())
+
+    run(5)
+    assert not robot.moving and loop.motions == 0 and robot.written == 0
+    state = loop.latest()
+    assert state is not None and state.mode == "Idle" and state.q == pytest.approx(ready)
+    target = [0.2, -0.1, 0.0, 0.3, 0.0, 0.0, -0.4]
+    loop.set_target(target, now[0] + 0.4)
+    run(1)
+    assert robot.moving and loop.motions == 1 and robot.written == 0  # started, nothing sent
+    run(400)
+    assert robot.written == 400 and loop.cycles == 400
+    assert robot.dq == pytest.approx(target, abs=1e-3)  # reached in 0.4 s
+    budget = loop.ramp.braking_time(target) + 0.2  # expired: braking (the slack as above)
+    for _ in range(int(budget / CYCLE)):
+        run(1)
+        if loop.ramp.at_rest():
+            break
+    assert loop.ramp.at_rest() and not np.any(robot.dq) and loop.moving()
+    run(int(fb.IDLE_FINISH / CYCLE) + 2)  # at rest that long: the motion ends
+    assert not robot.moving and not loop.moving() and loop.motions == 1
+    accel = np.diff(np.array(speeds), axis=0) / CYCLE
+    assert np.all(np.abs(accel) <= np.array(fb.ACCEL_LIMITS) * fb.ACCEL_FRACTION + 1e-6)
+
+    loop.set_target(target, now[0] + 1.0)
+    run(50)
+    assert robot.moving and loop.motions == 2 and np.any(robot.dq)
+
+    def reflex(command: object) -> None:
+        raise RuntimeError("cartesian_reflex")
+
+    monkeypatch.setattr(robot, "writeOnce", reflex)
+    loop.cycle()
+    monkeypatch.undo()
+    assert not loop.moving() and not any(loop.ramp.v)
+    robot.moving = False  # libfranka ends the motion on a reflex
+    run(20)
+    state = loop.latest()
+    assert state is not None and state.fault == "RuntimeError: cartesian_reflex"
+    assert loop.motions == 2  # the target still live, but no motion with a fault kept
+    loop.recover()
+    run(2)
+    state = loop.latest()
+    assert state is not None and state.fault is None and loop.motions == 3 and robot.moving
