@@ -17,6 +17,13 @@ import math
 from dataclasses import asdict, dataclass, field
 
 
+def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """``[w, x, y, z]`` of a turn by ``yaw`` (rad) about the z axis: legws' one formula
+    (:func:`legws_daemon.core.geometry.yaw_quat` is its array form)."""
+    half = 0.5 * float(yaw)
+    return (math.cos(half), 0.0, 0.0, math.sin(half))
+
+
 @dataclass(frozen=True)
 class Mount:
     """Where the arm's base stands in table coordinates: position (m) and yaw (rad)."""
@@ -28,7 +35,7 @@ class Mount:
 
     def quaternion(self) -> tuple[float, float, float, float]:
         """``[w, x, y, z]`` of the yaw about the table's z axis."""
-        return (math.cos(self.yaw / 2), 0.0, 0.0, math.sin(self.yaw / 2))
+        return yaw_quaternion(self.yaw)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from legws_daemon.arms.spec import yaw_quaternion
 from legws_daemon.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -129,9 +130,9 @@ def _one_matrix_to_quat(R: FloatArray) -> FloatArray:
 
 def yaw_quat(yaw: float) -> FloatArray:
     """The quaternion ``[w, x, y, z]`` of a turn by ``yaw`` (rad) about the world z axis:
-    an object's orientation as it stands on the table."""
-    half = 0.5 * float(yaw)
-    return np.array([math.cos(half), 0.0, 0.0, math.sin(half)])
+    an object's orientation as it stands on the table (:func:`~legws_daemon.arms.spec.
+    yaw_quaternion` as an array)."""
+    return np.array(yaw_quaternion(yaw))
 
 
 def rot_z(yaw: ArrayLike) -> FloatArray:

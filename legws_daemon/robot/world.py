@@ -129,8 +129,7 @@ def _robot_spec(spec: ArmSpec, visual: bool) -> mujoco.MjSpec:
     if hand is None:
         raise _model_error(spec, "find the hand body in", KeyError(spec.hand_body))
     if spec.flange_yaw:  # the gripper turned on the flange (puts the wrist mid-range at home)
-        c, s = np.cos(spec.flange_yaw / 2), np.sin(spec.flange_yaw / 2)
-        hand = hand.add_body(name="gripper", quat=[c, 0.0, 0.0, s])
+        hand = hand.add_body(name="gripper", quat=list(yaw_quat(spec.flange_yaw)))
     grey = [0.25, 0.25, 0.27, 1.0]
     hand.add_geom(
         name="gripper_base", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.055, 0.03],
