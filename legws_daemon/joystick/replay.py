@@ -36,16 +36,21 @@ def load_recording(path: Path) -> list[JoystickMessage]:
     validate, for a ``stamp`` earlier than its predecessor's within one recording, for more
     than :data:`MAX_MESSAGES` messages, and for a file without messages.
     """
-    messages: list[JoystickMessage] = []
-    for number, line in read_lines(path, "joystick log"):  # a line at a time
+    lines: list[tuple[int, str]] = []
+    for number, line in read_lines(path, "joystick log"):  # within the file's size limit
         if not line.strip():
             continue
-        where = f"{path}:{number}"
-        if len(messages) >= MAX_MESSAGES:
+        if len(lines) >= MAX_MESSAGES:
+            # refused before a line is parsed: a file of too many messages costs a read,
+            # not the seconds of validating the first 150,000
             raise InputError(
                 f"more than {MAX_MESSAGES:,} messages (two hours at 20 Hz): split the file",
-                source=where,
+                source=f"{path}:{number}",
             )
+        lines.append((number, line))
+    messages: list[JoystickMessage] = []
+    for number, line in lines:
+        where = f"{path}:{number}"
         message = parse(JoystickMessage, line, where)
         if messages and _continues(messages[-1], message) and message.stamp < messages[-1].stamp:
             raise InputError(

@@ -92,6 +92,23 @@ def test_empty_and_missing_files_are_refused(tmp_path: Path) -> None:
         load_recording(tmp_path / "missing.jsonl")
 
 
+def test_too_many_messages_are_refused_before_any_is_parsed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import legws_daemon.joystick.replay as module
+
+    monkeypatch.setattr(module, "MAX_MESSAGES", 4)
+    lines = ["{broken", "", *[good(i, 1.0 + 0.05 * i) for i in range(1, 4)], good(4, 1.2)]
+    path = write_lines(tmp_path / "r.jsonl", lines)
+    with pytest.raises(InputError) as info:
+        load_recording(path)
+    # the fifth message (line 6) is one too many; the broken first line is never parsed
+    assert str(info.value).startswith(f"{path}:6: more than 4 messages"), str(info.value)
+    assert [m.seq for m in load_recording(write_lines(tmp_path / "ok.jsonl", lines[2:]))] == [
+        1, 2, 3, 4,
+    ]  # fmt: skip
+
+
 def test_schedule_keeps_intervals_within_a_recording_and_bridges_between() -> None:
     # two recordings appended: seq 0..2 at t = 10.0, 10.1, 10.3, then seq 0..1 an hour later
     msgs = [message(0, 10.0), message(1, 10.1), message(2, 10.3), message(0, 3610.0)]
