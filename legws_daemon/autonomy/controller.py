@@ -65,7 +65,15 @@ from legws_daemon.autonomy.inputs import (
     zero,
 )
 from legws_daemon.autonomy.layouts import LayoutBook
-from legws_daemon.autonomy.modes import STILL, Mode, ModeMachine
+from legws_daemon.autonomy.modes import (
+    RESET_LABEL,
+    STILL,
+    Activity,
+    Gripper,
+    Mode,
+    ModeMachine,
+    SingleCommit,
+)
 from legws_daemon.autonomy.placing import PlacementReport
 from legws_daemon.autonomy.recovery import Recovery
 from legws_daemon.core.geometry import FloatArray
@@ -85,8 +93,6 @@ from legws_daemon.task.plan import Plan, PlannedDecision
 from legws_daemon.task.runner import TaskRun, scene_graph
 from legws_daemon.task.targets import Held, held_object
 
-#: The assistance target of a reset, which no cancel interrupts.
-RESET_TARGET = "(reset)"
 #: Builds a connected adapter for a scene (the service decides which kind).
 AdapterFactory = Callable[[Scene], Adapter]
 #: The operator commands that load something (prepared off the control loop by the daemon).
@@ -174,10 +180,7 @@ class Controller:
         self.committed: str | None = None
         self.last_state: RobotState | None = None
         self.inference = Inference(params, self.dt, scene.home.rotation)
-        self._gripper: bool | None = None
         self._held: Held | None = None  # what the gripper closed on, and how
-        self._recovering = False  # the running reset began in fault
-        self._auto_commit = True
         self.decisions = 0
         self._motion: FloatArray = np.zeros(3)  # the EE velocity sent last tick
         self.layouts = LayoutBook(layout, plan)
@@ -204,7 +207,7 @@ class Controller:
     @property
     def held(self) -> Held | None:
         """What the gripper holds (``None`` while it is open or holds nothing)."""
-        return self._held if self._gripper is not False else None
+        return self._held if self.modes.gripper != Gripper.OPEN else None
 
     # --- stages and inference -------------------------------------------------------
     def _begin_stage(self, prepared: StageState | None = None) -> StageState:
@@ -223,16 +226,16 @@ class Controller:
         self.inference.stop()
         targets = self.stage.targets
         if self.task.finished:
-            self.modes.to(Mode.IDLE)
+            self.modes.to(Activity.IDLE)
             self.emit(TaskDone(self.graph.name, tuple(self.task.history)))
         elif len(targets) == 1:
-            self._auto_commit = True
-            self.modes.to(Mode.TELEOP)
+            self.modes.single_stage()
+            self.modes.to(Activity.TELEOP)
             state = self._read_state_safely()
             if state is not None:
                 self._commit(targets[0].name, 1.0, state, confirmed=False, single=True)
         else:
-            self.modes.to(Mode.TELEOP)
+            self.modes.to(Activity.TELEOP)
             self._restart_inference()
         return self.stage
 
@@ -274,7 +277,8 @@ class Controller:
         the layout (on the stand-in), nothing in the gripper. For a simulation's restart
         (``legws eval`` puts the stand-in's arm home first); the daemon's way is a reset."""
         self.assistant = None
-        self._gripper, self._held = None, None
+        self._held = None
+        self.modes.forget_gripper()
         self.task = TaskRun(self.graph, self.scene)
         self._place(self.layouts.layout)
         self._begin_stage()
@@ -432,7 +436,7 @@ class Controller:
         if self.inference.observer is None:
             # a single-candidate stage: it starts by itself, but after a failed attempt
             # only when the user confirms (no retrying for ever on its own)
-            if len(self.stage.targets) == 1 and (self._auto_commit or confirm):
+            if len(self.stage.targets) == 1 and (self.modes.single == SingleCommit.AUTO or confirm):
                 self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
                 return zero()
         else:
@@ -456,9 +460,17 @@ class Controller:
         first from where the EE is), one at a time; inference stops, and loads are refused
         until the run is over.
 
+        An assistance toward a goal under way is dropped first (the user drives again).
+
         Raises:
-            InputError: ``count`` outside 2..200, no room for the reaches, or no robot state.
+            InputError: ``count`` outside 2..200, no room for the reaches, no robot state,
+                the robot stopped or in fault (reset first), or a reset on its way home.
         """
+        activity = self.modes.activity
+        if activity in (Activity.STOPPED, Activity.FAULT):
+            raise InputError(f"the robot is in '{activity}': reset it before a calibration")
+        if activity.going_home:
+            raise InputError("a reset is on its way home: calibrate once it is there")
         state = self._read_state_safely()
         if state is None:
             raise InputError("the robot gives no state: no calibration without one")
@@ -468,7 +480,9 @@ class Controller:
         self.assistant = None
         self.committed = None
         self.calibration = CalibrationRun(targets, self.dt)
-        self.modes.to(Mode.CALIBRATE)
+        if activity == Activity.ASSIST:
+            self.modes.to(Activity.TELEOP)  # the assistance dropped: the user drives again
+        self.modes.to(Activity.CALIBRATE)
         return self.calibration
 
     def _calibrate(self, state: RobotState, inp: OperatorInput | None) -> Command:
@@ -481,7 +495,7 @@ class Controller:
         for event in events:
             self.emit(event)
         if run.finished:
-            self.modes.to(Mode.IDLE)
+            self.modes.to(Activity.IDLE)
         if not drive or inp is None:
             return zero()  # reached (the next target appears next tick), or the deadman
         return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
@@ -497,6 +511,7 @@ class Controller:
     def _commit(
         self, goal: str, p: float, state: RobotState, *, confirmed: bool, single: bool = False
     ) -> None:
+        self.modes.may_commit(single=single, confirmed=confirmed)
         t = self.stage.target(goal)
         self.committed = goal
         self.emit(
@@ -512,9 +527,11 @@ class Controller:
         except InfeasibleError as err:
             self._give_back(AssistFailed(goal, "plan", str(err)))
             return
-        self._start_assist([*plan, *ctx.home_after(plan)], goal)
+        self._start_assist([*plan, *ctx.home_after(plan)], goal, Activity.ASSIST)
 
-    def _start_assist(self, plan: list[Primitive], target: str) -> None:
+    def _start_assist(self, plan: list[Primitive], target: str, activity: Activity) -> None:
+        """Assistance carrying out ``plan`` for ``target`` (a goal, or :data:`RESET_LABEL`
+        on a reset's way home), in ``activity``."""
         held = {self._held.name} if self._held is not None else set()
         ignore = frozenset({target, *held})  # what the arm may touch: its goal, what it holds
 
@@ -527,15 +544,14 @@ class Controller:
         )
         self.cancel.reset()
         self._motion = np.zeros(3)
-        self.modes.to(Mode.ASSIST)
+        self.modes.to(activity)
 
     def _give_back(self, warning: AssistFailed) -> None:
         """Assistance cannot go on: the user drives again (a single-candidate stage then
         waits for the confirm button), inference restarts from here."""
         self.emit(warning)
-        self._auto_commit = False
         self.assistant = None
-        self.modes.to(Mode.TELEOP)
+        self.modes.give_back()
         self._restart_inference()
 
     def _assist(self, state: RobotState, inp: OperatorInput | None) -> tuple[Command, str]:
@@ -543,24 +559,25 @@ class Controller:
         assert a is not None
         button = inp is not None and inp.cancel
         reason = self.cancel.update(inp.axes if inp else None, self._motion, button)
-        if reason is not None and a.target != RESET_TARGET:
+        going_home = self.modes.activity.going_home  # no cancel interrupts a reset
+        if reason is not None and not going_home:
             self._cancel(a, reason)
             return zero(), "cancelled"
         step = a.step(state.q, state.ee_position, state.ee_rotation, inp is not None)
-        if step.grip is not None and step.grip != self._gripper:
+        if step.grip is not None and Gripper.of(step.grip) != self.modes.gripper:
             try:
                 self.adapter.grip(step.grip)
-                self._gripper = step.grip
+                self.modes.gripped(step.grip)
             except LegwsError as err:
                 self._to_fault(f"grip: {err}")
                 return zero(), step.phase
             self._record_grip(a, state, step.grip)
         if step.failed is not None:
-            if a.target == RESET_TARGET:
+            if going_home:
                 ctx = self._context(state)
                 plan = self.recovery.fallback(ctx, ctx.held, step.phase, step.failed)
                 if plan is not None:
-                    self._start_assist(plan, RESET_TARGET)
+                    self._start_assist(plan, RESET_LABEL, self.modes.activity)
                     return zero(), step.phase
             self._give_back(AssistFailed(a.target, step.phase, step.failed))
             return zero(), step.phase
@@ -576,7 +593,7 @@ class Controller:
         (a reset puts it back there); forget it when the gripper opens."""
         if not closed:
             self._held = None
-        elif a.target in self.scene.movable:
+        elif self.modes.activity == Activity.ASSIST and a.target in self.scene.movable:
             self._held = held_object(
                 self.scene, self.layouts.layout, a.target, state.ee_position,
                 state.ee_rotation, state.q,
@@ -595,18 +612,17 @@ class Controller:
             self._begin_stage()
             if self.mode != Mode.TELEOP:
                 return  # a single-candidate stage goes on by itself, or the task is done
-        self.modes.to(Mode.TELEOP)
+        self.modes.to(Activity.TELEOP)
         self._restart_inference()
 
     def _finish_assist(self, a: Assistant) -> None:
         self.assistant = None
-        if a.target == RESET_TARGET:
-            done = Recovered if self._recovering else Reset
-            self._recovering = False
+        if self.modes.activity.going_home:
+            done = Recovered if self.modes.activity == Activity.RECOVER else Reset
             self.emit(done(self.graph.name))
             if self.calibration is not None:
                 # home again: the calibration goes on (the interrupted target appears again)
-                self.modes.to(Mode.CALIBRATE if self._calibrating() else Mode.IDLE)
+                self.modes.to(Activity.CALIBRATE if self._calibrating() else Activity.IDLE)
                 return
             self.task = TaskRun(self.graph, self.scene)
             self._place(self.layouts.layout)
@@ -665,7 +681,7 @@ class Controller:
         the operator's ``reset``. ``by`` is the authenticated role that asked. ``announce``
         ``False``: all of that, without the ``stop`` event (a flood of stops: the daemon
         says one a second, with the ``repeats`` it did not announce)."""
-        self.modes.to(Mode.STOPPED)
+        self.modes.to(Activity.STOPPED)
         self.assistant = None
         if self.calibration is not None:
             self.calibration.interrupt()
@@ -691,11 +707,12 @@ class Controller:
         state = self._read_state_safely()
         if state is None:
             raise HardwareError(f"the robot is still failing: {self.fault or 'no state'}")
-        held = self._held if self._gripper is not False else None
-        plan = self.recovery.begin(self._context(state), held)
-        self._recovering = self.mode == Mode.FAULT
+        plan = self.recovery.begin(self._context(state), self.held)
+        if self.calibration is not None:
+            self.calibration.interrupt()  # the reach under way is dropped (as by a stop)
         self.inference.stop()
-        self._start_assist(plan, RESET_TARGET)
+        activity = Activity.RECOVER if self.mode == Mode.FAULT else Activity.RESET
+        self._start_assist(plan, RESET_LABEL, activity)
         return {"mode": self.mode.value, "plan": [p.label for p in plan]}
 
     def _warn_plan_dropped(self, dropped: Plan) -> None:
@@ -797,7 +814,8 @@ class Controller:
             self.recovery = Recovery(self.adapter.table_height, self.emit)
             prepared.adapter = None  # installed: no longer the prepared load's to discard
         self.layouts, self.graph, self.task = prepared.layouts, prepared.graph, prepared.task
-        self.assistant, self._gripper, self._recovering = None, None, False
+        self.assistant = None
+        self.modes.forget_gripper()
         placed = self._place(self.layouts.layout)
         if placed:
             self._held = None  # the stand-in let go of it and put it back

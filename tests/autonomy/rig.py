@@ -45,11 +45,23 @@ class StandIn(SimAdapter):
     """The stand-in with switches that make the hardware fail (the hardware edge):
     ``failing`` (every call raises), ``wrist_jammed`` (orientation holds are ignored: the
     arm keeps the orientation it has), ``joints_jammed`` (joint-space commands move
-    nothing)."""
+    nothing), ``grip_failing`` (the gripper refuses). ``grips`` records every grip the
+    gripper carried out (``True``: close)."""
 
     failing = False
     wrist_jammed = False
     joints_jammed = False
+    grip_failing = False
+
+    def __init__(self, profile: ProfileSpec, scene: Scene) -> None:
+        super().__init__(profile, scene)
+        self.grips: list[bool] = []
+
+    def _grip(self, closed: bool) -> None:
+        if self.grip_failing:
+            raise HardwareError("gripper not responding")
+        super()._grip(closed)
+        self.grips.append(closed)
 
     def _read_state(self) -> RobotState:
         if self.failing:
