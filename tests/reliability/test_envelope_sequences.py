@@ -19,6 +19,7 @@ posture; here every joint anywhere in its range or at a stop, twists up to 1e6).
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 import numpy as np
@@ -268,7 +269,8 @@ class EnvelopeMachine(RuleBasedStateMachine):
 
 TestEnvelopeSequences = EnvelopeMachine.TestCase
 TestEnvelopeSequences.settings = settings(
-    max_examples=200,
+    # 120 sequences in the suite; LEGWS_ENVELOPE_SEQUENCES for a longer search
+    max_examples=int(os.environ.get("LEGWS_ENVELOPE_SEQUENCES", "120")),
     stateful_step_count=40,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
