@@ -7,10 +7,11 @@ as they happen, and logs to Rerun. I/O never blocks the loop: publishing and log
 asynchronous. Commands cannot stall control: at most :data:`COMMAND_QUEUE` wait (more are
 answered ``busy``), the loop takes up at most :data:`COMMANDS_PER_TICK` per tick, and a load
 (``load_scene``, ``load_taskgraph``: files, a new MuJoCo world, a plan) is prepared on its
-own thread while the robot goes on, then swapped in at the start of a tick (the robot stops
-there, as for any load); the replaced world is freed off the loop too. A ``stop`` cancels
-the loads before it. ``status`` and ``hello`` (a joystick session's key, in the reply to the
-asker alone: :mod:`.session_keys`) are answered on the zenoh thread at once.
+own thread while the robot goes on (:mod:`.loads`), then swapped in at the start of a
+tick (the robot stops there, as for any load); the replaced world is freed off the loop
+too. A ``stop`` cancels the loads before it. ``status`` and ``hello`` (a joystick session's
+key, in the reply to the asker alone: :mod:`.session_keys`) are answered on the zenoh
+thread at once. Where each command goes is one table, :data:`ROUTES` (:mod:`.commands`).
 
 On SIGINT/SIGTERM (or ``--duration``) the loop stops within one period; the robot is
 sent zero velocity and disconnected, the recording is flushed and closed, the zenoh
@@ -56,7 +57,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -66,7 +67,7 @@ import zenoh
 import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
 from legws_daemon.autonomy.calibration import CALIBRATION
 from legws_daemon.autonomy.confirms import confirm_forecast
-from legws_daemon.autonomy.controller import LOADS, Controller, PreparedLoad
+from legws_daemon.autonomy.controller import Controller, PreparedLoad
 from legws_daemon.autonomy.events import (
     Commit,
     ConfirmsNeeded,
@@ -91,8 +92,10 @@ from legws_daemon.autonomy.modes import Mode
 from legws_daemon.autonomy.operator_watch import OperatorWatch
 from legws_daemon.core.geometry import FloatArray, yaw_quat
 from legws_daemon.core.params import Params
+from legws_daemon.daemon.commands import PendingCommand, Request, Route, Where, check_routes
 from legws_daemon.daemon.gate import LoopGate
 from legws_daemon.daemon.inbox import JoystickInbox, NoInput
+from legws_daemon.daemon.loads import LoadPipeline
 from legws_daemon.daemon.scheduling import current_priority, enter_realtime
 from legws_daemon.daemon.telemetry_worker import TelemetryReport, TelemetryWorker
 from legws_daemon.daemon.throttle import Throttle
@@ -136,8 +139,6 @@ _SEVERITY = {"fault": "ERROR", "warning": "WARN", "fallback": "WARN", "stall": "
 COMMAND_TIMEOUT = 5.0
 #: Commands waiting for the loop at most; more are answered ``busy`` at once.
 COMMAND_QUEUE = 8
-#: Loads taken up and waiting for the preparer at most; more are answered ``busy``.
-LOAD_QUEUE = 4
 #: Commands the loop takes up per tick at most (the others wait for the next tick).
 COMMANDS_PER_TICK = 2
 #: An overrun warning event at most this often, seconds.
@@ -242,30 +243,6 @@ class DaemonConfig:
     on_event: Callable[[Event], None] | None = None
 
 
-@dataclass
-class _PendingCommand:
-    """A command on its way from the query to the loop; :meth:`finish` replies (once)."""
-
-    request: CommandRequest
-    respond: Callable[[dict[str, Any]], None]
-    arrived: float  # monotonic
-    answered: bool = False
-
-    def finish(self, reply: dict[str, Any]) -> None:
-        if not self.answered:
-            self.answered = True
-            self.respond(reply)
-
-
-@dataclass
-class _Load:
-    """A load being prepared off the loop."""
-
-    pending: _PendingCommand
-    future: Future[PreparedLoad]
-    cancelled: str | None = None  # why it will not be installed (a stop came after it)
-
-
 class DaemonService:
     """Runs the daemon until ``stop`` is set (or the configured duration passes)."""
 
@@ -289,16 +266,11 @@ class DaemonService:
         self._rejections_unreported: dict[str, InputRejected] = {}
         #: closed while a tick runs: the load preparer and command callbacks pause then
         self.gate = LoopGate()
-        self.commands: queue.Queue[_PendingCommand] = queue.Queue(maxsize=COMMAND_QUEUE)
-        #: loads taken up, waiting for the preparer; the one being prepared
-        self._loads: deque[_PendingCommand] = deque()
-        self._load: _Load | None = None
-        self._preparer = ThreadPoolExecutor(
-            max_workers=1, thread_name_prefix="legws-load", initializer=self.gate.enter_thread
+        self.commands: queue.Queue[PendingCommand] = queue.Queue(maxsize=COMMAND_QUEUE)
+        #: loads, prepared off the loop and installed by it
+        self.loads = LoadPipeline(
+            self._prepare, self._install, _dispose, initializer=self.gate.enter_thread
         )
-        #: work for the preparer's thread, handed over when the tick's own work is done (so
-        #: that a tick never shares the interpreter with a load being built or freed)
-        self._after_tick: list[Callable[[], object]] = []
         self._emit_lock = threading.Lock()
         self.fallback = False
         self.adapter_kind = self.profile.adapter
@@ -523,14 +495,11 @@ class DaemonService:
         except InputError as err:
             query.reply_err(json.dumps({"ok": False, "error": str(err)}).encode())
             return
-        if request.command == "status":
-            with self._status_lock:
-                status = self._status_bytes
-            query.reply(self.keys["command"], status)
+        route = ROUTES[request.command]
+        if route.answer is not None:
+            route.answer(self, query, request)
             return
-        if isinstance(request, HelloRequest):
-            self._hello(query, request)
-            return
+        assert isinstance(request, CommandRequest)
         key = self.keys["command"]
 
         def respond(reply: dict[str, Any]) -> None:
@@ -545,17 +514,23 @@ class DaemonService:
             finally:
                 query.drop()  # type: ignore[no-untyped-call]
 
-        pending = _PendingCommand(request, respond, time.monotonic())
+        pending = PendingCommand(request, respond)
         try:
             self.commands.put_nowait(pending)
         except queue.Full:
-            busy = f"busy: {COMMAND_QUEUE} commands are waiting; nothing was done"
-            pending.finish({"ok": False, "command": request.command, "error": busy})
+            pending.fail(f"busy: {COMMAND_QUEUE} commands are waiting; nothing was done")
 
-    def _hello(self, query: zenoh.Query, request: HelloRequest) -> None:
+    def _answer_status(self, query: zenoh.Query, request: Request) -> None:
+        """zenoh thread: ``status`` — the last status published, at once."""
+        with self._status_lock:
+            status = self._status_bytes
+        query.reply(self.keys["command"], status)
+
+    def _answer_hello(self, query: zenoh.Query, request: Request) -> None:
         """zenoh thread: ``hello`` — a key for the session named, in the reply to the asker
         alone (a query's reply never reaches other subscribers); status and events show the
         session's public id only."""
+        assert isinstance(request, HelloRequest)
         ok, body = answer_hello(self.inbox, request, self.started_at)
         if ok:
             query.reply(self.keys["command"], body)
@@ -607,7 +582,7 @@ class DaemonService:
         now = time.monotonic()
         while self._stops:
             role, message, error = self._stops.popleft()
-            self._cancel_loads(f"cancelled: a stop by {role} came after it")
+            self.loads.cancel(f"cancelled: a stop by {role} came after it")
             source = message.source if message is not None else None
             reason = message.reason if message is not None else f"invalid stop message: {error}"
             # every stop acts at once; a stop that stops the robot is always announced, a
@@ -630,12 +605,11 @@ class DaemonService:
 
     def _run_commands(self, now: float, install: bool = True) -> int:
         """Take up at most :data:`COMMANDS_PER_TICK` operator commands (a prepared load
-        installed counts as one; only when ``install``); returns how many. Loads are
-        prepared off the loop, one at a time, in order; a ``stop`` cancels the loads before
-        it (a load must not undo it)."""
-        c = self.controller
-        assert c is not None
-        done = self._install_load() if install else 0
+        installed counts as one; only when ``install``); returns how many. Each goes its
+        :data:`ROUTES` way: loads to the pipeline (prepared off the loop, one at a time, in
+        order), the others carried out here; one that cancels loads (``stop``) answers the
+        loads before it first (a load must not undo it)."""
+        done = self.loads.install_finished() if install else 0
         while done < COMMANDS_PER_TICK:
             try:
                 pending = self.commands.get_nowait()
@@ -644,107 +618,55 @@ class DaemonService:
             done += 1
             request = pending.request
             if time.monotonic() - pending.arrived > COMMAND_TIMEOUT:  # the loop was stalled
-                busy = f"busy: not taken up within {COMMAND_TIMEOUT:g} s; nothing was done"
-                pending.finish({"ok": False, "command": request.command, "error": busy})
+                pending.fail(f"busy: not taken up within {COMMAND_TIMEOUT:g} s; nothing was done")
                 continue
-            if request.command in LOADS:
-                if len(self._loads) >= LOAD_QUEUE:
-                    busy = f"busy: {LOAD_QUEUE} loads are waiting; nothing was done"
-                    pending.finish({"ok": False, "command": request.command, "error": busy})
-                else:
-                    self._loads.append(pending)
+            route = ROUTES[request.command]
+            if route.where == Where.LOAD:
+                self.loads.offer(pending)
                 continue
-            if request.command == "stop":
-                self._cancel_loads("cancelled: a stop came after it")
+            if route.cancels_loads:
+                self.loads.cancel(f"cancelled: a {request.command} came after it")
+            assert route.run is not None
             try:
-                if request.command in ("release", "take_control"):
-                    reply = {"ok": True, **self._lease_command(request)}
-                else:
-                    if request.command == "stop":
-                        c.stop("operator", "the command key")
-                        detail: dict[str, Any] = {"mode": c.mode.value}
-                    else:
-                        assert request.command == "reset", request.command
-                        detail = c.reset()
-                        detail["waiting"] = _waiting(self.inbox.poll(now)[1])
-                    reply = {"ok": True, "command": request.command, **detail}
+                reply = {"ok": True, "command": request.command, **route.run(self, request, now)}
             except LegwsError as err:
                 reply = {"ok": False, "command": request.command, "error": str(err)}
             pending.finish(reply)
-        if self._load is None and self._loads:
-            self._after_tick.append(self._prepare_next)
         return done
 
-    def _off_loop(self, fn: Callable[..., object], *args: object) -> None:
-        """Run ``fn(*args)`` on the preparer's thread, handed over after this tick's work."""
-        self._after_tick.append(functools.partial(self._preparer.submit, fn, *args))
+    def _prepare(self, request: CommandRequest) -> PreparedLoad:
+        """The preparer's thread: a load built for the controller (files, world, plan)."""
+        c, cfg = self.controller, self.config
+        assert c is not None
+        return c.prepare(request, cfg.scene_loader, cfg.graph_loader, cfg.plan_loader)
 
-    def _hand_over(self) -> None:
-        """Give the preparer its work for this tick (the tick's own work is done)."""
-        work, self._after_tick = self._after_tick, []
-        for job in work:
-            job()
+    def _install(self, prepared: PreparedLoad) -> tuple[dict[str, Any], Any]:
+        """The loop: a prepared load swapped in (its reply's detail, the adapter replaced)."""
+        assert self.controller is not None
+        return self.controller.install(prepared)
 
-    def _prepare_next(self) -> None:
-        """Start preparing the next load, if none is being prepared."""
+    def _run_stop(self, request: CommandRequest, now: float) -> dict[str, Any]:
+        """``stop``: zero velocity, the robot side told to hold it, until ``reset``."""
         c = self.controller
-        if self._load is not None or not self._loads or c is None:
-            return
-        pending = self._loads.popleft()
-        cfg = self.config
-        future = self._preparer.submit(
-            c.prepare, pending.request, cfg.scene_loader, cfg.graph_loader, cfg.plan_loader
-        )
-        self._load = _Load(pending, future)
+        assert c is not None
+        c.stop("operator", "the command key")
+        return {"mode": c.mode.value}
 
-    def _install_load(self) -> int:
-        """Install the load whose preparation finished (1), or nothing (0)."""
-        load, c = self._load, self.controller
-        if load is None or not load.future.done() or c is None:
-            return 0
-        self._load = None
-        command = load.pending.request.command
-        try:
-            prepared = load.future.result()
-        except LegwsError as err:
-            if load.cancelled is None:
-                load.pending.finish({"ok": False, "command": command, "error": str(err)})
-            return 1
-        if load.cancelled is not None:
-            self._off_loop(prepared.discard)
-            return 1
-        try:
-            detail, old = c.install(prepared)
-        except LegwsError as err:
-            self._off_loop(prepared.discard)
-            load.pending.finish({"ok": False, "command": command, "error": str(err)})
-            return 1
-        load.pending.finish({"ok": True, "command": command, **detail})
-        if old is not None:
-            self._off_loop(_dispose, old)
-        return 1
+    def _run_reset(self, request: CommandRequest, now: float) -> dict[str, Any]:
+        """``reset``: home and the task again; ``waiting`` says what the arm waits for."""
+        assert self.controller is not None
+        detail = self.controller.reset()
+        detail["waiting"] = _waiting(self.inbox.poll(now)[1])
+        return detail
 
-    def _cancel_loads(self, why: str) -> None:
-        """Answer the loads not installed yet with ``why``; none of them will be."""
-        while self._loads:
-            pending = self._loads.popleft()
-            pending.finish({"ok": False, "command": pending.request.command, "error": why})
-        load = self._load
-        if load is not None and load.cancelled is None:
-            load.cancelled = why
-            load.pending.finish(
-                {"ok": False, "command": load.pending.request.command, "error": why}
-            )
-
-    def _lease_command(self, request: CommandRequest) -> dict[str, Any]:
+    def _run_lease(self, request: CommandRequest, now: float) -> dict[str, Any]:
         """``release`` / ``take_control``: the lease changes hands now (the events follow)."""
-        now = time.monotonic()
         if request.command == "release":
             self.inbox.release(now)
         else:
             assert request.argument is not None
             self.inbox.take_control(request.argument, now)
-        return {"command": request.command, "operator": self.inbox.operator()}
+        return {"operator": self.inbox.operator()}
 
     # --- the operator's input ---------------------------------------------------------------
     def _report_input(self, now: float, why: NoInput | None) -> None:
@@ -1071,7 +993,7 @@ class DaemonService:
             self._report_telemetry()
             self._trace(rec, now, commands)
             self.gate.open()
-            self._hand_over()
+            self.loads.hand_over()
             if ticker.end():
                 self._overrun_warning()
             if c.calibration is not None and c.calibration.finished:
@@ -1133,12 +1055,7 @@ class DaemonService:
 
     def _fail_pending(self) -> None:
         """At shutdown: answer every command not carried out; discard a prepared load."""
-        self._cancel_loads("the daemon is shutting down")
-        load, self._load = self._load, None
-        if load is not None:
-            with contextlib.suppress(Exception):
-                load.future.result(timeout=30.0).discard()
-        self._preparer.shutdown(wait=True, cancel_futures=True)
+        self.loads.shutdown()
         while True:
             try:
                 pending = self.commands.get_nowait()
@@ -1225,3 +1142,18 @@ def catalog_taskgraph(name: str) -> tuple[TaskGraph, Scene]:
     if not re.fullmatch(r"[a-z][a-z0-9_]*", name):
         raise InputError(f"expected a task graph name, got {name!r}", field="argument")
     return load_taskgraph(resolve_taskgraph(name))
+
+
+#: The command router: every command on the command key, where it is carried out and by
+#: which handler (:mod:`.commands`; checked against the messages' commands at import).
+ROUTES: dict[str, Route[DaemonService]] = {
+    "hello": Route(Where.AT_ONCE, answer=DaemonService._answer_hello),
+    "status": Route(Where.AT_ONCE, answer=DaemonService._answer_status),
+    "stop": Route(Where.LOOP, run=DaemonService._run_stop, cancels_loads=True),
+    "reset": Route(Where.LOOP, run=DaemonService._run_reset),
+    "release": Route(Where.LOOP, run=DaemonService._run_lease),
+    "take_control": Route(Where.LOOP, run=DaemonService._run_lease),
+    "load_scene": Route(Where.LOAD),
+    "load_taskgraph": Route(Where.LOAD),
+}
+check_routes(ROUTES)
