@@ -299,9 +299,6 @@ class Certificate:
     def certified(self) -> bool:
         return self.objective > 0.0
 
-    def worst_pair(self) -> PairCertificate:
-        return min(self.pairs, key=lambda p: p.slack)
-
 
 def certify(
     goals: GoalSet,

@@ -237,7 +237,3 @@ class Pose:
     @property
     def rotation(self) -> FloatArray:
         return quat_to_matrix(self.quaternion)
-
-    @staticmethod
-    def from_matrix(position: ArrayLike, R: ArrayLike) -> Pose:
-        return Pose(np.asarray(position, dtype=np.float64), matrix_to_quat(R))

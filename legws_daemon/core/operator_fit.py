@@ -43,7 +43,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
@@ -86,9 +85,6 @@ MIN_TICKS = 50
 ON_DIRECTION_DEG = 5.0
 #: The bias grid of quantised steering, degrees.
 BIAS_GRID = np.arange(BIAS_RANGE_DEG[0], BIAS_RANGE_DEG[1] + 1e-9, 0.25)
-#: Pairs simulated for the clip's effect on the lag-1 correlation, and its rho grid.
-_PAIRS = 40_000
-_RHO_GRID = np.linspace(0.0, RHO_RANGE[1], 100)
 
 
 @dataclass(frozen=True, slots=True)
@@ -381,37 +377,6 @@ def undo_clip(seen_speed: FloatArray, seen_sd: FloatArray) -> tuple[FloatArray, 
         s = np.clip(s - np.clip(ds, -0.2, 0.2), SPEED_RANGE[0], SPEED_RANGE[1])
         lam = np.maximum(lam - np.clip(dl, -0.5 * lam, 0.5 * lam), 1e-6)
     return s, lam
-
-
-@lru_cache(maxsize=64)
-def _clipped_correlation(speed: float, noise: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The lag-1 correlation of clipped residuals on :data:`_RHO_GRID` for the model
-    ``(speed, noise)``: a fixed-seed simulation of :data:`_PAIRS` pairs (common random
-    numbers across rho, so the table rises monotonically)."""
-    rng = np.random.default_rng(20261203)
-    first = rng.standard_normal((_PAIRS, 3)) * noise
-    fresh = rng.standard_normal((_PAIRS, 3)) * noise
-    e = np.array([speed, 0.0, 0.0])
-
-    def clip(v: FloatArray) -> FloatArray:
-        return np.asarray(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1.0))
-
-    c1 = clip(e + first)
-    mean = c1.mean(axis=0)
-    r1 = c1 - mean
-    out = []
-    for rho in _RHO_GRID:
-        r2 = clip(e + rho * first + math.sqrt(1 - rho * rho) * fresh) - mean
-        den = 0.5 * (np.einsum("nk,nk->", r1, r1) + np.einsum("nk,nk->", r2, r2))
-        out.append(float(np.einsum("nk,nk->", r1, r2) / den))
-    table = np.maximum.accumulate(np.array(out))  # sampling noise cannot make it fall
-    return tuple(_RHO_GRID.tolist()), tuple(table.tolist())
-
-
-def undo_clip_rho(seen: FloatArray, speed: float, noise: float) -> FloatArray:
-    """The model's ``rho`` whose clipped residuals show the lag-1 correlation ``seen``."""
-    grid, table = (np.array(v) for v in _clipped_correlation(round(speed, 6), round(noise, 6)))
-    return np.asarray(np.interp(seen, table, grid), dtype=np.float64)
 
 
 # --- the fit -----------------------------------------------------------------------------

@@ -89,11 +89,6 @@ class SimulatedUser:
         """Section 2's user (with the robot's clip when ``clip``)."""
         return cls(OperatorModel.paper(params), clip=clip)
 
-    @property
-    def modelled(self) -> bool:
-        """It behaves as its model says (no idle ticks, Gaussian, no delay)."""
-        return self.idle == 0.0 and self.tails is None and self.delay == 0
-
     def draw(self, rng: np.random.Generator, shape: tuple[int, ...], v_max: float) -> FloatArray:
         """One tick's innovations ``w_t / v_max`` ``shape + (3,)``, deflection units."""
         scale = self.operator.sigma / v_max

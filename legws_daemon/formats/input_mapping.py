@@ -153,12 +153,6 @@ def resolve_code(name: str, *allowed: int) -> tuple[int, int]:
     return etype, code
 
 
-def code_name(etype: int, code: int) -> str:
-    """The (first) evdev name of a code, e.g. ``(EV_KEY, 304)`` -> ``BTN_A``; ``?`` if none."""
-    names = _TABLES.get(etype, {}).get(code, "?")
-    return names if isinstance(names, str) else names[0]
-
-
 def _axis_code(name: str) -> str:
     try:
         resolve_code(name, EV_ABS, EV_REL)

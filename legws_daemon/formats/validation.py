@@ -451,15 +451,6 @@ def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def read_toml(path: Path, kind: str = "text") -> dict[str, Any]:
-    """Parse a TOML file of ``kind``; errors name the file and the position.
-
-    TOML itself forbids a key given twice; text with control or bidirectional characters
-    (:func:`check_text`) and non-finite numbers are refused.
-    """
-    return parse_toml(read_text(path, kind), str(path))
-
-
 def read_toml_with_lines(path: Path, kind: str = "text") -> tuple[dict[str, Any], SourceText]:
     """:func:`read_toml`, and the file's text to find the line of each error in (pass it
     to :func:`validate`)."""

@@ -434,10 +434,6 @@ class Publisher:
             self._record.write(payload.decode() + "\n")  # filled (said once)
         return message
 
-    def publish_zero(self) -> JoystickMessage:
-        """Publish zero deflection with no button pressed (enable held: a still stick)."""
-        return self.publish(ZERO)
-
     def goodbye(self) -> JoystickMessage:
         """The last message of every run: zero, enable released, ``bye`` (the daemon takes
         it as no input and ends this session's operator lease)."""

@@ -208,10 +208,6 @@ class Page:
     paper: Rect
     landscape: bool
 
-    def to_page(self, x: float, y: float) -> Point:
-        """A sheet point in the page's own millimetres (origin at its bottom-left corner)."""
-        return (x - self.paper.x0, y - self.paper.y0)
-
 
 Side = Literal["left", "right", "above", "below"]
 

@@ -23,7 +23,7 @@ import numpy as np
 from legws_daemon.core.geometry import FloatArray, Pose, matrix_to_quat, rot_z
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.scene.grasps import FINGER_DEPTH, extents
-from legws_daemon.scene.scene import Layout, ObjectPose, Scene
+from legws_daemon.scene.scene import ObjectPose, Scene
 
 #: Gripper pointing down (grasp-frame z along world -z): the top-grasp orientation.
 DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -149,7 +149,3 @@ def goal_set(targets: Sequence[Target], x0: Pose) -> GoalSet:
         np.array([t.symmetry for t in targets], dtype=np.int64),
         x0,
     )
-
-
-def layout_of(scene: Scene, layout: Layout | None) -> Layout:
-    return dict(layout) if layout is not None else scene.default_layout()

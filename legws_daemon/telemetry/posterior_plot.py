@@ -121,11 +121,6 @@ class StagePlot:
     inference: bool = True
 
 
-def posterior_png(stages: Sequence[StagePlot], title: str) -> bytes:
-    """The picture of ``stages`` (``WIDTH`` x ``HEIGHT`` pixels) as PNG bytes."""
-    return figure_png(posterior_figure(stages, title))
-
-
 def figure_png(fig: Figure) -> bytes:
     """A figure of :func:`posterior_figure` as PNG bytes."""
     out = io.BytesIO()

@@ -1270,11 +1270,6 @@ class RerunLog:
             return f"the file has not grown for {now - previous[3]:.0f} s while data was logged"
         return None
 
-    @property
-    def sink_failed(self) -> bool:
-        """The last :meth:`check` found that the sink does not take data."""
-        return self._sink_failed
-
     def flush(self, timeout: float = 5.0) -> None:
         """Wait (at most ``timeout`` seconds) until everything logged has reached the sink."""
         if self._closed:
