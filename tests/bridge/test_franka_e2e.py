@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import random
-import signal
 import socket
 import subprocess
 import threading
@@ -28,7 +26,6 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 import pytest
 import zenoh
@@ -43,6 +40,7 @@ from legws_daemon.formats.bridge_messages import (
 )
 from legws_daemon.formats.messages import dump
 from legws_daemon.transport.session import open_session
+from tests.bridge.processes import Process
 from tests.net import free_port
 
 ROOT = Path(__file__).parents[2]
@@ -61,9 +59,8 @@ SIM_START = (0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785)
 #: An arm at rest moves less than this in 0.5 s, rad (franka-sim's hold settles by a
 #: few milliradians when a motion ends; 0.5 s at 0.3 rad/s would be 0.15 rad).
 REST = 5e-3
-#: Time for a process to start or to stop, s.
+#: Time for a process to start, s.
 START_TIMEOUT = 60.0
-STOP_TIMEOUT = 10.0
 
 pytestmark = [
     pytest.mark.slow,
@@ -91,63 +88,6 @@ def loopback_address() -> str:
             continue
         return host
     raise RuntimeError("no free loopback address for franka-sim")
-
-
-class Process:
-    """A child process in a session of its own, its output collected by a thread; always
-    ended by :meth:`stop` (SIGTERM, then SIGKILL to its process group)."""
-
-    def __init__(self, name: str, argv: list[str]) -> None:
-        self.name = name
-        self.lines: list[str] = []
-        self._seen = threading.Condition()
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.proc = subprocess.Popen(
-            argv,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            text=True,
-            env=env,
-            start_new_session=True,
-        )
-        assert self.proc.stdout is not None
-        self._reader = threading.Thread(target=self._read, args=(self.proc.stdout,), daemon=True)
-        self._reader.start()
-
-    def _read(self, stream: IO[str]) -> None:
-        for line in stream:
-            with self._seen:
-                self.lines.append(line.rstrip("\n"))
-                self._seen.notify_all()
-
-    def wait_for_line(self, text: str, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        with self._seen:
-            while not any(text in line for line in self.lines):
-                left = deadline - time.monotonic()
-                if left <= 0 or self.proc.poll() is not None:
-                    raise AssertionError(f"{self.name}: no {text!r}; output:\n{self.log()}")
-                self._seen.wait(min(left, 0.2))
-
-    def log(self) -> str:
-        with self._seen:
-            return "\n".join(self.lines[-60:])
-
-    def stop(self) -> int | None:
-        """SIGTERM, then SIGKILL after STOP_TIMEOUT; the exit code (None: killed)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(STOP_TIMEOUT)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(STOP_TIMEOUT)
-                self._reader.join(2.0)
-                return None
-        self._reader.join(2.0)
-        return self.proc.returncode
 
 
 @dataclass
