@@ -661,6 +661,7 @@ class DaemonService:
 
     def _run_lease(self, request: CommandRequest, now: float) -> dict[str, Any]:
         """``release`` / ``take_control``: the lease changes hands now (the events follow)."""
+        now = time.monotonic()  # when it is carried out, not when the tick began
         if request.command == "release":
             self.inbox.release(now)
         else:
