@@ -97,11 +97,41 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
 
 # --- scheduling: the long tests first ------------------------------------------------------
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The tests marked ``slow`` (real processes, long searches) first, each group in its
-    collected order: the parallel workers start on the long ones, and the short ones fill
-    in at the end, so no worker is left running a long test alone. The order is the same
-    in every worker (pytest-xdist requires it)."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    """The tests marked ``slow`` (real processes, long searches) first, on every worker.
+
+    pytest-xdist's ``worksteal`` hands each of the ``n`` workers a contiguous block of the
+    collection (``len // n`` items, the rest to the later ones) and an idle worker steals the
+    back half of the longest queue. So each block begins with its share of the slow tests
+    and is filled up with the quick ones: every worker starts on long tests and the quick
+    ones, stolen from the back, even out the end — no worker is left running a long test
+    alone. The shares are whole modules (their module-scoped fixtures, e.g. a planned task
+    graph, are made once), the most slow tests first to the worker with the fewest so far.
+    In one process: the slow ones first. The order is the same in every worker (pytest-xdist
+    requires it)."""
+    slow = [item for item in items if item.get_closest_marker("slow") is not None]
+    quick = [item for item in items if item.get_closest_marker("slow") is None]
+    workers = int(getattr(config, "workerinput", {}).get("workercount", 1))
+    if workers <= 1:
+        items[:] = slow + quick
+        return
+    modules: dict[str, list[pytest.Item]] = {}
+    for item in slow:
+        modules.setdefault(item.nodeid.split("::", 1)[0], []).append(item)
+    shares: list[list[pytest.Item]] = [[] for _ in range(workers)]
+    for group in sorted(modules.values(), key=len, reverse=True):  # (a stable sort)
+        min(shares, key=len).extend(group)
+    order: list[pytest.Item] = []
+    left, at = len(items), 0
+    for k in range(workers):
+        size = left // (workers - k)  # the scheduler's first split (worksteal.check_schedule)
+        share = shares[k]
+        fill = max(size - len(share), 0)
+        order += share + quick[at : at + fill]
+        at += fill
+        left -= size
+    order += quick[at:]  # (only when the slow ones outnumber a block)
+    assert len(order) == len(items)
+    items[:] = order
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:

@@ -8,6 +8,7 @@ inside a function counts too.
 from __future__ import annotations
 
 import ast
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -42,8 +43,10 @@ LAYERS = [
 TOP_LEVEL = {"errors", "workers", "__init__", "__main__"}
 
 
+@functools.cache
 def imports() -> dict[str, set[str]]:
-    """Package -> the legws packages its modules import."""
+    """Package -> the legws packages its modules import (read once per test process: every
+    test below asks)."""
     edges: dict[str, set[str]] = defaultdict(set)
     for path in PACKAGE.rglob("*.py"):
         rel = path.relative_to(PACKAGE)
@@ -62,7 +65,7 @@ def imports() -> dict[str, set[str]]:
                     continue
                 if parts[1] != package:
                     edges[package].add(parts[1])
-    return edges
+    return dict(edges)
 
 
 def test_every_package_has_a_layer() -> None:

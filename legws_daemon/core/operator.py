@@ -212,11 +212,12 @@ def quantise(aim: ArrayLike, steering: str) -> FloatArray:
     if steering == "free":
         return a
     if steering == "axes":
-        k = np.argmax(np.abs(a), axis=-1)
-        value = np.take_along_axis(a, k[..., None], axis=-1)
-        out = np.zeros_like(a)
-        np.put_along_axis(out, k[..., None], np.sign(value), axis=-1)
-        return out
+        flat = a.reshape(-1, 3)
+        rows = np.arange(len(flat))
+        k = np.argmax(np.abs(flat), axis=1)
+        out = np.zeros_like(flat)
+        out[rows, k] = np.sign(flat[rows, k])
+        return out.reshape(a.shape)
     if steering == "axes+diagonals":
         best = np.argmax(a @ GRID_DIRECTIONS.T, axis=-1)
         out = GRID_DIRECTIONS[best]
