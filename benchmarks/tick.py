@@ -5,7 +5,7 @@
    per tick, p50 and p99, split by what the tick sent (teleoperation, a Cartesian move of
    assistance, a joint-space move of assistance), and ``read_state`` calls per tick.
 2. The real arm's adapter (``sawyer``) through the fake bridge over loopback zenoh, in
-   real time: per tick the bridge-state reads (``SawyerAdapter._fresh``) and the forward-
+   real time: per tick the bridge-state reads (``BridgeAdapter._fresh``) and the forward-
    kinematics evaluations of the adapter's model (``World.set_q``), in teleoperation and
    through the assistance of a pick (joint-space moves add the envelope's predictions of
    where a step ends; they read nothing).
@@ -32,8 +32,8 @@ from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.params import Params
 from legws_daemon.formats.profile import TransportSpec, load_profile_named
 from legws_daemon.hardware.base import RobotState
+from legws_daemon.hardware.bridge import BridgeAdapter
 from legws_daemon.hardware.fake_bridge import FakeBridge
-from legws_daemon.hardware.sawyer import SawyerAdapter
 from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser, UserView
 from legws_daemon.robot import world as world_module
@@ -116,19 +116,19 @@ def sawyer(seconds: float) -> dict[str, Any]:
     counts: Counter[str] = Counter()
     models: list[world_module.World] = []
     real_set_q = world_module.World.set_q
-    real_fresh = SawyerAdapter._fresh
+    real_fresh = BridgeAdapter._fresh
 
     def set_q(self: world_module.World, q: Any) -> None:
         if any(self is m for m in models):
             counts["fk"] += 1
         real_set_q(self, q)
 
-    def fresh(self: SawyerAdapter) -> Any:
+    def fresh(self: BridgeAdapter) -> Any:
         counts["bridge"] += 1
         return real_fresh(self)
 
     world_module.World.set_q = set_q  # type: ignore[method-assign]
-    SawyerAdapter._fresh = fresh  # type: ignore[method-assign]
+    BridgeAdapter._fresh = fresh  # type: ignore[method-assign]
     port = _free_port()
     listen = TransportSpec(listen=[f"tcp/127.0.0.1:{port}"])
     dial = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
@@ -140,8 +140,8 @@ def sawyer(seconds: float) -> dict[str, Any]:
             FakeBridge(robot, "sawyer", scene, rate_hz=200.0),
         ):
 
-            def make(sc: Scene) -> SawyerAdapter:
-                adapter = SawyerAdapter(profile, sc, daemon)
+            def make(sc: Scene) -> BridgeAdapter:
+                adapter = BridgeAdapter(profile, sc, daemon)
                 adapter.connect()
                 models.append(adapter.kinematics)
                 return adapter
@@ -176,7 +176,7 @@ def sawyer(seconds: float) -> dict[str, Any]:
                 c.shutdown()
     finally:
         world_module.World.set_q = real_set_q  # type: ignore[method-assign]
-        SawyerAdapter._fresh = real_fresh  # type: ignore[method-assign]
+        BridgeAdapter._fresh = real_fresh  # type: ignore[method-assign]
     return {
         "pick_completed": done,
         "per_tick": {

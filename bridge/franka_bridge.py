@@ -30,8 +30,10 @@ life, joint position limits, endpoint speed and workspace, here on the arm's own
 and Jacobian), no joint braking into its position limit, and publishes the state.
 
 Standalone on purpose: it imports only pylibfranka (at start-up, in :func:`main`), zenoh,
-the standard library and legws' guard, itself standard library only, by its path
-(``legws_limits.py`` beside this file on a robot PC, else the repository's). Its logic is
+the standard library and two standard-library parts of legws found in the folder above
+this one (the checkout this file is in, or the folder ``legws bridge bundle --arm panda``
+writes): legws' one guard of every bridge (``legws_daemon/safety/limits.py``) and the arm
+tables (``legws_daemon/arms``: the Panda's joint names, limits and mount). Its logic is
 tested in the legws repository with the real zenoh
 and, end to end, against franka-sim (a libfranka protocol server on MuJoCo,
 ``tests/bridge/test_franka_e2e.py``).
@@ -48,7 +50,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import json
 import math
 import os
@@ -69,15 +70,34 @@ try:  # Python >= 3.11: --profile reads a legws hardware profile
 except ImportError:  # give the limits as flags
     tomllib = None  # type: ignore[assignment]
 
+# The limits and the joint tables every legws bridge shares (standard library, Python 3.8):
+# legws_daemon/safety/limits.py and legws_daemon/arms, found in the folder above this one
+# (the checkout this file is in, or the folder `legws bridge bundle --arm panda` writes).
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+try:
+    from legws_daemon.arms import arm
+    from legws_daemon.safety import limits as guard_module
+except ImportError as _err:
+    print(
+        f"franka_bridge.py: error: legws' arm tables and bridge limits not found in {_ROOT} "
+        f"({_err}): run the bridge from a legws checkout, or from the folder `legws bridge "
+        "bundle --arm panda --out DIR` writes (DIR/bridge/franka_bridge.py)",
+        file=sys.stderr,
+    )
+    sys.exit(2)
+
+ARM = arm("panda")
 SCHEMA = 1
 #: Franka's joint names (as franka_ros calls them): the order of every joint vector on the
-#: wire. The same tables as legws' arm registry (``legws_daemon/arms/panda.py``).
-JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
+#: wire (the arm's description, ``legws_daemon/arms/panda.py``).
+JOINT_NAMES = ARM.hardware_joints
 #: Joint speed limits, rad/s (Franka's datasheet).
-SPEED_LIMITS = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
+SPEED_LIMITS = ARM.speed_limits
 #: Joint position limits, rad.
-LOWER = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
-UPPER = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
+LOWER = ARM.lower
+UPPER = ARM.upper
 #: The joint acceleration and jerk limits of the FCI's motion generator (rad/s², rad/s³):
 #: the robot aborts a motion whose commands exceed them. The lower of the Panda's
 #: (libfranka 0.9: 15, 7.5, 10, 12.5, 15, 20, 20 and 7500, 3750, 5000, 6250, 7500, 10000,
@@ -140,7 +160,7 @@ COMMAND_RATE_HZ = 60.0  # commands per second at most ...
 COMMAND_BURST = 5  # ... and this many more in a burst (the token bucket's depth)
 #: Where the arm's base stands in table coordinates (x, y, z m, yaw rad): legws' Panda
 #: mount (``legws_daemon/arms/panda.py``). The workspace box is in table coordinates.
-MOUNT = (0.12, 0.0, 0.0, 0.0)
+MOUNT = (ARM.mount.x, ARM.mount.y, ARM.mount.z, ARM.mount.yaw)
 
 
 def log(message: str) -> None:
@@ -774,35 +794,6 @@ class GripperDriver:
                 self._busy, self._failed, self._done = False, failed, request
 
 
-def load_guard() -> Any:
-    """legws' one guard of every bridge (``legws_daemon/safety/limits.py``, standard library
-    only): ``legws_limits.py`` beside this file (a robot PC's copy), else the repository's."""
-    here = os.path.dirname(os.path.abspath(__file__))
-    for path in (
-        os.path.join(here, "legws_limits.py"),
-        os.path.join(here, os.pardir, "legws_daemon", "safety", "limits.py"),
-    ):
-        if os.path.isfile(path):
-            spec = importlib.util.spec_from_file_location("legws_limits", path)
-            if spec is None or spec.loader is None:
-                continue
-            module = importlib.util.module_from_spec(spec)
-            sys.modules["legws_limits"] = module  # its dataclasses look their module up
-            spec.loader.exec_module(module)
-            return module
-    raise ImportError(
-        "legws' bridge limits not found: copy legws_daemon/safety/limits.py beside this "
-        "file as legws_limits.py"
-    )
-
-
-try:
-    guard_module: Any = load_guard()
-    GUARD_PROBLEM: str | None = None
-except ImportError as _err:  # main() says it in one line
-    guard_module, GUARD_PROBLEM = None, str(_err)
-
-
 class FrankaBridge:
     """The bridge's work: commands, stops and resumes in (zenoh threads); every tick the
     live command as the control loop's target within the limits, and the state out.
@@ -1258,8 +1249,6 @@ def open_gripper(library: Any, address: str) -> GripperDriver:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the bridge until SIGINT/SIGTERM; returns the exit code."""
     args = parse_args(list(sys.argv[1:] if argv is None else argv))
-    if guard_module is None:
-        return _fail(str(GUARD_PROBLEM))
     try:
         config = zenoh_config(args.zenoh_config, args.connect, args.listen)
     except Exception as err:  # zenoh raises its own error types for bad JSON5 or keys

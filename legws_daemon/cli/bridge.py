@@ -156,6 +156,7 @@ def fake_cmd(
                 session,
                 profile.robot,
                 sc,
+                arm=profile.arm,
                 rate_hz=rate,
                 limits=profile.bridge,
                 workspace=profile.workspace,
@@ -188,34 +189,60 @@ BUNDLE_FILES = (
 )
 
 
+#: The robot-side bridge of each arm that has one (``bridge/<script>``) and whether it needs
+#: the arm's kinematic chain (the Intera bridge computes the endpoint itself; the Franka
+#: bridge takes it from libfranka's model).
+BRIDGES: dict[str, tuple[str, bool]] = {
+    "sawyer": ("intera_bridge.py", True),
+    "panda": ("franka_bridge.py", False),
+}
+
+
 def write_bundle(out: Path, arm_name: str = "sawyer") -> list[Path]:
-    """Copy ``bridge/intera_bridge.py``, the limit module and the arm tables into ``out``
-    (the checkout's layout: the bridge finds them in the folder above its own), and write
-    the arm's chain from its model. The files written."""
+    """Copy the arm's bridge script (:data:`BRIDGES`), the limit module and the arm tables
+    into ``out`` (the checkout's layout: the bridge finds them in the folder above its
+    own), and write the arm's chain from its model when its bridge needs it. The files
+    written."""
     import shutil
 
-    from legws_daemon.robot.chain_file import write_chain
-
+    if arm_name not in BRIDGES:
+        raise InputError(
+            f"no robot-side bridge for arm {arm_name!r} (bridges: {', '.join(BRIDGES)}; "
+            "the contract to write one: docs/bridge.md)",
+            field="--arm",
+        )
+    script, chain = BRIDGES[arm_name]
     root = Path(__file__).parents[2]
     written = []
     arms = sorted((root / "legws_daemon" / "arms").glob("*.py"))
-    for src in [root / "bridge" / "intera_bridge.py", *(root / f for f in BUNDLE_FILES), *arms]:
+    for src in [root / "bridge" / script, *(root / f for f in BUNDLE_FILES), *arms]:
         dst = out / src.relative_to(root)
         dst.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, dst)
         written.append(dst)
-    written.append(write_chain(arm_name, out / "bridge" / "chains"))
+    if chain:
+        from legws_daemon.robot.chain_file import write_chain
+
+        written.append(write_chain(arm_name, out / "bridge" / "chains"))
     return written
 
 
 @bridge_group.command("bundle")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Folder to write.")
-def bundle_cmd(out: Path) -> None:
-    """Write what the robot's PC needs to run bridge/intera_bridge.py without legws
-    installed: the script, the one limit module, the arm tables and the arm's kinematic
-    chain (from its model). Copy the folder; run `python3 OUT/bridge/intera_bridge.py`."""
+@click.option(
+    "--arm",
+    "arm_name",
+    type=click.Choice(sorted(BRIDGES)),
+    default="sawyer",
+    show_default=True,
+    help="The arm whose bridge to bundle (sawyer: intera_bridge.py, panda: franka_bridge.py).",
+)
+def bundle_cmd(out: Path, arm_name: str) -> None:
+    """Write what the robot's PC needs to run the arm's bridge without legws installed: the
+    script, the one limit module, the arm tables and (the Sawyer's) the arm's kinematic
+    chain from its model. Copy the folder; run `python3 OUT/bridge/<script>`."""
     if out.exists() and any(out.iterdir()):
         raise InputError(f"{out} exists and is not empty", field="--out")
-    files = write_bundle(out)
-    script = out / "bridge" / "intera_bridge.py"
+    files = write_bundle(out, arm_name)
+    script = out / "bridge" / BRIDGES[arm_name][0]
     echo(f"bridge bundle: {len(files)} files in {out}; run python3 {script}")

@@ -123,7 +123,7 @@ def require_motion_allowed(spec: ProfileSpec, allow_motion: bool) -> None:
     """Refuse a profile that drives real hardware unless ``--allow-motion`` was given.
 
     Only the ``sim`` adapter is safe to start without asking: any other adapter commands a
-    physical arm. A profile with ``sawyer.fallback_to_sim`` needs the flag too, since the
+    physical arm. A profile with ``link.fallback_to_sim`` needs the flag too, since the
     stand-in only takes over when the bridge is silent; a bridge that answers drives the arm.
     """
     if spec.adapter == "sim" or allow_motion:
@@ -242,7 +242,7 @@ def install_stop_handlers(stop: threading.Event) -> None:
     "--allow-motion",
     is_flag=True,
     help="Required for a profile that drives real hardware (adapter other than sim, e.g. "
-    "sawyer, even with fallback_to_sim): the arm will move.",
+    "bridge or sawyer, even with fallback_to_sim): the arm will move.",
 )
 @click.option(
     "--insecure-transport",

@@ -64,7 +64,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import zenoh
 
-import legws_daemon.hardware.sawyer  # noqa: F401  (registers "sawyer")
+import legws_daemon.hardware.bridge  # noqa: F401  (registers "bridge" and "sawyer")
 from legws_daemon.autonomy.calibration import CALIBRATION
 from legws_daemon.autonomy.confirms import confirm_forecast
 from legws_daemon.autonomy.controller import Controller, PreparedLoad
@@ -328,7 +328,7 @@ class DaemonService:
         try:
             adapter.connect()
         except BridgeTimeoutError as err:
-            if not self.profile.sawyer.fallback_to_sim:
+            if not self.profile.link.fallback_to_sim:
                 raise
             self.fallback = True
             self.ticker.paced = True
@@ -565,7 +565,7 @@ class DaemonService:
         key = str(sample.key_expr)
         role = stop_role(key)
         if role == "daemon":
-            return  # its own word to the bridge (sawyer adapter), heard back
+            return  # its own word to the bridge (bridge adapter), heard back
         try:
             message: StopMessage | None = parse_stop(payload_bytes(sample.payload, key), key)
             error = None

@@ -2,45 +2,42 @@
 
 Keys live under ``legws/<robot>/bridge/`` (see ``docs/bridge.md``): the bridge publishes
 ``state`` (≥ 100 Hz, its heartbeat) and subscribes to ``command`` (one per control tick).
-Joint order and the base frame are Intera's (``right_j0`` .. ``right_j6``). Both messages
-are JSON with ``"schema": 1``, validated on receipt; a payload that does not validate is an
-:class:`~legws_daemon.errors.InputError` naming the field, and is never used.
+Both messages are JSON with ``"schema": 1``, validated on receipt; a payload that does not
+validate is an :class:`~legws_daemon.errors.InputError` naming the field, and is never used.
 
-The joint tables below are the Sawyer's description (:func:`legws_daemon.arms.arm`), the
-one every part reads; the bridges read them there too.
+The joint vectors are the arm's: as many as its joints, in the order of its description's
+:attr:`~legws_daemon.arms.spec.ArmSpec.hardware_joints` (the Sawyer's ``right_j0`` ..
+``right_j6``, the Panda's ``panda_joint1`` .. ``panda_joint7``, the UR5e's six), each
+commanded speed within that joint's limit. :func:`bridge_contract` gives one arm's message
+types and parsers, derived from its description (:func:`legws_daemon.arms.arm`), the one
+every part reads; the bridges read the same tables.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+import functools
+from dataclasses import dataclass
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import AllowInfNan, Field, Strict, StrictBool, model_validator
 
-from legws_daemon.arms import arm
+from legws_daemon.arms import ArmSpec, arm
 from legws_daemon.formats.messages import Seq, _Message, parse
 from legws_daemon.formats.validation import Finite, field_error
 
-_SAWYER = arm("sawyer")
-#: Intera's joint names, in the order of every joint vector on the wire.
-JOINT_NAMES: tuple[str, ...] = _SAWYER.hardware_joints
-#: Joint speed limits, rad/s (the Sawyer's description: Intera's specification).
-JOINT_SPEED_LIMITS: tuple[float, ...] = _SAWYER.speed_limits
-#: Joint position limits, rad (the Sawyer's description).
-JOINT_LOWER: tuple[float, ...] = _SAWYER.lower
-JOINT_UPPER: tuple[float, ...] = _SAWYER.upper
 #: A commanded joint speed may exceed its limit by this much (floating-point slack), rad/s.
 SPEED_TOLERANCE = 1e-6
 #: Longest time-to-live of one command, s: no single message may keep the arm moving longer.
 MAX_TTL = 1.0
+#: Most joints of any arm on the wire (a vector longer than this is refused unread).
+MAX_JOINTS = 12
 
 #: A measured joint angle, rad: finite, within one turn either way.
 Angle = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-6.3, le=6.3)]
 #: A joint velocity, rad/s: finite, at most 10 rad/s in magnitude (speed limits checked apart).
 JointSpeed = Annotated[float, Strict(), AllowInfNan(False), Field(ge=-10.0, le=10.0)]
-Joints = tuple[Angle, Angle, Angle, Angle, Angle, Angle, Angle]
-JointSpeeds = tuple[
-    JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed, JointSpeed
-]
+Joints = Annotated[tuple[Angle, ...], Field(min_length=1, max_length=MAX_JOINTS)]
+JointSpeeds = Annotated[tuple[JointSpeed, ...], Field(min_length=1, max_length=MAX_JOINTS)]
 Ttl = Annotated[float, Strict(), AllowInfNan(False), Field(gt=0.0, le=MAX_TTL)]
 
 GripperState = Literal["open", "closed", "moving", "unknown"]
@@ -54,15 +51,34 @@ STOP_ROLES: tuple[str, ...] = ("operator", "observer", "safety", "bridge", "daem
 Limit = Literal["joint_speed", "ee_speed", "workspace", "ttl", "rate"]
 
 
+def _check_joints(arm_spec: ArmSpec | None, field: str, values: tuple[float, ...]) -> None:
+    """``values`` has one entry per joint of the arm (an arm is required: a message type
+    without one is :class:`BridgeState`/:class:`BridgeCommand` itself, only an annotation)."""
+    if arm_spec is None:
+        raise field_error(
+            (field,), "a bridge message is validated for an arm: use bridge_contract(arm)"
+        )
+    if len(values) != arm_spec.dof:
+        raise field_error(
+            (field,),
+            f"expected {arm_spec.dof} joints ({arm_spec.title}: "
+            f"{', '.join(arm_spec.hardware_joints)}), got {len(values)}",
+        )
+
+
 class BridgeState(_Message):
     """``legws/<robot>/bridge/state``: what the robot measures (bridge -> daemon, ≥ 100 Hz).
 
-    The stream is the bridge's heartbeat: the daemon faults when it stops.
+    The stream is the bridge's heartbeat: the daemon faults when it stops. Validated as one
+    arm's (:attr:`BridgeContract.State`).
     """
+
+    #: the arm whose joints the vectors are (set on :func:`bridge_contract`'s subclasses)
+    arm: ClassVar[ArmSpec | None] = None
 
     seq: Seq
     stamp: Finite  # the bridge's clock, s (logged; staleness uses the receive time)
-    q: Joints  # joint angles right_j0..right_j6, rad
+    q: Joints  # joint angles in the arm's joint order, rad
     dq: JointSpeeds  # joint velocities, rad/s
     gripper: GripperState
     enabled: StrictBool  # the robot is enabled (motors powered)
@@ -73,13 +89,22 @@ class BridgeState(_Message):
     #: the limits the bridge enforced since its previous state message
     limited: tuple[Limit, ...] = ()
 
+    @model_validator(mode="after")
+    def _arms_joints(self) -> BridgeState:
+        _check_joints(type(self).arm, "q", self.q)
+        _check_joints(type(self).arm, "dq", self.dq)
+        return self
+
 
 class BridgeCommand(_Message):
     """``legws/<robot>/bridge/command``: joint velocities for ``ttl`` seconds (daemon -> bridge).
 
     ``gripper`` is the requested gripper state (``null``: no request); the bridge acts when
-    the request changes.
+    the request changes. Validated as one arm's (:attr:`BridgeContract.Command`): each speed
+    within its joint's limit.
     """
+
+    arm: ClassVar[ArmSpec | None] = None
 
     seq: Seq
     stamp: Finite  # the daemon's clock, s (logged; the ttl runs from the receive time)
@@ -90,13 +115,52 @@ class BridgeCommand(_Message):
 
     @model_validator(mode="after")
     def _speed_limits(self) -> BridgeCommand:
-        for i, (v, limit) in enumerate(zip(self.dq, JOINT_SPEED_LIMITS, strict=True)):
+        spec = type(self).arm
+        _check_joints(spec, "dq", self.dq)
+        assert spec is not None
+        for i, (v, limit) in enumerate(zip(self.dq, spec.speed_limits, strict=True)):
             if abs(v) > limit + SPEED_TOLERANCE:
                 raise field_error(
                     ("dq", i),
-                    f"{JOINT_NAMES[i]} speed {v:g} rad/s exceeds its limit {limit:g} rad/s",
+                    f"{spec.hardware_joints[i]} speed {v:g} rad/s exceeds its limit "
+                    f"{limit:g} rad/s",
                 )
         return self
+
+
+@dataclass(frozen=True)
+class BridgeContract:
+    """One arm's side of the contract: its message types and parsers.
+
+    Attributes:
+        arm: the arm's description (joint names, order, position and speed limits).
+        State, Command: :class:`BridgeState` and :class:`BridgeCommand` validated for it.
+    """
+
+    arm: ArmSpec
+    State: type[BridgeState]
+    Command: type[BridgeCommand]
+
+    def parse_state(self, payload: bytes | str, source: str) -> BridgeState:
+        """Validate one state payload; any problem is an InputError naming the field."""
+        return parse(self.State, payload, source)
+
+    def parse_command(self, payload: bytes | str, source: str) -> BridgeCommand:
+        """Validate one command payload; any problem is an InputError naming the field."""
+        return parse(self.Command, payload, source)
+
+
+def bridge_contract(arm_spec: ArmSpec | str) -> BridgeContract:
+    """The contract of one arm (a registered name or a description): made once per arm."""
+    return _contract(arm(arm_spec) if isinstance(arm_spec, str) else arm_spec)
+
+
+@functools.cache
+def _contract(spec: ArmSpec) -> BridgeContract:
+    tag = spec.name.title().replace("_", "")
+    state = type(f"{tag}BridgeState", (BridgeState,), {"arm": spec, "__module__": __name__})
+    command = type(f"{tag}BridgeCommand", (BridgeCommand,), {"arm": spec, "__module__": __name__})
+    return BridgeContract(spec, state, command)
 
 
 class StopMessage(_Message):
@@ -151,13 +215,3 @@ def parse_stop(payload: bytes | str, source: str) -> StopMessage:
 
 def parse_resume(payload: bytes | str, source: str) -> ResumeMessage:
     return parse(ResumeMessage, payload, source)
-
-
-def parse_state(payload: bytes | str, source: str) -> BridgeState:
-    """Validate one state payload; any problem is an InputError naming the field."""
-    return parse(BridgeState, payload, source)
-
-
-def parse_command(payload: bytes | str, source: str) -> BridgeCommand:
-    """Validate one command payload; any problem is an InputError naming the field."""
-    return parse(BridgeCommand, payload, source)

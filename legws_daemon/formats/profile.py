@@ -19,6 +19,7 @@ from typing import Annotated, Literal
 
 from pydantic import (
     AfterValidator,
+    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -134,7 +135,10 @@ class SimSpec(_Model):
     realtime: StrictBool = True  # pace the stand-in to the wall clock (False: as fast as possible)
 
 
-class SawyerSpec(_Model):
+class LinkSpec(_Model):
+    """The daemon's link to a robot-side bridge (``[link]``; ``[sawyer]`` in older profiles):
+    what the ``bridge`` adapter expects of it, on any arm."""
+
     bridge_timeout: Seconds = 3.0  # the bridge must answer within this long
     heartbeat_timeout: Seconds = 0.5  # no joint state for this long: fault, safe stop
     fallback_to_sim: StrictBool = False  # start on the stand-in when the bridge does not answer
@@ -191,14 +195,16 @@ class ProfileSpec(_Model):
     schema_version: Literal[1]
     name: Name
     robot: Name
-    adapter: Literal["sim", "sawyer"]
+    #: ``sim``: the MuJoCo stand-in; ``bridge``: the real arm through its robot-side bridge
+    #: (docs/bridge.md), any arm; ``sawyer``: the same on the Sawyer (the older name)
+    adapter: Literal["sim", "bridge", "sawyer"]
     #: the arm's description (:mod:`legws_daemon.arms`): its model, joints and limits
     arm: str = DEFAULT_ARM
     description: str = ""
     control: ControlSpec = ControlSpec()
     workspace: WorkspaceBox = WorkspaceBox()
     sim: SimSpec = SimSpec()
-    sawyer: SawyerSpec = SawyerSpec()
+    link: LinkSpec = Field(default=LinkSpec(), validation_alias=AliasChoices("link", "sawyer"))
     bridge: BridgeLimitsSpec = BridgeLimitsSpec()
     transport: TransportSpec = TransportSpec()
     can: CanSpec = CanSpec()
@@ -208,7 +214,9 @@ class ProfileSpec(_Model):
         if self.arm not in arm_names():
             raise field_error(("arm",), f"expected one of: {', '.join(arm_names())}")
         if self.adapter == "sawyer" and self.arm != "sawyer":
-            raise field_error(("arm",), "the sawyer adapter drives the Sawyer only")
+            raise field_error(
+                ("arm",), 'the sawyer adapter drives the Sawyer only (adapter = "bridge": any arm)'
+            )
         if self.control.assist_speed < self.control.v_max / 10:
             raise field_error(("control", "assist_speed"), "implausibly slow next to v_max")
         if self.control.deadman_timeout < 1.0 / self.control.rate_hz:

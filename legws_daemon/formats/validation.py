@@ -276,7 +276,7 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str | None:
 def _data_loc(loc: Sequence[int | str], data: Any) -> Loc:
     """pydantic's location of an error as keys and indices of ``data``: the names it
     inserts for validators and union members (``function-after[...]``, ``int``,
-    ``SawyerSpec``) left out; a last key that is not in the data (a missing one) kept."""
+    ``LinkSpec``) left out; a last key that is not in the data (a missing one) kept."""
     parts = [
         p for p in loc if not (isinstance(p, str) and (p.startswith("function-") or p == "[key]"))
     ]

@@ -1,16 +1,18 @@
 """A fake robot-side bridge: the bridge contract (``docs/bridge.md``) without a robot.
 
-It plays the part of ``bridge/intera_bridge.py`` for tests and for trying the ``sawyer``
-profile on a desk: a thread integrates the commanded joint velocities at its own rate and
-publishes the joint state, its heartbeat. Like a real bridge it enforces its own limits
-whatever it is sent (the one guard of every bridge, :mod:`legws_daemon.safety.limits`,
-through :class:`~legws_daemon.safety.bridge_guard.BridgeGuard`: the command rate, joint
-speed, ttl, the endpoint's speed and workspace, checked on every integration step with the
-forward kinematics of its own joints), stops on any sample on
-``legws/<robot>/stop/*`` until a resume on ``legws/<robot>/bridge/resume``, and reports
-both in its state (``stopped_by``, ``limited``). Faults can be injected: a lost heartbeat
-(:meth:`FakeBridge.stop_publishing`), an emergency stop (:meth:`FakeBridge.set_estop`), a
-disabled robot (:meth:`FakeBridge.set_enabled`).
+It plays the part of ``bridge/intera_bridge.py`` or ``bridge/franka_bridge.py`` for tests
+and for trying a ``bridge`` profile on a desk, on any registered arm (its joint vectors,
+limits and forward kinematics from the arm's description): a thread integrates the
+commanded joint velocities at its own rate and publishes the joint state, its heartbeat.
+Like a real bridge it enforces its own limits whatever it is sent (the one guard of every
+bridge, :mod:`legws_daemon.safety.limits`, through
+:class:`~legws_daemon.safety.bridge_guard.BridgeGuard`: the command rate, joint speed, ttl,
+the endpoint's speed and workspace, checked on every integration step with the forward
+kinematics of its own joints), stops on any sample on ``legws/<robot>/stop/*`` until a
+resume on ``legws/<robot>/bridge/resume``, and reports both in its state (``stopped_by``,
+``limited``). Faults can be injected: a lost heartbeat (:meth:`FakeBridge.stop_publishing`),
+an emergency stop (:meth:`FakeBridge.set_estop`), a disabled robot
+(:meth:`FakeBridge.set_enabled`).
 
 Time is an injected clock (``clock``, default ``time.monotonic``): a test that holds it
 moves the arm by advancing it, and publishes states with :meth:`FakeBridge.tick`
@@ -33,11 +35,10 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
-    BridgeState,
     GripperState,
     Limit,
+    bridge_contract,
     bridge_keys,
-    parse_command,
     parse_resume,
     parse_stop,
     stop_role,
@@ -61,7 +62,9 @@ class FakeBridge:
         robot: the robot name: keys under ``legws/<robot>/bridge/`` and the stop keys
             ``legws/<robot>/stop/*``.
         scene: the scene whose EE home pose gives the default start configuration.
-        q0: start joint angles (7,), rad; default: the scene's home configuration.
+        arm: the arm's registered name (its joints, limits, model and mount).
+        q0: start joint angles (one per joint), rad; default: the scene's home
+            configuration.
         rate_hz: integration and state publication rate; the limits are checked on every
             integration step, at most one period long.
         limits: the limits it enforces (a profile's ``[bridge]``; default: the profile
@@ -92,6 +95,7 @@ class FakeBridge:
         robot: str,
         scene: Scene,
         *,
+        arm: str = "sawyer",
         q0: ArrayLike | None = None,
         rate_hz: float = 200.0,
         limits: BridgeLimitsSpec | None = None,
@@ -100,15 +104,20 @@ class FakeBridge:
     ) -> None:
         if not 1.0 <= rate_hz <= 1000.0:
             raise InputError(f"must be in [1, 1000] Hz, got {rate_hz:g}", field="rate_hz")
-        world = World(scene, visual=False)
+        world = World(scene, visual=False, arm=arm)
+        #: the arm's side of the contract (its joint vectors and limits)
+        self.contract = bridge_contract(world.spec)
+        dof = world.spec.dof
         self.lower = np.array(world.arm.lower)
         self.upper = np.array(world.arm.upper)
         if q0 is None:
             start = home_configuration(world, scene.home.position, scene.home.rotation).q
         else:
             start = np.asarray(q0, dtype=np.float64)
-            if start.shape != (7,) or not np.all(np.isfinite(start)):
-                raise InputError(f"must be 7 finite joint angles, got {start.tolist()}", field="q0")
+            if start.shape != (dof,) or not np.all(np.isfinite(start)):
+                raise InputError(
+                    f"must be {dof} finite joint angles, got {start.tolist()}", field="q0"
+                )
             if np.any(start < self.lower) or np.any(start > self.upper):
                 raise InputError("outside the joint position limits", field="q0")
         self._session = session
@@ -268,7 +277,7 @@ class FakeBridge:
         the guard allows); an invalid one, or one over the rate, stops."""
         now = self.clock()
         try:
-            command = parse_command(sample.payload.to_bytes(), self.command_key)
+            command = self.contract.parse_command(sample.payload.to_bytes(), self.command_key)
         except InputError as err:
             with self._lock:
                 self._advance(now)
@@ -341,8 +350,8 @@ class FakeBridge:
         with self._lock:
             self._advance(now)
             t_prev, q_prev = previous
-            dq = (self._q - q_prev) / (now - t_prev) if now > t_prev else np.zeros(7)
-            state = BridgeState.model_validate(
+            dq = (self._q - q_prev) / (now - t_prev) if now > t_prev else np.zeros(len(self._q))
+            state = self.contract.State.model_validate(
                 {
                     "schema": 1,
                     "seq": self._seq,

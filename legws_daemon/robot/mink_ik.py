@@ -20,7 +20,7 @@ A joint already outside the margin band (e.g. at its hardware stop) is not drive
 out and not pulled back in: the band is widened to its current angle for that call, so
 ``dq = 0`` is always feasible and the QP never becomes infeasible because of the state.
 
-This serves the real arm (:mod:`legws_daemon.hardware.sawyer`), ~110 µs per call. The
+This serves the real arm (:mod:`legws_daemon.hardware.bridge`), ~110 µs per call. The
 stand-in keeps the hand-written damped least-squares step, ~30 µs, because it runs tens of
 thousands of times per evaluation.
 """

@@ -51,7 +51,7 @@ def keys(robot: str) -> dict[str, str]:
 
 
 #: Retry period of connect endpoints, ms: first and longest. zenoh's default back-off grows
-#: to 4 s, longer than the daemon waits for its bridge (``sawyer.bridge_timeout``, 3 s), so
+#: to 4 s, longer than the daemon waits for its bridge (``link.bridge_timeout``, 3 s), so
 #: a bridge started before the daemon could miss it; capped, it dials twice a second.
 RETRY_INIT_MS = 100
 RETRY_MAX_MS = 500

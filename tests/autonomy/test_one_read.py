@@ -19,8 +19,8 @@ from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.params import Params
 from legws_daemon.formats.profile import load_profile
 from legws_daemon.hardware.base import RobotState
+from legws_daemon.hardware.bridge import BridgeAdapter
 from legws_daemon.hardware.fake_bridge import FakeBridge
-from legws_daemon.hardware.sawyer import SawyerAdapter
 from legws_daemon.robot import world as world_module
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
@@ -90,23 +90,23 @@ def test_the_real_arm_is_read_once_per_tick_through_the_fake_bridge(
     reads: Counter[str] = Counter()
     models: list[world_module.World] = []
     real_set_q = world_module.World.set_q
-    real_fresh = SawyerAdapter._fresh
+    real_fresh = BridgeAdapter._fresh
 
     def set_q(self: world_module.World, q: Any) -> None:
         if any(self is m for m in models):
             reads["fk"] += 1
         real_set_q(self, q)
 
-    def fresh(self: SawyerAdapter) -> Any:
+    def fresh(self: BridgeAdapter) -> Any:
         reads["bridge"] += 1
         return real_fresh(self)
 
     monkeypatch.setattr(world_module.World, "set_q", set_q)
-    monkeypatch.setattr(SawyerAdapter, "_fresh", fresh)
+    monkeypatch.setattr(BridgeAdapter, "_fresh", fresh)
     with peers() as (daemon, robot), FakeBridge(robot, "sawyer", scene, rate_hz=200.0):
 
-        def make(sc: Scene) -> SawyerAdapter:
-            adapter = SawyerAdapter(profile, sc, daemon)
+        def make(sc: Scene) -> BridgeAdapter:
+            adapter = BridgeAdapter(profile, sc, daemon)
             adapter.connect()
             models.append(adapter.kinematics)
             return adapter

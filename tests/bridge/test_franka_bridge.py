@@ -98,13 +98,13 @@ def test_a_valid_command_and_what_is_refused() -> None:
 
 
 def test_the_commands_the_daemon_sends_pass() -> None:
-    message = contract.BridgeCommand.model_validate(COMMAND)
+    message = contract.bridge_contract("panda").Command.model_validate(COMMAND)
     raw = message.model_dump_json(by_alias=True).encode()
     assert fb.parse_command(raw).ttl == 0.1
     state = fb.state_message(
         3, 1.0, [0.0] * 7, [0.0] * 7, "open", True, False, "operator", ["rate"]
     )
-    parsed = contract.parse_state(state, "test")
+    parsed = contract.bridge_contract("panda").parse_state(state, "test")
     assert parsed.stopped_by == "operator" and parsed.limited == ("rate",)
 
 

@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 
 from legws_daemon.errors import InputError
 from legws_daemon.formats import bridge_messages as contract
-from legws_daemon.formats.bridge_messages import BridgeCommand, BridgeState, parse_state
+from legws_daemon.formats.bridge_messages import BridgeCommand, BridgeState, bridge_contract
 from legws_daemon.formats.messages import dump
 from legws_daemon.formats.profile import (
     COMMAND_BURST,
@@ -46,6 +46,7 @@ from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.net import free_port
 
+SAWYER = bridge_contract("sawyer")  # the daemon's side of the contract, on the Sawyer
 BRIDGE = Path(__file__).parents[2] / "bridge" / "intera_bridge.py"
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 HOME_Q = [-0.16, -1.30, -0.19, 1.73, 0.06, 1.14, -0.19]
@@ -325,7 +326,7 @@ class States:
 
     def _on(self, sample: zenoh.Sample) -> None:
         try:
-            state = parse_state(sample.payload.to_bytes(), self.key)
+            state = SAWYER.parse_state(sample.payload.to_bytes(), self.key)
         except InputError as err:
             with self._lock:
                 self.errors.append(str(err))
@@ -377,19 +378,19 @@ def test_standalone_and_python_3_8_syntax() -> None:
 
 def test_constants_are_the_contract(bridge_module: types.ModuleType) -> None:
     b = bridge_module
-    assert b.JOINT_NAMES == contract.JOINT_NAMES
-    assert b.SPEED_LIMITS == contract.JOINT_SPEED_LIMITS
-    assert b.LOWER == contract.JOINT_LOWER
-    assert b.UPPER == contract.JOINT_UPPER
+    assert SAWYER.arm.hardware_joints == b.JOINT_NAMES
+    assert SAWYER.arm.speed_limits == b.SPEED_LIMITS
+    assert SAWYER.arm.lower == b.LOWER
+    assert SAWYER.arm.upper == b.UPPER
     assert b.MAX_TTL == contract.MAX_TTL
     assert b.SPEED_TOLERANCE == contract.SPEED_TOLERANCE
 
 
 # --- message checks ----------------------------------------------------------------
 def test_accepts_what_the_daemon_sends(bridge_module: types.ModuleType) -> None:
-    sent = BridgeCommand.model_validate({**COMMAND, "dq": list(contract.JOINT_SPEED_LIMITS)})
+    sent = SAWYER.Command.model_validate({**COMMAND, "dq": list(SAWYER.arm.speed_limits)})
     command = bridge_module.parse_command(dump(sent))
-    assert command.dq == contract.JOINT_SPEED_LIMITS
+    assert command.dq == SAWYER.arm.speed_limits
     assert command.ttl == 0.1
     assert command.gripper is None
     assert bridge_module.parse_command(payload(gripper="closed")).gripper == "closed"
@@ -443,7 +444,7 @@ def test_agrees_with_the_daemons_validator(
     ours: BridgeCommand | None = None
     theirs: Any = None
     with contextlib.suppress(InputError):
-        ours = contract.parse_command(raw, "fuzz")
+        ours = SAWYER.parse_command(raw, "fuzz")
     with contextlib.suppress(bridge_module.CommandError):
         theirs = bridge_module.parse_command(raw)
     assert (ours is None) == (theirs is None), raw
@@ -455,7 +456,7 @@ def test_agrees_with_the_daemons_validator(
 
 def test_state_messages_are_valid_for_the_daemon(bridge_module: types.ModuleType) -> None:
     raw = bridge_module.state_message(5, 12.5, HOME_Q, [0.0] * 7, "unknown", True, False)
-    state = parse_state(raw, "state")
+    state = SAWYER.parse_state(raw, "state")
     assert list(state.q) == HOME_Q
     assert state.gripper == "unknown"
     with pytest.raises(ValueError, match="Out of range float"):
@@ -566,8 +567,8 @@ def test_joints_at_a_limit_are_not_driven_further(
     # this pose has the endpoint at x = 0.17 m, outside the default box: a wider one here
     wide = bridge_module.Limits(workspace=((-1.0, 1.0), (-1.0, 1.0), (-0.5, 1.0)))
     bridge, limb, _, _, clock = make_bridge(bridge_module, session, wide)
-    limb.q[0] = contract.JOINT_UPPER[0]
-    limb.q[3] = contract.JOINT_LOWER[3] + 0.005
+    limb.q[0] = SAWYER.arm.upper[0]
+    limb.q[3] = SAWYER.arm.lower[3] + 0.005
     bridge.handle_command(payload(dq=[0.1, 0.1, 0, -0.2, 0, 0, 0]), clock.now)
     bridge.tick()
     assert velocities(limb)[-1] == [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]

@@ -17,7 +17,7 @@ import pytest
 from legws_daemon.cli.bridge import bridge_transport, limits_line
 from legws_daemon.formats.bridge_messages import bridge_keys
 from legws_daemon.formats.profile import TransportSpec, load_profile
-from legws_daemon.hardware.sawyer import SawyerAdapter
+from legws_daemon.hardware.bridge import BridgeAdapter
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.cli.helpers import LEGWS, Result, assert_bad_input
@@ -83,7 +83,7 @@ def test_serves_the_sawyer_adapter_and_stops_on_a_signal(signum: int) -> None:
         try:
             assert heard.wait(60.0), "no state from `legws bridge fake`"
             probe.undeclare()  # type: ignore[no-untyped-call]
-            with SawyerAdapter(load_profile(PROFILE), load_scene("desk"), daemon) as adapter:
+            with BridgeAdapter(load_profile(PROFILE), load_scene("desk"), daemon) as adapter:
                 s0 = adapter.read_state()
                 for _ in range(10):
                     adapter.send_velocity(adapter.read_state(), [0.0, 0.03, 0.0])

@@ -128,7 +128,7 @@ def test_a_profile_name_typo_says_did_you_mean(tmp_path: Path) -> None:
     assert_errors(
         run_script("daemon", "--profile", "simm", "--duration", "1", cwd=tmp_path),
         "profile: unknown hardware profile 'simm'; did you mean 'sim'? known: "
-        "panda_sim, sawyer, sim",
+        "panda, panda_sim, sawyer, sim",
     )
 
 
@@ -140,7 +140,7 @@ def test_a_profile_file_name_typo_says_did_you_mean(cli: Cli, tmp_path: Path) ->
     assert_errors(
         cli("bridge", "fake", "--profile", "sawyr"),
         "profile: unknown hardware profile 'sawyr'; did you mean 'sawyer'? known: "
-        "panda_sim, sawyer, sim",
+        "panda, panda_sim, sawyer, sim",
     )
 
 

@@ -224,10 +224,15 @@ def test_cancel_button_gives_control_back_and_the_user_recommits(tmp_path: Path)
     assert code == 0
 
 
-def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("base", "adapter"), [("sawyer", "sawyer"), ("panda", "bridge")])
+def test_a_bridge_profile_through_the_fake_bridge_and_a_lost_heartbeat(
+    tmp_path: Path, base: str, adapter: str
+) -> None:
+    """The real arm's profile (the Sawyer's; a Franka Panda's: ``adapter = "bridge"``, the
+    Panda's joint vectors on the wire) driven through the fake bridge of the same arm."""
     port, bridge_port = free_port(), free_port()
     profile = write_profile(
-        tmp_path, "sawyer", port, {"connect = []": f'connect = ["tcp/127.0.0.1:{bridge_port}"]'}
+        tmp_path, base, port, {"connect = []": f'connect = ["tcp/127.0.0.1:{bridge_port}"]'}
     )
     bridge = start(
         ["bridge", "fake", "--profile", str(profile), "--scene", "desk", "--listen",
@@ -243,12 +248,12 @@ def test_sawyer_profile_through_the_fake_bridge_and_a_lost_heartbeat(tmp_path: P
             tmp_path / "daemon.log",
         )  # fmt: skip
         spec = TransportSpec(listen=[], connect=[f"tcp/127.0.0.1:{port}"])
-        key = keys("sawyer")["joystick"]
-        with monitor(port, "sawyer") as m, open_session(config_from_spec(spec)) as pub:
+        key = keys(base)["joystick"]
+        with monitor(port, base) as m, open_session(config_from_spec(spec)) as pub:
             assert m.wait_for(ready, 30), (tmp_path / "daemon.log").read_text()
             s0 = m.latest()
             assert s0 is not None
-            assert s0["adapter"] == "sawyer"
+            assert s0["adapter"] == adapter
             assert s0["fallback"] is False
             # a real arm on the loopback default: said in every status and as an event
             assert (s0["transport"], s0["insecure_transport"]) == ("unauthenticated", True)

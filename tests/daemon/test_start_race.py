@@ -52,7 +52,7 @@ def _hears_the_bridge(spec: ProfileSpec) -> float | None:
         t0 = time.monotonic()
         sub = session.declare_subscriber(bridge_keys(spec.robot)["state"], lambda _: heard.set())
         try:
-            ok = heard.wait(spec.sawyer.bridge_timeout)
+            ok = heard.wait(spec.link.bridge_timeout)
         finally:
             sub.undeclare()  # type: ignore[no-untyped-call]
         return time.monotonic() - t0 if ok else None

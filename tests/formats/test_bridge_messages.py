@@ -14,15 +14,10 @@ from hypothesis import strategies as st
 from legws_daemon.arms import arm
 from legws_daemon.errors import InputError
 from legws_daemon.formats.bridge_messages import (
-    JOINT_LOWER,
-    JOINT_NAMES,
-    JOINT_SPEED_LIMITS,
-    JOINT_UPPER,
     BridgeCommand,
     BridgeState,
+    bridge_contract,
     bridge_keys,
-    parse_command,
-    parse_state,
 )
 from legws_daemon.formats.messages import dump
 from legws_daemon.robot.world import World
@@ -30,6 +25,11 @@ from legws_daemon.scene.scene import Scene
 
 ARM_JOINTS = arm("sawyer").joint_names
 MODEL_SPEED_LIMITS = arm("sawyer").speed_limits
+SAWYER_BRIDGE = bridge_contract("sawyer")  # the Sawyer's side of the contract
+parse_state, parse_command = SAWYER_BRIDGE.parse_state, SAWYER_BRIDGE.parse_command
+JOINT_NAMES = SAWYER_BRIDGE.arm.hardware_joints
+JOINT_SPEED_LIMITS = SAWYER_BRIDGE.arm.speed_limits
+JOINT_LOWER, JOINT_UPPER = SAWYER_BRIDGE.arm.lower, SAWYER_BRIDGE.arm.upper
 
 STATE = {
     "schema": 1,
@@ -64,6 +64,36 @@ def test_contract_constants_match_the_kinematic_model(desk: Scene) -> None:
         "resume": "legws/sawyer/bridge/resume",
         "stop": "legws/sawyer/stop/*",
     }
+
+
+@pytest.mark.parametrize("name", ["sawyer", "panda", "ur5e", "kinova3"])
+def test_each_arms_contract_has_its_joints_and_limits(name: str) -> None:
+    """Joint vectors of the arm's DoF, each speed against that joint's limit, errors naming
+    the arm's joints; one contract per arm, by name or description."""
+    spec = arm(name)
+    contract = bridge_contract(name)
+    assert contract is bridge_contract(spec) and contract.arm is spec
+    n = spec.dof
+    state = contract.parse_state(json.dumps({**STATE, "q": [0.1] * n, "dq": [0.0] * n}), "s")
+    assert len(state.q) == n and isinstance(state, BridgeState)
+    for wrong in (n - 1, n + 1):
+        with pytest.raises(InputError, match=rf"s: q: expected {n} joints \("):
+            contract.parse_state(json.dumps({**STATE, "q": [0.1] * wrong, "dq": [0.0] * n}), "s")
+    at = list(spec.speed_limits)
+    assert contract.parse_command(json.dumps({**COMMAND, "dq": at}), "c").dq == tuple(at)
+    over = [0.0] * n
+    over[-1] = spec.speed_limits[-1] + 0.01
+    with pytest.raises(InputError, match=rf"c: dq\[{n - 1}\]: {spec.hardware_joints[-1]} speed"):
+        contract.parse_command(json.dumps({**COMMAND, "dq": over}), "c")
+
+
+def test_a_message_without_an_arm_is_refused() -> None:
+    """The base types are annotations: validated without an arm they refuse, so no message
+    is ever believed with another arm's joint count or limits."""
+    with pytest.raises(ValueError, match="validated for an arm"):
+        BridgeState.model_validate(STATE)
+    with pytest.raises(ValueError, match="validated for an arm"):
+        BridgeCommand.model_validate(COMMAND)
 
 
 def test_round_trips() -> None:

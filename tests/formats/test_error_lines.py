@@ -223,8 +223,8 @@ def test_every_error_of_a_profile_with_its_line(tmp_path: Path) -> None:
     bad = tmp_path / "sim.toml"
     bad.write_text(edited, encoding="utf-8")
     assert _errors(load_profile, bad) == [
-        f"{bad}:{_line(edited, 'adapter =')}: adapter: Input should be 'sim' or 'sawyer' "
-        "(got 'simm'; did you mean 'sim'?)",
+        f"{bad}:{_line(edited, 'adapter =')}: adapter: Input should be 'sim', 'bridge' "
+        "or 'sawyer' (got 'simm'; did you mean 'sim'?)",
         f"{bad}:{_line(edited, 'rate_hx =')}: control.rate_hx: Extra inputs are not permitted; "
         "did you mean 'rate_hz'?",
         f"{bad}:{_line(edited, 'x = [0.95')}: workspace.x: must be [low, high] with low < high, "
@@ -247,12 +247,12 @@ def test_a_profile_name_typo_says_did_you_mean() -> None:
         load_profile_named("simm")
     assert str(info.value) == (
         "profile: unknown hardware profile 'simm'; did you mean 'sim'? known: "
-        "panda_sim, sawyer, sim"
+        "panda, panda_sim, sawyer, sim"
     )
     with pytest.raises(InputError) as info:
         load_profile_named("moon")
     assert str(info.value) == (
-        "profile: unknown hardware profile 'moon'; known: panda_sim, sawyer, sim"
+        "profile: unknown hardware profile 'moon'; known: panda, panda_sim, sawyer, sim"
     )
 
 

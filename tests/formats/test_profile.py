@@ -13,7 +13,7 @@ from legws_daemon.formats.profile import endpoint_problem, load_profile, with_ar
 PROFILES = Path(__file__).parents[2] / "hw_profiles"
 
 
-@pytest.mark.parametrize("name", ["sim", "sawyer", "panda_sim"])
+@pytest.mark.parametrize("name", ["sim", "sawyer", "panda_sim", "panda"])
 def test_shipped_profiles_load(name: str) -> None:
     p = load_profile(PROFILES / f"{name}.toml")
     assert p.name == name
@@ -198,3 +198,23 @@ def test_the_arm_is_the_profiles_own_and_the_sawyer_adapter_drives_only_the_sawy
     assert with_arm(spec, "kinova3").arm == "kinova3" and spec.arm == "sawyer"
     with pytest.raises(InputError, match="--robot: arm: expected one of: sawyer, kinova3"):
         with_arm(spec, "baxter")
+
+
+def test_the_bridge_adapter_drives_any_arm_and_older_profiles_still_load(tmp_path: Path) -> None:
+    """``adapter = "bridge"`` on every registered arm; the link's table is ``[link]``, and the
+    ``[sawyer]`` of older profiles reads the same (both at once: one is left over)."""
+    panda = load_profile(PROFILES / "panda.toml")
+    assert (panda.adapter, panda.arm, panda.robot) == ("bridge", "panda", "panda")
+    text = (PROFILES / "sawyer.toml").read_text()
+    path = tmp_path / "p.toml"
+    for arm_name in ("ur5e", "kinova3"):
+        path.write_text(
+            text.replace('adapter = "sawyer"', f'adapter = "bridge"\narm = "{arm_name}"')
+        )
+        assert load_profile(path).arm == arm_name
+    old = text.replace("[link]", "[sawyer]").replace("bridge_timeout = 3.0", "bridge_timeout = 2.5")
+    path.write_text(old)
+    assert load_profile(path).link.bridge_timeout == 2.5
+    path.write_text(old.replace("[sawyer]", "[sawyer]\nheartbeat_timeout = 0.4\n[link]", 1))
+    with pytest.raises(InputError, match=r"p\.toml"):
+        load_profile(path)

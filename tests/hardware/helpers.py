@@ -11,7 +11,7 @@ from contextlib import contextmanager
 import zenoh
 
 from legws_daemon.errors import InputError
-from legws_daemon.formats.bridge_messages import BridgeState, bridge_keys, parse_state
+from legws_daemon.formats.bridge_messages import BridgeState, bridge_contract, bridge_keys
 from legws_daemon.formats.profile import TransportSpec
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.net import free_port
@@ -54,7 +54,7 @@ class StateLog:
 
     def _on(self, sample: zenoh.Sample) -> None:
         try:
-            state = parse_state(sample.payload.to_bytes(), _STATE_KEY)
+            state = bridge_contract("sawyer").parse_state(sample.payload.to_bytes(), _STATE_KEY)
         except InputError as err:
             with self._lock:
                 self.errors.append(str(err))

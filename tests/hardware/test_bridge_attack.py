@@ -28,11 +28,7 @@ import pytest
 import zenoh
 
 from legws_daemon.arms import arm
-from legws_daemon.formats.bridge_messages import (
-    JOINT_SPEED_LIMITS,
-    bridge_keys,
-    stop_key,
-)
+from legws_daemon.formats.bridge_messages import bridge_keys, stop_key
 from legws_daemon.formats.profile import COMMAND_BURST, ProfileSpec, TransportSpec, load_profile
 from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.robot.world import World
@@ -45,7 +41,7 @@ from tests.net import free_port
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 KEYS = bridge_keys("sawyer")
-SPEC = np.asarray(JOINT_SPEED_LIMITS)
+SPEC = np.asarray(arm("sawyer").speed_limits)
 
 
 @contextmanager

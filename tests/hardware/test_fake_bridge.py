@@ -20,12 +20,9 @@ import numpy as np
 import pytest
 import zenoh
 
+from legws_daemon.arms import arm
 from legws_daemon.errors import InputError, LegwsError
-from legws_daemon.formats.bridge_messages import (
-    JOINT_UPPER,
-    bridge_keys,
-    stop_key,
-)
+from legws_daemon.formats.bridge_messages import bridge_keys, stop_key
 from legws_daemon.formats.profile import ProfileSpec, WorkspaceBox
 from legws_daemon.hardware.fake_bridge import GRIPPER_TIME, FakeBridge
 from legws_daemon.robot.world import World
@@ -193,7 +190,7 @@ def test_invalid_commands_are_rejected_and_stop_the_arm(desk: Scene) -> None:
 
 
 def test_joint_position_limits_clip(desk: Scene) -> None:
-    upper = JOINT_UPPER[0]
+    upper = arm("sawyer").upper[0]
     q0 = [upper - 0.01, -1.0, 0.0, 1.5, 0.0, 1.0, 0.0]
     with manual(desk, q0=q0) as (daemon, fake, clock, _):
         send(daemon, fake, command(joint0(1.0), ttl=0.3))

@@ -15,14 +15,10 @@ import pytest
 from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 
+from legws_daemon.arms import arm
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import InputError
-from legws_daemon.formats.bridge_messages import (
-    JOINT_LOWER,
-    JOINT_SPEED_LIMITS,
-    JOINT_UPPER,
-    STOP_ROLES,
-)
+from legws_daemon.formats.bridge_messages import STOP_ROLES
 from legws_daemon.formats.profile import COMMAND_BURST, BridgeLimitsSpec, WorkspaceBox
 from legws_daemon.robot.kinematics import home_configuration
 from legws_daemon.robot.world import World
@@ -34,7 +30,8 @@ BOX = WorkspaceBox()  # x [0.2, 0.95], y [-0.55, 0.55], z [0, 0.6]
 CENTER = np.array([0.575, 0.0, 0.3])
 GAIN = 0.5  # m per rad, the linear arm
 PERIOD = 0.005  # a 200 Hz bridge's integration step
-SPEC = np.asarray(JOINT_SPEED_LIMITS)
+JOINT_LOWER, JOINT_UPPER = arm("sawyer").lower, arm("sawyer").upper
+SPEC = np.asarray(arm("sawyer").speed_limits)
 
 
 def linear_arm(q: FloatArray) -> FloatArray:

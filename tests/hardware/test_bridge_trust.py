@@ -4,8 +4,8 @@ On a transport without authentication any peer can publish on the bridge's state
 Authentication (``legws secure init``) keeps such peers out; the adapter also checks what
 it receives: a joint faster than its specification between two states, an angle outside
 the joint's range, or an EE outside the workspace box (grown by
-:data:`~legws_daemon.hardware.sawyer.PLAUSIBLE_MARGIN`; the bridge keeps it inside) is a
-hardware fault, held until a reset (:meth:`SawyerAdapter.resume`). Real zenoh peers on
+:data:`~legws_daemon.hardware.bridge.PLAUSIBLE_MARGIN`; the bridge keeps it inside) is a
+hardware fault, held until a reset (:meth:`BridgeAdapter.resume`). Real zenoh peers on
 loopback, the fake bridge; the intruder is a third session.
 """
 
@@ -21,22 +21,24 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from legws_daemon.arms import arm
 from legws_daemon.errors import HardwareError
-from legws_daemon.formats.bridge_messages import JOINT_SPEED_LIMITS, bridge_keys, stop_key
+from legws_daemon.formats.bridge_messages import bridge_keys, stop_key
 from legws_daemon.formats.profile import load_profile
-from legws_daemon.hardware.fake_bridge import FakeBridge
-from legws_daemon.hardware.sawyer import (
+from legws_daemon.hardware.bridge import (
     JUMP_JITTER,
-    SawyerAdapter,
+    BridgeAdapter,
     implausible_angles,
     implausible_jump,
 )
+from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
 from tests.hardware.helpers import peers, wait_for
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 KEYS = bridge_keys("sawyer")
+SAWYER = arm("sawyer")
 HOME_Q = [-0.16, -1.30, -0.19, 1.73, 0.06, 1.14, -0.19]
 
 
@@ -54,20 +56,20 @@ def test_a_jump_is_implausible_exactly_beyond_the_speed_limit(
     direction: list[float], elapsed: float, joint: int
 ) -> None:
     q0 = np.array(HOME_Q)
-    limit = JOINT_SPEED_LIMITS[joint] * (elapsed + JUMP_JITTER)
+    limit = arm("sawyer").speed_limits[joint] * (elapsed + JUMP_JITTER)
     step = np.zeros(7)
     step[joint] = 0.999 * limit * (1 if direction[joint] >= 0 else -1)
-    assert implausible_jump(q0, q0 + step, elapsed) is None
+    assert implausible_jump(SAWYER, q0, q0 + step, elapsed) is None
     step[joint] *= 1.002 / 0.999
-    problem = implausible_jump(q0, q0 + step, elapsed)
+    problem = implausible_jump(SAWYER, q0, q0 + step, elapsed)
     assert problem is not None and f"right_j{joint}" in problem
 
 
 def test_angles_outside_the_joint_range_are_implausible() -> None:
-    assert implausible_angles(HOME_Q) is None
+    assert implausible_angles(SAWYER, HOME_Q) is None
     q = list(HOME_Q)
     q[3] = 3.2  # right_j3's range ends at 3.0439
-    assert "right_j3" in (implausible_angles(q) or "")
+    assert "right_j3" in (implausible_angles(SAWYER, q) or "")
 
 
 def _state(seq: int, q: list[float], **extra: object) -> bytes:
@@ -84,7 +86,7 @@ def test_an_intruders_joint_states_fault_the_adapter_until_a_reset(desk: Scene) 
     with (
         peers() as (daemon, robot),
         FakeBridge(robot, "sawyer", desk) as fake,
-        SawyerAdapter(profile, desk, daemon) as adapter,
+        BridgeAdapter(profile, desk, daemon) as adapter,
     ):
         before = adapter.read_state()
         np.testing.assert_allclose(before.q, fake.q, atol=1e-9)
@@ -119,7 +121,7 @@ def test_an_ee_outside_the_workspace_is_implausible(desk: Scene) -> None:
         thread = threading.Thread(target=stream)
         thread.start()
         try:
-            with SawyerAdapter(profile, desk, daemon) as adapter:
+            with BridgeAdapter(profile, desk, daemon) as adapter:
                 assert adapter.read_state().ee_position[1] < box_y
                 problem = None
                 for _ in range(400):  # the base joint turns slowly: +y, out of the box
@@ -145,7 +147,7 @@ def test_a_stop_is_held_by_the_bridge_until_resume(desk: Scene) -> None:
     with (
         peers() as (daemon, robot),
         FakeBridge(robot, "sawyer", desk),
-        SawyerAdapter(profile, desk, daemon) as adapter,
+        BridgeAdapter(profile, desk, daemon) as adapter,
     ):
         assert adapter.read_state().stopped_by is None
         robot.put(stop_key("sawyer", "safety"), b"")

@@ -1,9 +1,12 @@
-"""The ``sawyer`` adapter: the real arm, reached through its robot-side bridge over zenoh.
+"""The ``bridge`` adapter: the real arm, reached through its robot-side bridge over zenoh.
 
-The bridge (``bridge/intera_bridge.py`` on the robot's PC, or :mod:`~legws_daemon.hardware.
-fake_bridge` without a robot) publishes joint states on ``legws/<robot>/bridge/state`` and
-applies joint velocity commands from ``legws/<robot>/bridge/command`` (contract:
-``docs/bridge.md``). The adapter keeps a kinematic model of the Sawyer to turn the measured
+Any registered arm (the profile's ``arm``; ``adapter = "sawyer"`` is the same adapter on the
+Sawyer, its older name). The bridge (``bridge/intera_bridge.py`` on the Sawyer's PC,
+``bridge/franka_bridge.py`` on a Franka's, or :mod:`~legws_daemon.hardware.fake_bridge`
+without a robot) publishes joint states on ``legws/<robot>/bridge/state`` and applies joint
+velocity commands from ``legws/<robot>/bridge/command`` (contract: ``docs/bridge.md``; the
+joint vectors are the arm's, :func:`~legws_daemon.formats.bridge_messages.bridge_contract`).
+The adapter keeps a kinematic model of the arm to turn the measured
 joint angles into the EE pose, and an EE velocity into joint velocities with mink's
 differential IK (:class:`~legws_daemon.robot.mink_ik.MinkVelocityIK`: a QP whose joint speed
 and position limits are hard constraints, so the twist is tracked as well as they allow).
@@ -14,14 +17,14 @@ halts the arm and reports the fault. Joint speeds keep to the bridge's own cap
 What it believes: only states that validate, and only plausible ones — a joint faster than
 its specification between two states, an angle outside its range or an EE outside the
 workspace box grown by :data:`PLAUSIBLE_MARGIN` makes every later read a
-:class:`~legws_daemon.errors.HardwareError` (a safe stop) until :meth:`SawyerAdapter.resume`,
+:class:`~legws_daemon.errors.HardwareError` (a safe stop) until :meth:`BridgeAdapter.resume`,
 which the operator's ``reset`` calls. Who may publish states at all is the transport's access
 control (``legws secure init``: the bridge's identity only).
 
-Stops: :meth:`SawyerAdapter.stop_by` halts and has the bridge hold a stop
+Stops: :meth:`BridgeAdapter.stop_by` halts and has the bridge hold a stop
 (``legws/<robot>/stop/daemon``); the bridge also holds stops any authenticated role sends on
 its own stop key, and reports the holder in its state (``stopped_by``, passed on in
-:class:`~legws_daemon.hardware.base.RobotState`); :meth:`SawyerAdapter.resume` clears it.
+:class:`~legws_daemon.hardware.base.RobotState`); :meth:`BridgeAdapter.resume` clears it.
 With nothing at all on the state key within ``bridge_timeout`` the bridge is absent
 (:class:`~legws_daemon.errors.BridgeTimeoutError`, the only case ``fallback_to_sim`` acts on).
 
@@ -39,20 +42,16 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import zenoh
 
+from legws_daemon.arms import ArmSpec
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
 from legws_daemon.formats.bridge_messages import (
-    JOINT_LOWER,
-    JOINT_NAMES,
-    JOINT_SPEED_LIMITS,
-    JOINT_UPPER,
     MAX_TTL,
-    BridgeCommand,
     BridgeState,
     ResumeMessage,
     StopMessage,
+    bridge_contract,
     bridge_keys,
-    parse_state,
     stop_key,
 )
 from legws_daemon.formats.messages import dump
@@ -67,7 +66,7 @@ from legws_daemon.transport.session import payload_bytes
 if TYPE_CHECKING:
     from legws_daemon.robot.mink_ik import MinkVelocityIK
 
-#: Zero-velocity commands sent by :meth:`SawyerAdapter.disconnect`, and their spacing (s).
+#: Zero-velocity commands sent by :meth:`BridgeAdapter.disconnect`, and their spacing (s).
 STOP_REPEATS = 3
 STOP_SPACING = 0.01
 #: A command lives this many control periods on the bridge (its deadman), at most MAX_TTL.
@@ -80,48 +79,52 @@ LIMIT_SLACK = 0.05
 #: ... and the EE within the workspace box grown by this, m (the bridge keeps it within
 #: ``bridge.workspace_margin`` of the box, 0.02 m by default).
 PLAUSIBLE_MARGIN = 0.05
-#: How long :meth:`SawyerAdapter.resume` waits for the bridge to clear its stop, s.
+#: How long :meth:`BridgeAdapter.resume` waits for the bridge to clear its stop, s.
 RESUME_TIMEOUT = 0.5
-
-_SPEED_LIMITS = np.asarray(JOINT_SPEED_LIMITS, dtype=np.float64)
-_LOWER = np.asarray(JOINT_LOWER, dtype=np.float64)
-_UPPER = np.asarray(JOINT_UPPER, dtype=np.float64)
 
 
 def implausible_jump(
-    q0: FloatArray | tuple[float, ...], q1: FloatArray | tuple[float, ...], elapsed: float
+    arm: ArmSpec,
+    q0: FloatArray | tuple[float, ...],
+    q1: FloatArray | tuple[float, ...],
+    elapsed: float,
 ) -> str | None:
     """What makes the step ``q0 -> q1`` in ``elapsed`` seconds impossible for the arm (a
     joint faster than its specification), or ``None``."""
-    allowed = _SPEED_LIMITS * (max(elapsed, 0.0) + JUMP_JITTER)
+    limits = np.asarray(arm.speed_limits, dtype=np.float64)
+    allowed = limits * (max(elapsed, 0.0) + JUMP_JITTER)
     moved = np.abs(np.asarray(q1, dtype=np.float64) - np.asarray(q0, dtype=np.float64))
     over = np.flatnonzero(moved > allowed)
     if over.size == 0:
         return None
     i = int(over[0])
     return (
-        f"{JOINT_NAMES[i]} moved {moved[i]:.3f} rad in {elapsed:.3f} s between two joint "
-        f"states (at most {_SPEED_LIMITS[i]:g} rad/s)"
+        f"{arm.hardware_joints[i]} moved {moved[i]:.3f} rad in {elapsed:.3f} s between two "
+        f"joint states (at most {limits[i]:g} rad/s)"
     )
 
 
-def implausible_angles(q: FloatArray | tuple[float, ...]) -> str | None:
+def implausible_angles(arm: ArmSpec, q: FloatArray | tuple[float, ...]) -> str | None:
     """A measured angle outside the joint limits (widened by LIMIT_SLACK), or ``None``."""
     qa = np.asarray(q, dtype=np.float64)
-    over = np.flatnonzero((qa < _LOWER - LIMIT_SLACK) | (qa > _UPPER + LIMIT_SLACK))
+    lower, upper = np.asarray(arm.lower), np.asarray(arm.upper)
+    over = np.flatnonzero((qa < lower - LIMIT_SLACK) | (qa > upper + LIMIT_SLACK))
     if over.size == 0:
         return None
     i = int(over[0])
-    return f"{JOINT_NAMES[i]} at {qa[i]:.3f} rad is outside its range [{_LOWER[i]}, {_UPPER[i]}]"
+    return (
+        f"{arm.hardware_joints[i]} at {qa[i]:.3f} rad is outside its range [{lower[i]}, {upper[i]}]"
+    )
 
 
 @register("sawyer")
-class SawyerAdapter(Adapter):
-    """The Sawyer through its bridge: joint states in, joint velocity commands out.
+@register("bridge")
+class BridgeAdapter(Adapter):
+    """The arm through its bridge: joint states in, joint velocity commands out.
 
     Args:
-        profile: the hardware profile (``sawyer.bridge_timeout`` and
-            ``sawyer.heartbeat_timeout``; keys under ``legws/<profile.robot>/bridge/``).
+        profile: the hardware profile (its ``arm``; ``link.bridge_timeout`` and
+            ``link.heartbeat_timeout``; keys under ``legws/<profile.robot>/bridge/``).
         scene: the scene around the robot (its kinematic model is built from it).
         session: the daemon's open zenoh session; required, and never closed here.
 
@@ -135,13 +138,15 @@ class SawyerAdapter(Adapter):
     ) -> None:
         super().__init__(profile, scene, session)
         if session is None:
-            raise LegwsError("the sawyer adapter needs the daemon's zenoh session, got None")
-        if profile.sawyer.command != "joint_velocity":
+            raise LegwsError("the bridge adapter needs the daemon's zenoh session, got None")
+        if profile.link.command != "joint_velocity":
             raise InputError(
-                f"'{profile.sawyer.command}' is not supported by the bridge contract; "
+                f"'{profile.link.command}' is not supported by the bridge contract; "
                 "use 'joint_velocity'",
-                field="sawyer.command",
+                field="link.command",
             )
+        #: the arm's side of the contract: its joint vectors, order and limits
+        self.contract = bridge_contract(profile.arm)
         self._session = session
         keys = bridge_keys(profile.robot)
         self.state_key = keys["state"]
@@ -178,7 +183,7 @@ class SawyerAdapter(Adapter):
         """Subscribe to the bridge's state and wait for its first valid message.
 
         Raises:
-            BridgeTimeoutError: no valid state within ``sawyer.bridge_timeout``.
+            BridgeTimeoutError: no valid state within ``link.bridge_timeout``.
             HardwareError: the session refused the subscription.
         """
         if self.connected:
@@ -205,7 +210,7 @@ class SawyerAdapter(Adapter):
             raise HardwareError(
                 f"cannot reach the bridge keys under {self.state_key}: {err}"
             ) from None
-        timeout = self.profile.sawyer.bridge_timeout
+        timeout = self.profile.link.bridge_timeout
         if not self._first.wait(timeout):
             self._undeclare()
             with self._lock:
@@ -251,7 +256,9 @@ class SawyerAdapter(Adapter):
         """zenoh callback: validate a state message and keep it as the newest."""
         received = time.monotonic()
         try:
-            msg = parse_state(payload_bytes(sample.payload, self.state_key), self.state_key)
+            msg = self.contract.parse_state(
+                payload_bytes(sample.payload, self.state_key), self.state_key
+            )
         except InputError as err:
             with self._lock:
                 self.rejected += 1
@@ -259,9 +266,10 @@ class SawyerAdapter(Adapter):
             return
         with self._lock:
             previous = self._latest
-            problem = implausible_angles(msg.q)
+            arm = self.contract.arm
+            problem = implausible_angles(arm, msg.q)
             if problem is None and previous is not None:
-                problem = implausible_jump(previous[0].q, msg.q, received - previous[1])
+                problem = implausible_jump(arm, previous[0].q, msg.q, received - previous[1])
             if problem is not None and self.implausible is None:
                 self.implausible = problem
             self._latest = (msg, received)
@@ -270,7 +278,7 @@ class SawyerAdapter(Adapter):
     def _fresh(self) -> tuple[BridgeState, float]:
         """The newest state and its receive time, if fresh and the robot can move."""
         if not self.connected:
-            raise LegwsError("the sawyer adapter is not connected")
+            raise LegwsError("the bridge adapter is not connected")
         with self._lock:
             latest, implausible = self._latest, self.implausible
         if implausible is not None:
@@ -282,7 +290,7 @@ class SawyerAdapter(Adapter):
             raise HardwareError(f"no joint state received on '{self.state_key}'")
         msg, received = latest
         age = time.monotonic() - max(received, self._awake)
-        limit = self.profile.sawyer.heartbeat_timeout
+        limit = self.profile.link.heartbeat_timeout
         if age > limit:
             raise HardwareError(
                 f"bridge heartbeat lost: the newest joint state on '{self.state_key}' is "
@@ -296,12 +304,12 @@ class SawyerAdapter(Adapter):
 
     def _model(self) -> World:
         if self._fk is None:
-            raise LegwsError("the sawyer adapter is not connected")
+            raise LegwsError("the bridge adapter is not connected")
         return self._fk
 
     def _solver(self) -> MinkVelocityIK:
         if self._ik is None:
-            raise LegwsError("the sawyer adapter is not connected")
+            raise LegwsError("the bridge adapter is not connected")
         return self._ik
 
     def _kinematics(self) -> World:
@@ -344,7 +352,7 @@ class SawyerAdapter(Adapter):
             InfeasibleError: the IK's QP found no solution (nothing is sent; the daemon
                 halts the arm on any error).
         """
-        dq = np.zeros(7)
+        dq = np.zeros(self.contract.arm.dof)
         if np.any(velocity):
             R = state.ee_rotation
             target = R if hold is None else np.asarray(hold, dtype=np.float64)
@@ -361,13 +369,13 @@ class SawyerAdapter(Adapter):
 
     def _halt(self) -> None:
         """Publish zero joint velocities now, without reading the state (e.g. on a fault)."""
-        self._publish(np.zeros(7))
+        self._publish(np.zeros(self.contract.arm.dof))
 
     def _stop_by(self, by: str) -> None:
         """Halt now and have the bridge hold a stop (``legws/<robot>/stop/daemon``)."""
         self.halt()
         if self._stopper is None:
-            raise LegwsError("the sawyer adapter is not connected")
+            raise LegwsError("the bridge adapter is not connected")
         message = StopMessage.model_validate(
             {"schema": 1, "stamp": time.time(), "source": by[:64], "reason": None}
         )
@@ -387,7 +395,7 @@ class SawyerAdapter(Adapter):
             HardwareError: the bridge still reports a stop (or sends nothing).
         """
         if self._signals is None:
-            raise LegwsError("the sawyer adapter is not connected")
+            raise LegwsError("the bridge adapter is not connected")
         with self._lock:
             self.implausible = None
             latest = self._latest
@@ -420,8 +428,8 @@ class SawyerAdapter(Adapter):
 
     def _publish(self, dq: FloatArray) -> None:
         if self._publisher is None:
-            raise LegwsError("the sawyer adapter is not connected")
-        command = BridgeCommand.model_validate(
+            raise LegwsError("the bridge adapter is not connected")
+        command = self.contract.Command.model_validate(
             {
                 "schema": 1,
                 "seq": self._seq,

@@ -16,11 +16,11 @@ import pytest
 import zenoh
 
 from legws_daemon.errors import BridgeTimeoutError, HardwareError, InputError, LegwsError
-from legws_daemon.formats.bridge_messages import BridgeCommand, bridge_keys, parse_command
+from legws_daemon.formats.bridge_messages import BridgeCommand, bridge_contract, bridge_keys
 from legws_daemon.formats.profile import ProfileSpec, load_profile
 from legws_daemon.hardware.base import Adapter, adapter_class
+from legws_daemon.hardware.bridge import STOP_REPEATS, BridgeAdapter
 from legws_daemon.hardware.fake_bridge import FakeBridge
-from legws_daemon.hardware.sawyer import STOP_REPEATS, SawyerAdapter
 from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
@@ -38,7 +38,7 @@ def desk() -> Scene:
 def sawyer_profile(**sawyer: object) -> ProfileSpec:
     """The shipped profile with some ``[sawyer]`` settings changed."""
     profile = load_profile(PROFILE)
-    return profile.model_copy(update={"sawyer": profile.sawyer.model_copy(update=sawyer)})
+    return profile.model_copy(update={"link": profile.link.model_copy(update=sawyer)})
 
 
 class CommandLog:
@@ -50,7 +50,9 @@ class CommandLog:
         self.subscriber = session.declare_subscriber(KEYS["command"], self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
-        command = parse_command(sample.payload.to_bytes(), KEYS["command"])
+        command = bridge_contract("sawyer").parse_command(
+            sample.payload.to_bytes(), KEYS["command"]
+        )
         with self._lock:
             self.commands.append(command)
 
@@ -60,14 +62,14 @@ class CommandLog:
 
 
 def test_registered_and_needs_a_session(desk: Scene) -> None:
-    assert adapter_class("sawyer") is SawyerAdapter
+    assert adapter_class("sawyer") is adapter_class("bridge") is BridgeAdapter
     profile = sawyer_profile()
     with pytest.raises(LegwsError, match="zenoh session"):
-        SawyerAdapter(profile, desk, None)
+        BridgeAdapter(profile, desk, None)
     with peers() as (daemon, _):
-        with pytest.raises(InputError, match=r"sawyer\.command"):
-            SawyerAdapter(sawyer_profile(command="ee_velocity"), desk, daemon)
-        adapter = SawyerAdapter(profile, desk, daemon)
+        with pytest.raises(InputError, match=r"link\.command"):
+            BridgeAdapter(sawyer_profile(command="ee_velocity"), desk, daemon)
+        adapter = BridgeAdapter(profile, desk, daemon)
         with pytest.raises(LegwsError, match="not connected"):
             adapter.read_state()
 
@@ -79,7 +81,7 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
         FakeBridge(robot, "sawyer", desk) as fake,
     ):
         log = CommandLog(robot)
-        adapter = SawyerAdapter(profile, desk, daemon)
+        adapter = BridgeAdapter(profile, desk, daemon)
         adapter.connect()
         # the state is the fake's q, and the EE pose its forward kinematics
         s0 = adapter.read_state()
@@ -88,7 +90,7 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
         world.set_q(s0.q)
         np.testing.assert_allclose(s0.ee_position, world.ee_position(), atol=1e-12)
         np.testing.assert_allclose(s0.ee_position, desk.home.position, atol=1e-3)
-        assert abs(time.monotonic() - s0.stamp) < profile.sawyer.heartbeat_timeout
+        assert abs(time.monotonic() - s0.stamp) < profile.link.heartbeat_timeout
         assert not s0.gripper_closed
 
         # a zero command sends dq = 0 exactly and leaves q unchanged
@@ -145,7 +147,7 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
 def test_no_bridge_times_out(desk: Scene) -> None:
     profile = sawyer_profile(bridge_timeout=0.4)
     with peers() as (daemon, _):
-        adapter = SawyerAdapter(profile, desk, daemon)
+        adapter = BridgeAdapter(profile, desk, daemon)
         start = time.monotonic()
         with pytest.raises(BridgeTimeoutError) as info:
             adapter.connect()
@@ -161,13 +163,13 @@ def test_heartbeat_loss_and_estop_are_hardware_errors(desk: Scene) -> None:
     with (
         peers() as (daemon, robot),
         FakeBridge(robot, "sawyer", desk) as fake,
-        SawyerAdapter(profile, desk, daemon) as adapter,
+        BridgeAdapter(profile, desk, daemon) as adapter,
     ):
         adapter.read_state()
         fake.stop_publishing()
         lost = time.monotonic()
         assert wait_for(faulted_with(adapter, "heartbeat"), 2.0)
-        assert time.monotonic() - lost < profile.sawyer.heartbeat_timeout + 0.2
+        assert time.monotonic() - lost < profile.link.heartbeat_timeout + 0.2
         with pytest.raises(HardwareError, match="heartbeat"):
             adapter.send_velocity(adapter.read_state(), [0.01, 0.0, 0.0])
 
@@ -208,7 +210,7 @@ def test_invalid_states_are_counted_and_ignored(desk: Scene) -> None:
     profile = sawyer_profile(bridge_timeout=0.5)
     bad = [b"not json", b'{"schema": 1}', b'{"schema": 2, "seq": 0}', b"[1, 2]"]
     with peers() as (daemon, robot):
-        adapter = SawyerAdapter(profile, desk, daemon)
+        adapter = BridgeAdapter(profile, desk, daemon)
         stop = threading.Event()
 
         def publish_garbage() -> None:
