@@ -22,14 +22,23 @@ ZENOH="eclipse-zenoh==1.10.2"
 ROBOSUITE="robosuite==1.5.2"  # only its wheel's robots/panda folder is kept
 PINS="$FRANKA_SIM $PYLIBFRANKA $ZENOH $ROBOSUITE"
 
+# PIP: a pip (>= 22.3) to install with (``$PIP --python VENV/bin/python``): the venvs are
+# then made without a pip of their own (~5 s each); unset, each gets its own.
+PIP=${PIP:-}
+
+pip_in() {  # pip_in VENV ARGS...: pip for that venv
+  local venv=$1; shift
+  if [ -n "$PIP" ]; then "$PIP" --python "$venv/bin/python" "$@"; else "$venv/bin/pip" "$@"; fi
+}
+
 build() {  # build VENV PACKAGES...: a fresh venv with the packages, then the stamp
   local venv=$1; shift
   local stamp="$venv/.legws-franka"
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$PINS" ]; then return 0; fi
   echo "franka: building $venv" >&2
   rm -rf "$venv"
-  "$PYTHON" -m venv "$venv"
-  "$venv/bin/pip" install -q "$@"
+  if [ -n "$PIP" ]; then "$PYTHON" -m venv --without-pip "$venv"; else "$PYTHON" -m venv "$venv"; fi
+  pip_in "$venv" install -q "$@"
   "${EXTRA:-true}" "$venv"
   echo "$PINS" > "$stamp"
 }
@@ -43,7 +52,7 @@ panda_model() {  # the Panda MJCF (robot.xml, meshes) under VENV/share/legws-pan
     return 0
   fi
   tmp=$(mktemp -d)
-  "$venv/bin/pip" download -q --no-deps -d "$tmp" "$ROBOSUITE" || { rm -rf "$tmp"; return 1; }
+  pip_in "$venv" download -q --no-deps -d "$tmp" "$ROBOSUITE" || { rm -rf "$tmp"; return 1; }
   "$venv/bin/python" - "$tmp"/robosuite-*.whl "$venv/share/legws-panda" <<'PY'
 import sys, zipfile
 from pathlib import Path, PurePosixPath
