@@ -13,6 +13,7 @@ import zenoh
 from legws_daemon.errors import InputError
 from legws_daemon.formats.bridge_messages import BridgeState, bridge_contract, bridge_keys
 from legws_daemon.formats.profile import TransportSpec
+from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.net import free_port
 
@@ -31,6 +32,37 @@ def peers() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
         open_session(config_from_spec(dial)) as robot,
     ):
         yield daemon, robot
+
+
+class Held:
+    """A monotonic clock the test sets."""
+
+    def __init__(self) -> None:
+        self.now = 50.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@contextmanager
+def ticking(fake: FakeBridge, period: float = 0.005) -> Iterator[None]:
+    """A started fake bridge on a held clock (``start(thread=False)``) ticked every
+    ``period`` of real time: its state keeps coming (the adapter's heartbeat), and it moves
+    only as far as the test moves the clock."""
+    fake.start(thread=False)
+    done = threading.Event()
+
+    def run() -> None:
+        while not done.wait(period):
+            fake.tick()
+
+    thread = threading.Thread(target=run, name="ticker", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(2.0)
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 3.0) -> bool:

@@ -24,7 +24,7 @@ from legws_daemon.hardware.fake_bridge import FakeBridge
 from legws_daemon.robot.world import World
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
-from tests.hardware.helpers import peers, wait_for
+from tests.hardware.helpers import Held, peers, ticking, wait_for
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
 KEYS = bridge_keys("sawyer")
@@ -75,10 +75,15 @@ def test_registered_and_needs_a_session(desk: Scene) -> None:
 
 
 def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
+    """The adapter through the fake bridge, whose motion runs on a held clock (its state
+    keeps coming in real time): the measured state is the fake's, zero commands are exact
+    zeros, and 20 ticks of +x move the EE by the commanded speed times the clock's 20 ticks."""
     profile = sawyer_profile()
+    clock = Held()
     with (
         peers() as (daemon, robot),
-        FakeBridge(robot, "sawyer", desk) as fake,
+        FakeBridge(robot, "sawyer", desk, clock=clock) as fake,
+        ticking(fake),
     ):
         log = CommandLog(robot)
         adapter = BridgeAdapter(profile, desk, daemon)
@@ -96,30 +101,43 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
         # a zero command sends dq = 0 exactly and leaves q unchanged
         for _ in range(5):
             np.testing.assert_array_equal(adapter.stop(), 0.0)
-            time.sleep(adapter.dt)
+            clock.now += adapter.dt
+        assert wait_for(lambda: len(log.snapshot()) >= 5 and fake.received >= 5)
         np.testing.assert_array_equal(fake.q, s0.q)
-        assert wait_for(lambda: len(log.snapshot()) >= 5)
+        # (they may all have arrived at one instant of the clock: the rate's burst is spent
+        # until it moves on)
+        clock.now += 0.2
         assert all(c.dq == (0.0,) * 7 for c in log.snapshot())
         assert log.snapshot()[0].ttl == pytest.approx(2 * adapter.dt)
 
-        # 20 ticks of +x: the EE moves about 0.03 m/s times the time commanded
-        start = time.monotonic()
+        # 20 ticks of +x, each received by the bridge before its period passes on the
+        # clock: the EE moves 0.03 m/s times 20 periods
         for k in range(20):
+            received = fake.received
             sent = adapter.send_velocity(adapter.read_state(), [0.03, 0.0, 0.0])
             np.testing.assert_allclose(sent, [0.03, 0.0, 0.0])
-            time.sleep(max(0.0, start + (k + 1) * adapter.dt - time.monotonic()))
+            assert wait_for(lambda n=received: fake.received > n)
+            before = fake.q
+            clock.now += adapter.dt
+            # the period integrated by the bridge, then its new state heard by the adapter
+            assert wait_for(lambda q=before: not np.array_equal(fake.q, q)), (k, fake.limited)
+            moved = fake.q
+            assert wait_for(lambda q=moved: np.array_equal(adapter.read_state().q, q))
+        received = fake.received
         adapter.stop()
-        moving = time.monotonic() - start
-        time.sleep(0.05)  # a few newer states
+        assert wait_for(lambda: fake.received > received)
+        clock.now += adapter.dt
+        assert wait_for(lambda: np.array_equal(adapter.read_state().q, fake.q))
         s1 = adapter.read_state()
-        np.testing.assert_allclose(s1.q, fake.q, atol=1e-12)
         shift = s1.ee_position - s0.ee_position
-        assert shift[0] == pytest.approx(0.03 * moving, abs=3e-3)
-        np.testing.assert_allclose(shift[1:], 0.0, atol=2e-3)
+        assert shift[0] == pytest.approx(0.03 * 20 * adapter.dt, abs=1e-3)
+        np.testing.assert_allclose(shift[1:], 0.0, atol=1e-3)
         assert fake.rejected == 0
 
         # the gripper: the request reaches the bridge, its state comes back
         adapter.grip(True)
+        assert wait_for(lambda: fake.gripper == "moving")
+        clock.now += 0.25  # the fake hand's 0.2 s
         assert wait_for(lambda: adapter.read_state().gripper_closed)
         assert fake.gripper == "closed"
         n = len(log.snapshot())
@@ -127,6 +145,8 @@ def test_round_trip_with_the_fake_bridge(desk: Scene) -> None:
         assert wait_for(lambda: len(log.snapshot()) > n)
         assert log.snapshot()[n].gripper == "closed"
         adapter.grip(False)
+        assert wait_for(lambda: fake.gripper == "moving")
+        clock.now += 0.25
         assert wait_for(lambda: fake.gripper == "open")
         assert not adapter.read_state().gripper_closed
 

@@ -36,7 +36,7 @@ from legws_daemon.safety.bridge_guard import grown
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.transport.session import config_from_spec, open_session
 from tests.hardware.fake_franka import LIBRARY, FakeFranka, Stepped
-from tests.hardware.helpers import StateLog, wait_for
+from tests.hardware.helpers import Held, StateLog, wait_for
 from tests.net import free_port
 
 PROFILE = Path(__file__).parents[2] / "hw_profiles" / "sawyer.toml"
@@ -57,16 +57,6 @@ def three_peers() -> Iterator[tuple[zenoh.Session, zenoh.Session, zenoh.Session]
         open_session(config_from_spec(dial)) as observer,
     ):
         yield bridge, attacker, observer
-
-
-class Held:
-    """A monotonic clock the test sets."""
-
-    def __init__(self) -> None:
-        self.now = 50.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 def arrived(condition: Callable[[], bool], timeout: float = 3.0) -> bool:
