@@ -26,7 +26,11 @@ sys.path.insert(0, str(REPO))
 
 from tests.net import free_port  # noqa: E402
 from tests.reliability.corpus import GROUPS, Sandbox, all_cases, snapshot  # noqa: E402
-from tests.reliability.test_hostile_corpus import problems, run_cases  # noqa: E402
+from tests.reliability.test_hostile_corpus import (  # noqa: E402
+    TIME_LIMIT,
+    problems,
+    run_cases,
+)
 
 
 def main() -> None:
@@ -40,9 +44,11 @@ def main() -> None:
             box = Sandbox(root, free_port())
             cases = all_cases(box, group)
             before = snapshot(root)
-            results = run_cases(root, [c.to_json(root) for c in cases])
+            results = run_cases(root, [c.to_json(root) for c in cases], TIME_LIMIT)
             changed = [k for k, v in snapshot(root).items() if before.get(k) != v]
-        bad = [p for c, r in zip(cases, results, strict=True) for p in problems(c.name, r)]
+        bad = [
+            p for c, r in zip(cases, results, strict=True) for p in problems(c.name, r, TIME_LIMIT)
+        ]
         seconds = [r["seconds"] for r in results]
         row = {
             "group": group,
