@@ -77,11 +77,18 @@ def manual(desk: Scene, **kw: Any) -> Iterator[tuple[zenoh.Session, FakeBridge, 
             log = StateLog(daemon)
             assert wait_for(lambda: fake.tick() and log.count() > 0), "no state from the fake"
 
+            sent = 0
+
             def first_command_arrives() -> bool:
+                nonlocal sent
                 daemon.put(KEYS["command"], command([0.0] * 7, 0.05))
+                sent += 1
                 return wait_for(lambda: fake.received > 0, 0.1)
 
             assert wait_for(first_command_arrives), "the fake bridge receives no command"
+            # every retry arrived too: a late zero command would replace a test's own (it
+            # did once in CI, under load: the arm never moved)
+            assert wait_for(lambda: fake.received >= sent), (fake.received, sent)
             clock.now += 1.0  # the bucket full again, the zero commands expired
             yield daemon, fake, clock, log
         finally:
