@@ -430,7 +430,15 @@ class Ramp:
     libfranka's motion generator refuses a velocity command whose acceleration or jerk
     breaks the arm's limits, so a step in the target (a new command, a stop) becomes a
     smooth change: the acceleration goes toward ``gain`` x the velocity error, at most
-    ``accel`` (rad/s²), changing by at most ``jerk`` x dt per step.
+    ``accel`` (rad/s²), changing by at most ``jerk`` x one control cycle per command.
+
+    A command that comes late (``dt`` several cycles: a loaded bridge PC) continues what
+    the robot did meanwhile: the FCI applies one command per 1 ms cycle and extrapolates
+    the missed ones at the last acceleration, then differences the late command against
+    that extrapolation over one cycle. So the missed cycles are integrated at the
+    acceleration held, and only the last one changes it — a change spread over ``dt``
+    would reach the robot as the whole of it in one cycle (a 21 rad/s² "acceleration
+    discontinuity" from a 5 rad/s² ramp, three cycles late, once in CI).
     """
 
     def __init__(
@@ -450,14 +458,22 @@ class Ramp:
         self.a = [0.0] * len(self.v)
 
     def step(self, target: Sequence[float], dt: float) -> list[float]:
-        """The next velocities, ``dt`` seconds on, toward ``target``."""
+        """The next velocities, ``dt`` seconds on (one control cycle or more), toward
+        ``target``."""
+        cycle = min(dt, CONTROL_PERIOD) if dt > 0.0 else CONTROL_PERIOD
+        missed = max(0.0, dt - cycle)  # the robot held the acceleration through these
         for i, goal in enumerate(target):
-            wanted = max(-self.accel[i], min(self.accel[i], self.gain * (goal - self.v[i])))
-            change = self.jerk[i] * dt
-            self.a[i] += max(-change, min(change, wanted - self.a[i]))
-            self.v[i] += self.a[i] * dt
-            if goal == 0.0 and abs(self.v[i]) < REST_SPEED and abs(self.a[i]) < REST_ACCEL:
-                self.v[i] = self.a[i] = 0.0
+            held = self.v[i] + self.a[i] * missed  # where the robot's reference is now
+            wanted = max(-self.accel[i], min(self.accel[i], self.gain * (goal - held)))
+            change = self.jerk[i] * cycle
+            a = self.a[i] + max(-change, min(change, wanted - self.a[i]))
+            v = held + a * cycle
+            if goal == 0.0 and abs(v) < REST_SPEED and abs(a) < REST_ACCEL:
+                v = 0.0  # at rest (a step of at most REST_SPEED in one cycle)
+            # the acceleration the robot measures (and holds through a late cycle): the
+            # ramp's own, or the small one of the step to rest
+            self.a[i] = (v - held) / cycle
+            self.v[i] = v
         return list(self.v)
 
     def at_rest(self) -> bool:

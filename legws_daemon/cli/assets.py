@@ -96,6 +96,19 @@ def reachability_cmd(scene_name: str, build_anew: bool, robots: tuple[str, ...])
         echo(path)
 
 
+@assets_cmd.command("kernels")
+@click.option("--quiet", is_flag=True, help="No line per part.")
+def kernels_cmd(quiet: bool) -> None:
+    """Compile the optimiser's numba kernels into numba's cache (``$NUMBA_CACHE_DIR``) once,
+    on a tiny problem of every objective (~45 s here; set-up runs it beside its other
+    steps): the first ``legws optimize`` and every process after it load them instead."""
+    from legws_daemon.design.warmup import compile_kernels
+
+    for part, seconds in compile_kernels().items():
+        if not quiet:
+            echo(f"{part}: {seconds:.1f} s")
+
+
 @assets_cmd.command("status")
 @_ROBOT
 def status_cmd(robot: str | None) -> None:

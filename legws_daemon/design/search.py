@@ -14,6 +14,12 @@ Every component is seeded from one seed: same seed, same result.
 pyribs compiles its evolution strategy's numba helpers on first use in every process
 (~4-8 s here, a third of a search's budget); :func:`cache_ribs_kernels` lets numba keep
 them in its cache (``$NUMBA_CACHE_DIR``), so that only the first run on a machine pays.
+Its grid archive groups each batch by cell with numpy-groupies' numba ``aggregate``, which
+compiles ~30 specialisations on first use (~8 s of CPU in every fresh process or cache);
+:func:`archive_on_numpy` hands the archive numpy-groupies' numpy implementation instead —
+the same results, ties included (the package's implementations agree by its own tests;
+checked here on an archive's tied batches), and as fast on batches of 90 (2000 adds: 0.3
+s against 1.0 s, and 0.9 against 0.7 s on the soft archive).
 """
 
 from __future__ import annotations
@@ -81,6 +87,16 @@ def cache_ribs_kernels() -> None:
             enable()
         except RuntimeError:  # no writable cache folder: compile per process, as before
             return
+
+
+def archive_on_numpy() -> None:
+    """pyribs' archives group a batch by cell with numpy-groupies' numpy ``aggregate``
+    rather than its numba one (same results; no compilation)."""
+    import numpy_groupies
+    from ribs.archives import _grid_archive
+
+    if getattr(_grid_archive, "aggregate", None) is not None:
+        setattr(_grid_archive, "aggregate", numpy_groupies.aggregate_np)  # noqa: B010
 
 
 def _scheduler(
@@ -157,6 +173,7 @@ def search(
         )
     started = time.perf_counter()
     cache_ribs_kernels()
+    archive_on_numpy()
     rng = np.random.default_rng([seed, 0x0F7])
     ranges = problem.measure_ranges(rng)
     x0s = problem.encode(problem.constraints.sample(EMITTERS, rng))

@@ -131,6 +131,41 @@ def test_the_ramp_keeps_to_the_fci_limits(start: list[float], goal: list[float])
     assert np.all(np.abs(jerk) <= np.array(fb.JERK_LIMITS) + 1e-3)
 
 
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(st.floats(-1.5, 1.5), min_size=7, max_size=7),
+    st.lists(st.integers(1, 20), min_size=40, max_size=40),
+)
+def test_late_commands_keep_to_the_fci_limits_as_the_robot_sees_them(
+    goal: list[float], lateness: list[int]
+) -> None:
+    """Commands that come some cycles late, differenced as the FCI does: it applies one
+    command per 1 ms cycle, extrapolates a missed one at the last acceleration, and takes
+    the late command's acceleration and jerk over one cycle from that extrapolation. (Each
+    late command is followed by one on time: back to back, the robot's differences of
+    differences amplify rounding by the lateness each time, a model of nothing.)"""
+    ramp = fb.default_ramp()
+    dt = fb.CONTROL_PERIOD
+    accel_limit = np.array(fb.ACCEL_LIMITS)
+    jerk_limit = np.array(fb.JERK_LIMITS)
+    value, first = np.zeros(7), np.zeros(7)  # the robot's reference and its acceleration
+    worst_a, worst_j = 0.0, 0.0
+    pattern = iter([k for late in lateness for k in (late, 1)] * 20)
+    for target in (goal, [-g for g in goal], [0.0] * 7):
+        for _ in range(300):
+            cycles = next(pattern, 1)
+            for _ in range(cycles - 1):  # the missed ones, extrapolated
+                value = value + first * dt
+            command = np.array(ramp.step(target, cycles * dt))
+            accel = (command - value) / dt
+            jerk = (accel - first) / dt
+            worst_a = max(worst_a, float(np.max(np.abs(accel) / accel_limit)))
+            worst_j = max(worst_j, float(np.max(np.abs(jerk) / jerk_limit)))
+            value, first = command, accel
+    assert worst_a <= fb.ACCEL_FRACTION + 1e-6
+    assert worst_j <= 1.0 + 1e-6
+
+
 def test_braking_comes_within_its_time() -> None:
     ramp = fb.default_ramp()
     for _ in range(2000):
