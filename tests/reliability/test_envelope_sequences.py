@@ -269,8 +269,8 @@ class EnvelopeMachine(RuleBasedStateMachine):
 
 TestEnvelopeSequences = EnvelopeMachine.TestCase
 TestEnvelopeSequences.settings = settings(
-    # 120 sequences in the suite; LEGWS_ENVELOPE_SEQUENCES for a longer search
-    max_examples=int(os.environ.get("LEGWS_ENVELOPE_SEQUENCES", "120")),
+    # 80 sequences in the suite; LEGWS_ENVELOPE_SEQUENCES for a longer search
+    max_examples=int(os.environ.get("LEGWS_ENVELOPE_SEQUENCES", "80")),
     stateful_step_count=40,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],

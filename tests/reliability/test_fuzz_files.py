@@ -43,7 +43,7 @@ from tests.task.test_plan_file import feeding_plan
 
 #: Examples per loader in the suite (``LEGWS_FUZZ_FILE_EXAMPLES`` sets another number:
 #: docs/reliability.md's table is a run of 1,500).
-EXAMPLES = int(os.environ.get("LEGWS_FUZZ_FILE_EXAMPLES", "800"))
+EXAMPLES = int(os.environ.get("LEGWS_FUZZ_FILE_EXAMPLES", "500"))
 FILES = settings(
     max_examples=EXAMPLES,
     deadline=None,

@@ -13,7 +13,7 @@ a rejected payload leaves what the next tick commands unchanged; and after every
 what was sent is finite and at most ``v_max``, the EE is inside the workspace box, the
 joints are within their limits, and no input means exactly zero velocity.
 
-1,500 examples per message kind in the suite (``LEGWS_FUZZ_EXAMPLES`` sets another
+1,000 examples per message kind in the suite (``LEGWS_FUZZ_EXAMPLES`` sets another
 number: docs/reliability.md's table is a run of 10,000); the terminal summary lists the
 payloads, rejections and times.
 """
@@ -42,7 +42,7 @@ from tests.autonomy.rig import operator_command
 from tests.reliability.helpers import TALLIES, Rig, Tally, expect
 from tests.reliability.strategies import EDGE_TEXT, junk, leaves, mutated, nested
 
-EXAMPLES = int(os.environ.get("LEGWS_FUZZ_EXAMPLES", "1500"))
+EXAMPLES = int(os.environ.get("LEGWS_FUZZ_EXAMPLES", "1000"))
 FUZZ = settings(
     max_examples=EXAMPLES,
     deadline=None,
