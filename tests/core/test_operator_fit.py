@@ -143,3 +143,27 @@ def test_a_keyboard_user_who_sees_the_arm_late_is_fitted_from_the_ticks_clear_of
     assert fit.model.bias_deg == pytest.approx(-20.0, abs=3.0)
     monkeypatch.setattr(operator_fit, "BOUNDARY_M", 0.0)  # every tick
     assert fit_operator(reaches, PARAMS, resamples=0).model.speed < 0.7
+
+
+@pytest.mark.parametrize("steering", ["free", "axes", "axes+diagonals"])
+def test_the_binding_functions_totals_are_the_sums_of_its_segments(steering: str) -> None:
+    """The simulated segments' totals, taken over ``(T, K, 3)`` arrays at once, agree with
+    :func:`_sums` of the segments one by one (with the ticks near a boundary left out)."""
+    rng = np.random.default_rng(3)
+    t, k, bias = 60, 9, 0.3
+    xs = rng.uniform(-0.3, 0.3, size=(t, k, 3))
+    us = rng.normal(size=(t, k, 3)) * 0.5
+    goals = rng.uniform(-0.3, 0.3, size=(k, 3))
+    lengths = rng.integers(0, t + 1, size=k)
+    lengths[:2] = (1, t)  # one too short to count, one whole
+    live = np.arange(t)[:, None] < lengths[None, :]
+    total = operator_fit._simulated_totals(xs, us, live, goals, steering, bias)
+    segments = [
+        operator_fit.Reach(xs[:n, j], us[:n, j], goals[j], np.ones(n - 1, bool))
+        for j, n in enumerate(lengths)
+        if n >= 2
+    ]
+    per = operator_fit._sums(segments, steering, np.array([bias]), bias)
+    for name in operator_fit._SUMS:
+        expected = getattr(per, name)[:, 0].sum()
+        assert getattr(total, name)[0] == pytest.approx(expected, rel=1e-12, abs=1e-12), name
