@@ -11,13 +11,13 @@ from pathlib import Path
 import pdfplumber
 import pytest
 
-from legws_daemon.cli.main import run
 from legws_daemon.placement.mat import decision_mat
 from legws_daemon.placement.pdf import preview_labels
 from legws_daemon.scene.catalog import load_scene, scenes_dir
 from legws_daemon.task.plan_file import load_plan
 from tests.cli.helpers import Result, assert_bad_input
 from tests.placement.readback import assert_legible_preview, carried, cut_line, cut_texts, texts
+from tests.plans import tea_plan_folder
 
 Cli = Callable[..., Result]
 #: What the CLI says of a mat's PDF: how many pages, of which orientation.
@@ -137,13 +137,11 @@ def test_out_pointing_at_a_file_is_one_line_and_leaves_it(cli: Cli, tmp_path: Pa
 
 @pytest.fixture(scope="module")
 def tea_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The tea graph's plan as `legws plan tea` makes it (default settings), not cached."""
-    folder = tmp_path_factory.mktemp("tea-plan")
-    assert run(["plan", "tea", "--no-cache", "--quiet", "--out", str(folder)]) == 0
-    return folder
+    """The tea graph's plan as `legws plan tea` makes it (default settings; once a session)."""
+    return tea_plan_folder(tmp_path_factory)
 
 
-@pytest.mark.slow  # plans the tea graph (~15 s, once for this module), draws its 4 mats
+@pytest.mark.slow  # the tea plan (~20 s once a session, tests/plans.py), draws its 4 mats
 def test_a_plan_gives_one_mat_per_decision(cli: Cli, tmp_path: Path, tea_plan: Path) -> None:
     out = tmp_path / "mats"
     r = cli("placement", "tea", "--plan", tea_plan, "--out", out, "--paper", "a3")

@@ -4,6 +4,7 @@ seeds (in-process, as fast as possible), and ``legws demo`` end to end with real
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +25,7 @@ from legws_daemon.scene.scene import Scene
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
 from legws_daemon.telemetry.recording import read_text_log
 from tests.daemon.procs import rerun_exe
+from tests.plans import seed_cache
 
 
 @pytest.fixture(scope="module")
@@ -66,14 +68,21 @@ def test_feeding_takes_both_branches_across_seeds(fast: ProfileSpec) -> None:
 
 
 @pytest.mark.slow
-def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(tmp_path: Path) -> None:
+def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(
+    tmp_path: Path, tmp_path_factory: pytest.TempPathFactory
+) -> None:
     out = tmp_path / "demo"
+    # the tea plan cached (as after a first `legws demo tea` or `legws plan tea`)
+    cache = seed_cache(tmp_path_factory, tmp_path / "cache")
+    plans = sorted((cache / "legws" / "plan").iterdir())
     run = subprocess.run(
         [sys.executable, "-m", "legws_daemon", "demo", "tea", "--out", str(out), "--seed", "1",
          "--timeout", "300"],
         capture_output=True, text=True, timeout=400, check=False,
+        env={**os.environ, "XDG_CACHE_HOME": str(cache)},
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
+    assert sorted((cache / "legws" / "plan").iterdir()) == plans  # the cached plan it ran
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     assert [d["decision"] for d in summary["decisions"]] == [
