@@ -55,41 +55,47 @@ def obj_to_msh(data: bytes) -> bytes | None:
         text = data.decode("ascii")
     except UnicodeDecodeError:
         return None
-    rows: dict[str, list[list[str]]] = {"v": [], "vn": [], "vt": []}
-    faces: list[list[int]] = []
+    # the coordinates as flat lists of their text, the corners as theirs: numpy converts
+    # them at once, each distinct corner is read once (a vertex is the corner of ~6 faces)
+    coords: dict[str, list[str]] = {"v": [], "vn": [], "vt": []}
+    corners: list[str] = []
     for line in text.splitlines():
         fields = line.split()
-        if not fields or fields[0] in _IGNORED or fields[0].startswith("#"):
+        if not fields:
             continue
         key = fields[0]
-        if key in rows:
+        if key in coords:
             width = 2 if key == "vt" else 3
             if len(fields) - 1 not in (width, width + 1):  # a w or a third vt coordinate
                 return None
-            rows[key].append(fields[1 : width + 1])
+            coords[key].extend(fields[1 : width + 1])
         elif key == "f":
             if len(fields) != 4:
                 return None
-            corners = [_corner(c) for c in fields[1:]]
-            if any(c is None for c in corners):
-                return None
-            faces.append([c for c in corners if c is not None])
-        else:
+            corners.extend(fields[1:])
+        elif key not in _IGNORED and not key.startswith("#"):
             return None
+    index: dict[str, int] = {}
+    for corner in set(corners):
+        i = _corner(corner)
+        if i is None:
+            return None
+        index[corner] = i
     try:
-        vert = np.array(rows["v"], dtype=np.float32).reshape(-1, 3)
-        normal = np.array(rows["vn"], dtype=np.float32).reshape(-1, 3)
-        tex = np.array(rows["vt"], dtype=np.float32).reshape(-1, 2)
+        vert = np.array(coords["v"], dtype=np.float32).reshape(-1, 3)
+        normal = np.array(coords["vn"], dtype=np.float32).reshape(-1, 3)
+        tex = np.array(coords["vt"], dtype=np.float32).reshape(-1, 2)
     except ValueError:  # a coordinate that is not a number
         return None
-    face = np.array(faces, dtype=np.int32).reshape(-1, 3)
+    corner_index = np.fromiter(map(index.__getitem__, corners), np.int64, count=len(corners))
     n = len(vert)
-    if n < 4 or len(face) == 0 or len(normal) not in (0, n) or len(tex) not in (0, n):
+    if n < 4 or len(corners) == 0 or len(normal) not in (0, n) or len(tex) not in (0, n):
         return None
     if not (np.isfinite(vert).all() and np.isfinite(normal).all() and np.isfinite(tex).all()):
         return None
-    if face.max() >= n:
+    if corner_index.max() >= n:
         return None
+    face = corner_index.astype(np.int32).reshape(-1, 3)
     tex[:, 1] = 1.0 - tex[:, 1]
     head = np.array([n, len(normal), len(tex), len(face)], dtype=np.int32)
     return b"".join(a.tobytes() for a in (head, vert, normal, tex, face))
