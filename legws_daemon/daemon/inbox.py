@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter, OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, get_args
 
 import numpy as np
@@ -62,14 +62,18 @@ class Sample:
 
     message: JoystickMessage
     received: float
+    #: a confirm or cancel pressed in an earlier sample of the same holder that no tick
+    #: polled (several samples between two ticks): a tap is not lost to the next sample
+    confirm_pressed: bool = False
+    cancel_pressed: bool = False
 
     @property
     def operator(self) -> OperatorInput:
         """The sample as the controller takes it."""
         m = self.message
         return OperatorInput(
-            np.array(m.axes, dtype=np.float64), m.buttons.confirm, m.buttons.cancel,
-            self.received, m.seq, m.stamp,
+            np.array(m.axes, dtype=np.float64), m.buttons.confirm or self.confirm_pressed,
+            m.buttons.cancel or self.cancel_pressed, self.received, m.seq, m.stamp,
         )  # fmt: skip
 
 
@@ -129,6 +133,7 @@ class JoystickInbox:
         self._stall_seen = False  # a stall was handled since the last poll
         self._lock = threading.Lock()
         self._sample: Sample | None = None
+        self._sample_polled = False  # a tick has polled the sample held
         self._last_seq: OrderedDict[SessionKey, int] = OrderedDict()
         self.lease = Lease(timeout, grace)
         self.keys = SessionKeys()
@@ -193,12 +198,22 @@ class JoystickInbox:
                 self._sample = None
                 return None
             sample = Sample(message, now)
-            self._sample = sample
+            earlier = self._sample
+            if earlier is not None and not self._sample_polled and not changes:
+                b = earlier.message.buttons
+                sample = Sample(
+                    message,
+                    now,
+                    confirm_pressed=earlier.confirm_pressed or b.confirm,
+                    cancel_pressed=earlier.cancel_pressed or b.cancel,
+                )
+            self._sample, self._sample_polled = sample, False
             return sample
 
-    def poll(self, now: float) -> tuple[Sample | None, NoInput | None]:
+    def poll(self, now: float, *, tick: bool = True) -> tuple[Sample | None, NoInput | None]:
         """The input for a tick at ``now``: the operator's newest sample if it arrived within
-        the timeout and enable is held, else ``None`` and why."""
+        the timeout and enable is held, else ``None`` and why. ``tick=False``: only asked
+        (a command's reply), the presses the sample carries still go to the next tick."""
         with self._lock:
             self._polled, self._stall_seen = now, False
             change = self.lease.expire(now)
@@ -206,6 +221,11 @@ class JoystickInbox:
                 self._changed([change])
                 self._sample = None
             sample, holder = self._sample, self.lease.holder
+            if tick and sample is not None:
+                # its earlier presses reach this tick or none, once
+                self._sample_polled = True
+                if sample.confirm_pressed or sample.cancel_pressed:
+                    self._sample = replace(sample, confirm_pressed=False, cancel_pressed=False)
         if holder is None:
             return None, "no_operator"
         if sample is None or now - sample.received > self.timeout or now < sample.received - 1:

@@ -656,7 +656,7 @@ class DaemonService:
         """``reset``: home and the task again; ``waiting`` says what the arm waits for."""
         assert self.controller is not None
         detail = self.controller.reset()
-        detail["waiting"] = _waiting(self.inbox.poll(now)[1])
+        detail["waiting"] = _waiting(self.inbox.poll(now, tick=False)[1])
         return detail
 
     def _run_lease(self, request: CommandRequest, now: float) -> dict[str, Any]:

@@ -117,6 +117,53 @@ def test_the_first_session_that_steers_holds_the_lease_and_others_are_not_operat
     assert box.take_report().changes == []
 
 
+@pytest.mark.parametrize("button", ["confirm", "cancel"])
+def test_a_press_between_two_ticks_reaches_the_next_tick_once(button: str) -> None:
+    """Samples bunched between two ticks (a publisher faster than the loop, or a late
+    delivery): a button pressed in one that no tick saw still reaches the next tick, once;
+    one a tick saw, or of another holder, does not come again."""
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    pressed = {"enable": True, button: True}
+    assert box.offer(session("pad", 0, buttons=pressed), now=0.00) is not None
+    assert box.offer(session("pad", 1, buttons={"enable": True}), now=0.01) is not None
+    assert box.offer(session("pad", 2, buttons={"enable": True}), now=0.02) is not None
+    sample, why = box.poll(0.05)
+    assert why is None and sample is not None
+    assert getattr(sample.operator, button) is True  # the tap, though released since
+    assert getattr(sample.message.buttons, button) is False  # (the message as it came)
+    sample, _ = box.poll(0.10)  # the same sample at the next tick: the tap was delivered
+    assert sample is not None and getattr(sample.operator, button) is False
+    assert box.offer(session("pad", 3, buttons={"enable": True}), now=0.11) is not None
+    sample, _ = box.poll(0.12)
+    assert sample is not None and getattr(sample.operator, button) is False
+    # a reply's look at the input does not use the press up
+    assert box.offer(session("pad", 4, buttons=pressed), now=0.13) is not None
+    assert box.poll(0.14, tick=False)[0] is not None
+    assert box.offer(session("pad", 5, buttons={"enable": True}), now=0.15) is not None
+    sample, _ = box.poll(0.16)
+    assert sample is not None and getattr(sample.operator, button) is True
+    # a press of the holder before the lease passed is not the new holder's
+    assert box.offer(session("pad", 6, buttons=pressed), now=0.17) is not None
+    box.release(now=0.18)
+    assert box.offer(session("other", 0, buttons={"enable": True}), now=0.19) is not None
+    sample, _ = box.poll(0.20)
+    assert sample is not None and sample.message.session == "other"
+    assert getattr(sample.operator, button) is False
+
+
+def test_a_press_is_not_carried_past_a_released_enable() -> None:
+    """A tap then the enable button let go: no input, and the tap is gone with it."""
+    box = JoystickInbox(timeout=0.25, grace=0.5)
+    assert box.offer(session("pad", 0, buttons={"enable": True}), now=0.0) is not None
+    box.poll(0.01)
+    assert box.offer(session("pad", 1, buttons={"enable": True, "cancel": True}), now=0.02)
+    assert box.offer(session("pad", 2, buttons={"enable": False}), now=0.03) is not None
+    assert box.poll(0.04) == (None, "enable_released")
+    assert box.offer(session("pad", 3, buttons={"enable": True}), now=0.05) is not None
+    sample, _ = box.poll(0.06)
+    assert sample is not None and sample.operator.cancel is False
+
+
 def test_holding_the_enable_button_claims_a_free_lease_with_the_stick_centred() -> None:
     """A person who joins during assistance holds enable and keeps the stick still."""
     box = JoystickInbox(timeout=0.25, grace=0.5)

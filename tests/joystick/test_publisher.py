@@ -190,7 +190,7 @@ def test_run_publishes_at_the_rate_for_the_duration_then_zero(tmp_path: Path) ->
         published = pub.run(sample, rate=50.0, duration=0.4)
         elapsed = time.monotonic() - start
     messages = read_record(record)
-    assert 0.38 <= elapsed < 1.5
+    assert 0.38 <= elapsed < 10.0  # (the upper bound: it ended, not a rate)
     assert published == calls
     assert 8 <= published <= 21  # 20 ticks in 0.4 s at 50 Hz; a busy machine may skip some
     assert len(messages) == published + 1

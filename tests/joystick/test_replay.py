@@ -142,7 +142,7 @@ def test_replay_keeps_the_recorded_timing_scaled_by_speed(tmp_path: Path) -> Non
     assert got[0].stamp >= start  # fresh stamps
     offsets = [m.stamp - got[0].stamp for m in got[:3]]
     assert offsets == pytest.approx([0.0, 0.1, 0.3], abs=0.06)
-    assert 0.28 <= elapsed < 1.5
+    assert 0.28 <= elapsed < 10.0  # (the upper bound: it ended, not a rate)
 
 
 def test_loop_repeats_until_the_duration(tmp_path: Path) -> None:
