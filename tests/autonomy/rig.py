@@ -133,8 +133,10 @@ class Rig:
                                "session": "rig"}  # fmt: skip
         if buttons:
             msg["buttons"] = buttons
-        s = self.inbox.offer(json.dumps(msg).encode(), self.c.dt * self.seq)
-        assert s is not None
+        now = self.c.dt * self.seq
+        assert self.inbox.offer(json.dumps(msg).encode(), now) is not None
+        s, why = self.inbox.poll(now)  # the tick takes it as the daemon's does
+        assert s is not None, why
         return s.operator
 
     def hands_off(self) -> OperatorInput:
