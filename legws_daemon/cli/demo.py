@@ -10,6 +10,7 @@ import click
 from legws_daemon.arms import arm
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.cli.robot import robot_option
+from legws_daemon.errors import InputError
 from legws_daemon.formats.printable import echo
 from legws_daemon.formats.profile import load_profile_named, with_arm
 from legws_daemon.task.taskgraph_file import load_taskgraph, resolve_taskgraph
@@ -87,11 +88,19 @@ def demo_cmd(
     output_folder(folder)  # a file or device in the way: one line before any planning
     plan_dir = None
     if plan:
-        from legws_daemon.design.stage_plan import plan_taskgraph
+        from legws_daemon.design.stage_plan import cached_plan, plan_taskgraph
 
-        echo(f"legws: planning the layout of each decision of {graph.name} for the "
-             f"{arm(spec.arm).title}", err=True)  # fmt: skip
-        planned = plan_taskgraph(graph, scene, arm=spec.arm, progress=False)
+        try:
+            planned = cached_plan(graph, scene, arm=spec.arm)
+        except InputError:  # damaged or stale: planned again below, and the cache replaced
+            planned = None
+        if planned is None:
+            echo(f"legws: planning the layout of each decision of {graph.name} for the "
+                 f"{arm(spec.arm).title}", err=True)  # fmt: skip
+            planned = plan_taskgraph(graph, scene, arm=spec.arm, progress=False)
+        else:
+            echo(f"legws: the cached plan of {graph.name} for the {arm(spec.arm).title} "
+                 f"({planned.directory})", err=True)  # fmt: skip
         plan_dir = planned.directory
         for d in planned.decisions:
             cert = "no inference" if d.certificate is None else f"J = {d.certificate:.3f}"

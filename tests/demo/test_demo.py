@@ -83,6 +83,8 @@ def test_legws_demo_runs_the_real_daemon_and_writes_the_summary(
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
     assert sorted((cache / "legws" / "plan").iterdir()) == plans  # the cached plan it ran
+    assert "legws: the cached plan of tea for the Rethink Sawyer" in run.stderr
+    assert "planning the layout" not in run.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] is True
     assert [d["decision"] for d in summary["decisions"]] == [
