@@ -226,7 +226,9 @@ def _drive(
             text = " ".join(str(err).split())[:300]
             raise InputError(f"the viewer failed to {what}: {text}", source=str(rrd)) from None
 
-    client = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+    # a viewer without Vulkan can die between listening and the connection: that, too, is
+    # its exit and the hint, not the bindings' "transport error"
+    client = call("connect", ViewerClient.connect, f"rerun+http://127.0.0.1:{port}/proxy")
     call("start", client.get_state)  # the renderer is up (no Vulkan: the child panics)
     opened = call("open the file", client.open, str(rrd))
     store_id, timelines = _wait_loaded(call, client, opened.store_ids, rrd, deadline)

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +22,7 @@ from PIL import Image
 
 from legws_daemon.errors import InputError
 from legws_daemon.telemetry.rerun_log import _PALETTE, RerunLog
-from legws_daemon.telemetry.screenshot import last_posterior_time, screenshot_recording
+from legws_daemon.telemetry.screenshot import _drive, last_posterior_time, screenshot_recording
 from legws_daemon.telemetry.snapshot import TickSnapshot
 from tests.browser import require, vulkan_missing
 from tests.telemetry.helpers import arm_visual, log_episode, straight_episode, tick_kwargs
@@ -184,6 +188,30 @@ def test_no_vulkan_names_the_package_to_install(
     assert "mesa-vulkan-drivers" in text and "graphics adapter" in text
     assert not (tmp_path / "out.png").exists()
     _no_viewer_left()
+
+
+def test_a_viewer_that_dies_before_the_connection_is_its_exit_and_the_hint(
+    moving_box: Path, tmp_path: Path
+) -> None:
+    """The race of the test above: the viewer listened, then panicked (no Vulkan) before the
+    client connected. The connection's "transport error" is the viewer's exit and the hint."""
+    log = tmp_path / "rerun.log"
+    log.write_text("thread 'main' panicked at 'Failed to create a graphics adapter'\n")
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(101)"])
+    proc.wait(30)
+    with socket_closed() as port, pytest.raises(InputError) as info:
+        _drive(proc, port, moving_box, None, log, deadline=float("inf"))
+    text = str(info.value)
+    assert "exited (code 101)" in text and "graphics adapter" in text
+    assert "mesa-vulkan-drivers" in text and "transport error" not in text
+
+
+@contextlib.contextmanager
+def socket_closed() -> Iterator[int]:
+    """A loopback port nothing listens on (bound and held without listen())."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
 
 
 def test_the_png_is_written_atomically_over_an_old_file(moving_box: Path, tmp_path: Path) -> None:
