@@ -77,12 +77,16 @@ class Assistant:
     #: checks a joint-space move from where the arm is when it begins: the configurations
     #: to pass on the way (none: straight), or an InfeasibleError (the move fails)
     path: Callable[[FloatArray, FloatArray], list[FloatArray]] | None = None
+    #: when ``path`` finds no way: a Cartesian move to make first (the joint move is then
+    #: checked again from where the move ends), or ``None`` (the move fails)
+    withdraw: Callable[[FloatArray, FloatArray], Move | None] | None = None
     joint_speed_limits: FloatArray = field(
         default_factory=lambda: np.array(arm(DEFAULT_ARM).speed_limits)
     )
     index: int = 0
     elapsed: float = 0.0
     _entered: int = field(default=-1, repr=False)
+    _withdrawn: set[int] = field(default_factory=set, repr=False)  # (once per joint move)
     # progress of the current move: best distances since the last progress, and the
     # active seconds since then
     _best: tuple[float, float] | None = field(default=None, repr=False)
@@ -128,7 +132,7 @@ class Assistant:
             case Move():
                 return self._move(prim, position, rotation)
             case JointMove():
-                return self._joint_move(prim, q)
+                return self._joint_move(prim, q, position, rotation)
 
     def _move(self, prim: Move, position: FloatArray, rotation: FloatArray) -> AssistStep:
         error = prim.position - np.asarray(position, dtype=np.float64)
@@ -146,13 +150,25 @@ class Assistant:
             v *= self.speed / norm
         return AssistStep(Cartesian(v, prim.rotation, prim.floor), None, prim.label)
 
-    def _joint_move(self, prim: JointMove, q: FloatArray) -> AssistStep:
+    def _joint_move(
+        self, prim: JointMove, q: FloatArray, position: FloatArray, rotation: FloatArray
+    ) -> AssistStep:
         if self._entered != self.index and self.path is not None:
             self._entered = self.index
             try:
                 vias = self.path(np.asarray(q, dtype=np.float64), prim.q)
             except InfeasibleError as err:
-                return AssistStep(zero(), None, prim.label, failed=f"'{prim.label}': {err}")
+                move = None
+                if self.withdraw is not None and id(prim) not in self._withdrawn:
+                    move = self.withdraw(np.asarray(q, dtype=np.float64), prim.q)
+                if move is None:
+                    return AssistStep(zero(), None, prim.label, failed=f"'{prim.label}': {err}")
+                # in from the box's edge first, in a straight line; the joint move is checked
+                # again from where that ends (once: a second refusal fails it)
+                self._withdrawn.add(id(prim))
+                self.plan.insert(self.index, move)
+                self._entered = -1
+                return self._move(move, position, rotation)
             if vias:  # pass them first, as moves of the same phase
                 passes = [JointMove(prim.label, v, prim.tolerance, prim.patience) for v in vias]
                 self.plan[self.index : self.index] = passes

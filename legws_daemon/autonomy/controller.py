@@ -83,7 +83,7 @@ from legws_daemon.errors import HardwareError, InfeasibleError, InputError, Legw
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.hardware.base import Adapter, RobotState
-from legws_daemon.robot.motion import Primitive
+from legws_daemon.robot.motion import Move, Primitive
 from legws_daemon.robot.planner import MotionPlanner
 from legws_daemon.robot.world import resolve_arm
 from legws_daemon.scene.scene import Layout, Scene
@@ -538,9 +538,12 @@ class Controller:
         def path(q0: FloatArray, q1: FloatArray) -> list[FloatArray]:
             return self.planner.joint_path(q0, q1, self.adapter.box, ignore)
 
+        def withdraw(q0: FloatArray, q1: FloatArray) -> Move | None:
+            return self.planner.withdraw(q0, q1, self.adapter.box, ignore)
+
         speed = self.profile.control.assist_speed
         self.assistant = Assistant(
-            plan, speed, self.dt, target, path, np.array(self.arm.speed_limits)
+            plan, speed, self.dt, target, path, withdraw, np.array(self.arm.speed_limits)
         )
         self.cancel.reset()
         self._motion = np.zeros(3)

@@ -80,6 +80,9 @@ PATH_STEP = 0.05
 #: A joint-space move keeps the fingertips at least this far above the table (the envelope
 #: keeps 5 mm; the prediction by samples gets this margin), m.
 PATH_CLEARANCE = 0.01
+#: How far a withdrawal (:meth:`MotionPlanner.withdraw`) may go toward the other end of a
+#: blocked joint-space move, as fractions of the horizontal way, the farthest first.
+WITHDRAW_FRACTIONS = (1.0, 0.75, 0.5, 0.25)
 
 
 class MotionPlanner:
@@ -295,6 +298,44 @@ class MotionPlanner:
         if via is None:
             raise InfeasibleError(f"no clear joint-space path: the straight one {blocked}")
         return [via]
+
+    def withdraw(
+        self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str] = frozenset()
+    ) -> Move | None:
+        """A straight Cartesian move that makes the joint-space move ``q0 -> q1`` possible
+        when :meth:`joint_path` finds none (the EE at the box's edge, where every joint line
+        swings it out): from the EE at ``q0``, at its height and orientation, toward the EE
+        at ``q1`` (horizontally; :data:`WITHDRAW_FRACTIONS` of the way, the farthest first),
+        to the first point whose configuration has a clear way to ``q1``. ``None`` when no
+        such point is reachable. The move is optional (cut short where the arm stalls) and
+        the joint move is checked again from where it really ends."""
+        q0 = np.asarray(q0, dtype=np.float64)
+        q1 = np.asarray(q1, dtype=np.float64)
+        w = self.world
+        try:
+            w.set_q(q0)
+            p0, R0 = w.ee_position(), w.ee_rotation()
+            w.set_q(q1)
+            p1 = w.ee_position()
+            z = float(np.clip(p0[2], box.lower[2], box.upper[2]))
+            toward = np.array([p1[0], p1[1], z]) - np.array([p0[0], p0[1], z])
+            if float(np.linalg.norm(toward)) < 2 * POSITION_TOLERANCE:
+                return None  # nowhere to withdraw to: already above the other end
+            for fraction in WITHDRAW_FRACTIONS:
+                target = np.clip(np.array([p0[0], p0[1], z]) + fraction * toward,
+                                 box.lower, box.upper)  # fmt: skip
+                q = self._near(target, R0, q0)
+                if q is q0:
+                    continue  # out of reach at this orientation
+                if (
+                    self._blocked(q, q1, box, ignore) is None
+                    or self._via(q, q1, R0, self._rotation_at(q1), box, ignore) is not None
+                ):
+                    return Move("withdraw", target, R0.copy(), 2 * POSITION_TOLERANCE,
+                                JOINT_PATIENCE, optional=True)  # fmt: skip
+            return None
+        finally:
+            w.set_q(self.q_home)
 
     def _rotation_at(self, q: FloatArray) -> FloatArray:
         self.world.set_q(q)

@@ -13,6 +13,7 @@ from legws_daemon.autonomy.assistant import (
 )
 from legws_daemon.autonomy.cancel import CancelDetector
 from legws_daemon.autonomy.inputs import Cartesian, Joints
+from legws_daemon.errors import InfeasibleError
 from legws_daemon.robot.motion import Grip, JointMove, Move
 
 SAWYER = arm("sawyer")
@@ -92,6 +93,61 @@ def test_a_move_that_cannot_arrive_fails() -> None:
             break
     assert step.failed is not None
     assert "timed out" in step.failed
+
+
+def test_a_blocked_joint_move_withdraws_first_and_is_checked_again_from_there() -> None:
+    """The way home from the box's edge: no joint path from where the arm stands, a straight
+    withdrawal toward home, then the joint move checked again from where the withdrawal ended."""
+    home = np.array([0.2, -0.4, 0.1, 0.9, 0.0, 0.6, 0.0])
+    edge, inside = np.array([0.4, -0.55, 0.3]), np.array([0.55, 0.0, 0.3])
+    checked: list[np.ndarray] = []
+    asked: list[np.ndarray] = []
+
+    def path(q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray]:
+        checked.append(q0.copy())
+        if len(checked) == 1:  # from the edge: every joint line leaves the box
+            raise InfeasibleError("no clear joint-space path: the straight one leaves the box")
+        return []
+
+    def withdraw(q0: np.ndarray, q1: np.ndarray) -> Move | None:
+        asked.append(q0.copy())
+        return Move("withdraw", inside, DOWN, 0.004, 2.0, optional=True)
+
+    q_edge = np.array([-0.6, -0.3, 0.0, 1.2, 0.0, 0.7, 0.0])
+    a = Assistant([JointMove("home", home)], 0.1, 0.05, "cereal_box", path, withdraw)
+    end, q, phases, _ = run(a, edge, q_edge.copy())
+    assert a.finished
+    assert list(dict.fromkeys(phases)) == ["withdraw", "home"]
+    np.testing.assert_allclose(end, inside, atol=0.005)  # the withdrawal, in a straight line
+    np.testing.assert_allclose(q, home, atol=0.002)
+    assert len(asked) == 1 and np.array_equal(asked[0], q_edge)
+    assert len(checked) == 2 and np.array_equal(checked[0], q_edge)
+
+
+@pytest.mark.parametrize("offered", [True, False])
+def test_a_joint_move_still_blocked_fails_and_withdraws_at_most_once(offered: bool) -> None:
+    def path(q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray]:
+        raise InfeasibleError("no clear joint-space path: the straight one leaves the box")
+
+    asked = []
+
+    def withdraw(q0: np.ndarray, q1: np.ndarray) -> Move | None:
+        asked.append(q0)
+        return Move("withdraw", np.array([0.5, 0.0, 0.3]), DOWN, 0.004, 2.0) if offered else None
+
+    a = Assistant([JointMove("home", np.ones(7))], 0.1, 0.05, "box", path, withdraw)
+    p, phases = np.array([0.4, -0.5, 0.3]), []
+    for _ in range(400):
+        step = a.step(Q0, p, DOWN)
+        phases.append(step.phase)
+        if isinstance(step.command, Cartesian):
+            p = p + step.command.velocity * a.dt
+        if step.failed or step.done:
+            break
+    assert step.failed is not None and step.failed.startswith("'home': no clear joint-space path")
+    assert len(asked) == 1  # not asked again when the joint move is checked after it
+    assert ("withdraw" in phases) == offered
+    np.testing.assert_allclose(p, [0.5, 0.0, 0.3] if offered else [0.4, -0.5, 0.3], atol=0.005)
 
 
 def test_grip_waits_its_time() -> None:
