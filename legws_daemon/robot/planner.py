@@ -317,22 +317,26 @@ class MotionPlanner:
             p0, R0 = w.ee_position(), w.ee_rotation()
             w.set_q(q1)
             p1 = w.ee_position()
-            z = float(np.clip(p0[2], box.lower[2], box.upper[2]))
-            toward = np.array([p1[0], p1[1], z]) - np.array([p0[0], p0[1], z])
-            if float(np.linalg.norm(toward)) < 2 * POSITION_TOLERANCE:
-                return None  # nowhere to withdraw to: already above the other end
-            for fraction in WITHDRAW_FRACTIONS:
-                target = np.clip(np.array([p0[0], p0[1], z]) + fraction * toward,
-                                 box.lower, box.upper)  # fmt: skip
-                q = self._near(target, R0, q0)
-                if q is q0:
-                    continue  # out of reach at this orientation
-                if (
-                    self._blocked(q, q1, box, ignore) is None
-                    or self._via(q, q1, R0, self._rotation_at(q1), box, ignore) is not None
-                ):
-                    return Move("withdraw", target, R0.copy(), 2 * POSITION_TOLERANCE,
-                                JOINT_PATIENCE, optional=True)  # fmt: skip
+            # at the other end's height when higher (a rise cut short at a wrist limit may
+            # go on diagonally), else at its own
+            heights = dict.fromkeys([max(float(p0[2]), float(p1[2])), float(p0[2])])
+            R1 = self._rotation_at(q1)
+            for z in (float(np.clip(h, box.lower[2], box.upper[2])) for h in heights):
+                start = np.array([p0[0], p0[1], z])
+                toward = np.array([p1[0], p1[1], z]) - start
+                for fraction in WITHDRAW_FRACTIONS:
+                    target = np.clip(start + fraction * toward, box.lower, box.upper)
+                    if float(np.linalg.norm(target - p0)) < 2 * POSITION_TOLERANCE:
+                        continue  # already there
+                    q = self._near(target, R0, q0)
+                    if q is q0:
+                        continue  # out of reach at this orientation
+                    if (
+                        self._blocked(q, q1, box, ignore) is None
+                        or self._via(q, q1, R0, R1, box, ignore) is not None
+                    ):
+                        return Move("withdraw", target, R0.copy(), 2 * POSITION_TOLERANCE,
+                                    JOINT_PATIENCE, optional=True)  # fmt: skip
             return None
         finally:
             w.set_q(self.q_home)

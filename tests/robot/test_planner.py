@@ -86,3 +86,28 @@ def test_an_infeasible_grasp_is_refused_with_its_reason(planner: MotionPlanner) 
                              q=planner.q_home, carry_height=0.2, box=BOX)  # fmt: skip
     finally:
         planner.set_layout(sc.default_layout())
+
+
+def test_a_withdrawal_keeps_its_orientation_and_leaves_a_clear_way_or_is_none(
+    planner: MotionPlanner,
+) -> None:
+    """From home to home there is nowhere to withdraw to; from a configuration off to the
+    side, a withdrawal is a straight move at the orientation the arm has, inside the box,
+    toward home, from whose IK the joint-space way home is clear."""
+    home = planner.q_home
+    assert planner.withdraw(home, home, BOX) is None
+    w = planner.world
+    side = planner._near(np.array([0.35, 0.45, 0.3]), w.ee_rotation(), home)
+    assert side is not home  # reachable
+    w.set_q(side)
+    p0, R0 = w.ee_position(), w.ee_rotation()
+    move = planner.withdraw(side, home, BOX)
+    assert move is not None and move.label == "withdraw" and move.optional
+    np.testing.assert_allclose(move.rotation, R0)
+    assert np.all(move.position >= BOX.lower) and np.all(move.position <= BOX.upper)
+    w.set_q(home)
+    to_home = w.ee_position() - p0
+    assert float((move.position - p0)[:2] @ to_home[:2]) > 0  # toward home
+    q = planner._near(move.position, R0, side)
+    assert planner.joint_path(q, home, BOX) is not None  # (raises when there is no way)
+    np.testing.assert_allclose(w.ee_position(), planner.home_position, atol=1e-3)  # left home

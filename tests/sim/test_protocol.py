@@ -51,17 +51,31 @@ def test_every_feasible_pick_of_every_shipped_scene_commits_and_completes(name: 
         )
 
 
-def test_the_way_home_from_the_edge_of_the_box_withdraws_first_and_completes() -> None:
-    """Breakfast-easy's slack elite of seed 1 (3rd best, docs/results/tables): the cereal
-    box at the table's edge, grasped at its side. After the lift every joint line home
-    swings the EE out of the workspace box (the pick used to end `assist_failed`, 'home':
-    no clear joint-space path); a straight withdrawal toward home first, then the way home."""
-    sc = load_scene("breakfast_easy")
-    ev = Evaluator(sc)
-    layout = {
+#: Slack elites of docs/results/tables whose cereal box picks ended `assist_failed` ('home':
+#: no clear joint-space path: the straight one leaves the workspace box).
+EDGE_LAYOUTS = {
+    # breakfast-easy, seed 1, 3rd best: the box at the table's side edge, grasped at its side
+    "breakfast_easy": {
         "cereal_box": ObjectPose(0.3, -0.45, 2.443712333633032),
         "banana": ObjectPose(0.3795045434914211, 0.45, -1.5856634065491304),
-    }
+    },
+    # breakfast, seed 0, best: the box near the base, the rise cut short at a wrist limit
+    # (the withdrawal goes on diagonally, up to the home height)
+    "breakfast": {
+        "cereal_box": ObjectPose(0.3, 0.34845918823090655, 0.8947970864083059),
+        "banana": ObjectPose(0.8280039126164247, 0.18246609723542634, 1.6227470353262792),
+        "milk_carton": ObjectPose(0.5182932286212425, -0.32902792453566754, 1.3599943695436583),
+    },
+}
+
+
+@pytest.mark.parametrize("name", sorted(EDGE_LAYOUTS))
+def test_the_way_home_from_the_edge_of_the_box_withdraws_first_and_completes(name: str) -> None:
+    """After the lift every joint line home swings the EE out of the workspace box; a
+    straight withdrawal toward home first, then the way home, and the pick completes."""
+    sc = load_scene(name)
+    ev = Evaluator(sc)
+    layout = EDGE_LAYOUTS[name]
     phases: list[str] = []
     planner = ev.controller.planner
     withdraw = planner.withdraw
