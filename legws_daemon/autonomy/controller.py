@@ -48,6 +48,7 @@ from legws_daemon.autonomy.events import (
     Fault,
     Loaded,
     NoPlan,
+    Override,
     PlaceObjects,
     PlanDropped,
     Recovered,
@@ -74,8 +75,10 @@ from legws_daemon.autonomy.modes import (
     ModeMachine,
     SingleCommit,
 )
+from legws_daemon.autonomy.override import HandBack, OverrideDetector
 from legws_daemon.autonomy.placing import PlacementReport
 from legws_daemon.autonomy.recovery import Recovery
+from legws_daemon.core.arbitration import Blended, blend, hindsight, slew
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
@@ -86,6 +89,7 @@ from legws_daemon.hardware.base import Adapter, RobotState
 from legws_daemon.robot.motion import Move, Primitive
 from legws_daemon.robot.planner import MotionPlanner
 from legws_daemon.robot.world import resolve_arm
+from legws_daemon.safety.envelope import clamp_ee_velocity
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.task.actions import PlanContext, action
 from legws_daemon.task.graph import TaskGraph
@@ -176,10 +180,19 @@ class Controller:
         self.modes = ModeMachine()
         self.ticks = 0
         self.cancel = CancelDetector(self.dt)
+        #: help before the commit (profile ``control.assist``; :mod:`..core.arbitration`)
+        self.policy = profile.control.assist
+        self.override = OverrideDetector(self.dt)
+        self.handback = HandBack(self.dt)
+        self._declined: str | None = None  # the blend's guess the operator overrode
+        self._robot_part: FloatArray = np.zeros(3)  # the robot's share sent last tick
+        self._parts: tuple[FloatArray, FloatArray] | None = None  # this tick's (operator, robot)
         self.assistant: Assistant | None = None
         self.committed: str | None = None
         self.last_state: RobotState | None = None
-        self.inference = Inference(params, self.dt, scene.home.rotation)
+        self.inference = Inference(
+            params, self.dt, scene.home.rotation, from_input=self.policy != "commit"
+        )
         self._held: Held | None = None  # what the gripper closed on, and how
         self.decisions = 0
         self._motion: FloatArray = np.zeros(3)  # the EE velocity sent last tick
@@ -270,6 +283,9 @@ class Controller:
     def _restart_inference(self) -> None:
         """A fresh observer whose start pose is where the EE is now."""
         self.committed = None
+        self._declined = None
+        self._robot_part = np.zeros(3)
+        self.override.reset()
         self.inference.restart(self.stage, self._read_state_safely())
 
     def restart_task(self) -> None:
@@ -392,6 +408,7 @@ class Controller:
         command: Command = zero()
         phase: str | None = None
         state: RobotState | None = None
+        self._parts = None
         if self.mode != Mode.FAULT:
             try:
                 state = self.adapter.read_state()
@@ -413,8 +430,14 @@ class Controller:
                     phase = None  # the tick that ended it (done, cancelled, given back): its event
                 elif self.assistant is not ran:
                     phase = self.assistant.phase  # the next stage's (or a fallback's) plan
+        if isinstance(command, Cartesian) and self.mode in (Mode.TELEOP, Mode.CALIBRATE):
+            # control came back to the operator: no jump on the way to their command
+            ramped = self.handback.apply(self._motion, command.velocity)
+            if ramped is not command.velocity:
+                command = Cartesian(ramped, command.hold, command.floor)
         sent, joints = self._send(state, command)
         self._motion = sent
+        operator, robot = self._shares(sent)
         return TickRecord(
             tick=self.ticks,
             mode=self.mode,
@@ -429,7 +452,25 @@ class Controller:
             sample_seq=inp.seq if inp is not None else None,
             sample_stamp=inp.stamp if inp is not None else None,
             command_sent=self.clock(),
+            operator_velocity=operator,
+            robot_velocity=robot,
         )
+
+    def _shares(self, sent: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Who asked for the motion sent this tick: (operator's, robot's) velocity —
+        the policy's split before the commit, scaled to what the envelope let through;
+        all the robot's in ``assist``; all the operator's in teleoperation without help."""
+        speed = float(np.linalg.norm(sent))
+        if self.mode == Mode.ASSIST:
+            return np.zeros(3), sent
+        if self._parts is None or speed == 0.0:
+            return sent, np.zeros(3)
+        operator, robot = self._parts
+        asked = float(np.linalg.norm(operator + robot))
+        if asked == 0.0:
+            return sent, np.zeros(3)
+        scale = speed / asked  # what the envelope (and a hand-back) let through of it
+        return operator * scale, robot * scale
 
     def _teleop(self, state: RobotState, inp: OperatorInput | None) -> Command:
         confirm = inp is not None and inp.confirm
@@ -451,8 +492,50 @@ class Controller:
                 self._commit(*self.inference.most_likely(), state, confirmed=True)
                 return zero()
         if inp is None:
+            self._robot_part = np.zeros(3)
             return zero()  # deadman: nothing moves, not even the orientation
-        return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
+        v_max = self.profile.control.v_max
+        if self.inference.from_input:
+            # the observer follows the operator's own motion, clipped as the EE's would be
+            own = clamp_ee_velocity(
+                self.inference.shadow, v_max * inp.axes, self.dt, self.adapter.box, v_max
+            ) if self.inference.shadow is not None else np.zeros(3)  # fmt: skip
+            self.inference.moved(own)
+        return Cartesian(self._help(state, inp.axes), self.inference.hold)
+
+    def _help(self, state: RobotState, axes: FloatArray) -> FloatArray:
+        """This tick's EE velocity before the commit under :attr:`policy` (the operator's
+        ``v_max · u`` for ``commit``): the robot's part changes by at most the hand-back's
+        acceleration bound per tick, and a ``blend`` guess held against is overridden."""
+        v_max = self.profile.control.v_max
+        obs = self.inference.observer
+        if self.policy == "commit" or obs is None:
+            return np.asarray(v_max * axes, dtype=np.float64)
+        names, positions, post = obs.goals.names, obs.goals.positions, obs.posterior
+        ee = state.ee_position
+        if self.policy == "blend":
+            speed = self.profile.control.assist_speed
+            b = blend(axes, v_max, ee, positions, post, self.params.p_thresh, speed)
+            guess = names[b.guess] if b.guess is not None else None
+            if self._declined is not None and names[int(np.argmax(post))] != self._declined:
+                self._declined = None  # inference guesses another goal: help toward it
+            if guess is not None and guess == self._declined:
+                b = Blended(v_max * axes, v_max * axes, np.zeros(3), 0.0, None)
+            elif guess is None:
+                self.override.reset()
+            elif b.guess is not None and self.override.update(axes, positions[b.guess] - ee):
+                self._declined = guess
+                self.override.reset()
+                self.handback.start()  # the operator's share grows back to all of it smoothly
+                self.emit(Override(guess, "blend"))
+                b = Blended(v_max * axes, v_max * axes, np.zeros(3), 0.0, None)
+        else:
+            b = hindsight(axes, v_max, ee, positions, post, self.dt)
+        # the robot's share never jumps — but a centred stick stops it at once
+        robot = slew(self._robot_part, b.robot, self.handback.step) if np.any(axes) else b.robot
+        self._robot_part = robot
+        self._parts = (b.operator, robot)
+        return np.asarray(b.operator + robot, dtype=np.float64)
 
     # --- calibration ---------------------------------------------------------------------
     def start_calibration(self, count: int, seed: int) -> CalibrationRun:
@@ -546,6 +629,8 @@ class Controller:
             plan, speed, self.dt, target, path, withdraw, np.array(self.arm.speed_limits)
         )
         self.cancel.reset()
+        self.override.reset()
+        self.handback.stop()
         self._motion = np.zeros(3)
         self.modes.to(activity)
 
@@ -561,8 +646,19 @@ class Controller:
         a = self.assistant
         assert a is not None
         button = inp is not None and inp.cancel
-        reason = self.cancel.update(inp.axes if inp else None, self._motion, button)
         going_home = self.modes.activity.going_home  # no cancel interrupts a reset
+        toward_goal = self.modes.activity == Activity.ASSIST and not a.gripper_acted
+        axes = inp.axes if inp else None
+        if toward_goal and not button:
+            # the stick held against the committed goal: an override (before the grip)
+            direction = self.stage.target(a.target).position - state.ee_position
+            if self.override.update(axes, direction) and inp is not None:
+                self._override(a)
+                # the operator's command at once, ramped from the assisted motion (tick)
+                return self._teleop(state, inp), "overridden"
+            reason = None
+        else:
+            reason = self.cancel.update(axes, self._motion, button)
         if reason is not None and not going_home:
             self._cancel(a, reason)
             return zero(), "cancelled"
@@ -602,12 +698,22 @@ class Controller:
                 state.ee_rotation, state.q,
             )  # fmt: skip
 
+    def _override(self, a: Assistant) -> None:
+        """The operator overrode the committed goal: the plan is dropped, control is
+        theirs (the hand-back ramps from the assisted motion), inference restarts here."""
+        self.assistant = None
+        self.emit(Override(a.target, "assist", a.phase))
+        self.modes.to(Activity.TELEOP)
+        self._restart_inference()
+        self.handback.start()
+
     def _cancel(self, a: Assistant, reason: str) -> None:
         """Give control back. Before the plan's gripper acted, the same stage's inference
         restarts from here; after it (grasped, released), the stage's effect has happened:
         the stage counts as done and the next one starts from here."""
         self.assistant = None
         self.emit(Cancel(reason, a.target, a.phase))
+        self.handback.start()
         if a.gripper_acted:
             stage = self.task.advance(a.target, self.layouts.layout)
             ticks = self.ticks - self._stage_tick

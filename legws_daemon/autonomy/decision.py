@@ -118,17 +118,29 @@ def certificate_of(
 class Inference:
     """The observer over a stage's targets, and the orientation teleoperation holds.
 
+    What the observer watches: the EE's path (``from_input`` ``False``: where the EE moves
+    at ``v_max · u``, the commit policy), or the operator's own input integrated from where
+    the EE was when inference (re)started (:meth:`moved`: a policy that adds the robot's
+    motion before the commit keeps the observer on the person's steering alone,
+    docs/decisions.md).
+
     Args:
         params: observer parameters.
         dt: the control period, s.
         hold: the orientation to hold until the first restart (the home orientation).
+        from_input: infer from the operator's integrated input instead of the EE's path.
     """
 
-    def __init__(self, params: Params, dt: float, hold: FloatArray) -> None:
+    def __init__(
+        self, params: Params, dt: float, hold: FloatArray, from_input: bool = False
+    ) -> None:
         self.params = params
         self.dt = dt
         self.observer: IntentObserver | None = None
         self.hold = hold
+        self.from_input = from_input
+        #: the operator's input integrated since the restart (``from_input``), m
+        self.shadow: FloatArray | None = None
         self._first: int | None = None  # observer ticks before the first steering input
 
     def restart(self, stage: StageState, state: RobotState | None) -> None:
@@ -146,9 +158,17 @@ class Inference:
                 # control loop when the stage was prepared)
                 goals = dataclasses.replace(goals, x0=Pose(state.ee_position, state.ee_quaternion))
         self.observer = IntentObserver(goals, self.params)
+        self.shadow = np.array(goals.x0.position, dtype=np.float64)
+
+    def moved(self, velocity: FloatArray) -> None:
+        """The operator's own motion this tick (``v_max · u``, clipped as the envelope
+        clips the EE's), added to :attr:`shadow`."""
+        if self.shadow is not None:
+            self.shadow = self.shadow + np.asarray(velocity, dtype=np.float64) * self.dt
 
     def stop(self) -> None:
         self.observer = None
+        self.shadow = None
         self._first = None
 
     def steered(self, axes: FloatArray) -> None:
@@ -178,7 +198,8 @@ class Inference:
         probability, or ``None``."""
         obs = self.observer
         assert obs is not None
-        post = obs.update(state.ee_position, state.ee_quaternion)
+        here = self.shadow if self.from_input and self.shadow is not None else state.ee_position
+        post = obs.update(here, state.ee_quaternion)
         if obs.committed is None:
             return None
         return obs.goals.names[obs.committed], float(post[obs.committed])

@@ -131,6 +131,20 @@ class Cancel(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class Override(Event):
+    """The operator held the stick against the goal the robot moved toward
+    (:mod:`.override`): control is theirs again, inference restarted from here.
+    ``during``: ``assist`` (the committed goal's plan, dropped; ``phase`` its step) or
+    ``blend`` (the guess before the commit: the robot stops helping toward it until
+    inference guesses another goal)."""
+
+    kind: ClassVar[EventKind] = "override"
+    goal: str
+    during: str  # assist | blend
+    phase: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class StageDone(Event):
     kind: ClassVar[EventKind] = "stage_done"
     stage: str

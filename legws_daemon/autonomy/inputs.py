@@ -77,6 +77,10 @@ class TickRecord:
     sample_seq: int | None
     sample_stamp: float | None  # the publisher's clock
     command_sent: float
+    #: who asked for ``command`` (m/s, summing to it): the operator's part and the robot's
+    #: (all the robot's in ``assist``; the policy's split before the commit)
+    operator_velocity: FloatArray | None = None
+    robot_velocity: FloatArray | None = None
 
 
 def zero() -> Cartesian:

@@ -18,6 +18,7 @@ import click
 from legws_daemon.arms import DEFAULT_ARM
 from legws_daemon.cli.numbers import FiniteFloat
 from legws_daemon.cli.robot import robot_option
+from legws_daemon.core.arbitration import POLICIES, AssistPolicy
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import open_output, output_path
@@ -219,6 +220,13 @@ def install_stop_handlers(stop: threading.Event) -> None:
 )
 @click.option("--cost", type=click.Choice(COST_FORMS), help="Observer cost form (default dragan).")
 @click.option(
+    "--assist",
+    type=click.Choice(POLICIES),
+    help="Help before the commit (default: the profile's control.assist, commit): commit "
+    "none; blend the operator's motion with the robot's toward the likely goal; hindsight "
+    "the posterior-weighted assistance of hindsight optimisation (docs/daemon.md).",
+)
+@click.option(
     "--duration",
     type=FiniteFloat(min=0.0, min_open=True),
     help="Stop after this many seconds (default: run until SIGINT/SIGTERM).",
@@ -260,6 +268,7 @@ def daemon_cmd(
     zenoh_config: Path | None,
     rate: float | None,
     cost: CostForm | None,
+    assist: AssistPolicy | None,
     duration: float | None,
     trace_file: Path | None,
     operator_file: Path | None,
@@ -291,6 +300,10 @@ def daemon_cmd(
         spec = with_arm(spec, robot)
     require_motion_allowed(spec, allow_motion)
     operator = operator_for(spec, operator_file)
+    if assist is not None:
+        spec = spec.model_copy(
+            update={"control": spec.control.model_copy(update={"assist": assist})}
+        )
     if rate is not None:
         control = spec.control.model_copy(update={"rate_hz": rate})
         spec = validate(

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from legws_daemon.cli.robot import robot_option
+from legws_daemon.core.arbitration import POLICIES, AssistPolicy
 from legws_daemon.core.params import COST_FORMS, CostForm, Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.printable import echo
@@ -82,8 +83,22 @@ def parse_layouts(specs: tuple[str, ...], scene_name: str) -> tuple[str, list[st
     help="The simulated user steers like this person: an operator file's fitted model "
     "(method.md §10: speed, noise and its correlation, bias, steering), with the robot's clip.",
 )
+@click.option(
+    "--assist",
+    type=click.Choice(POLICIES),
+    default="commit",
+    show_default=True,
+    help="Help before the commit: commit (none), blend (the robot's motion toward the "
+    "likely goal blended in) or hindsight (hindsight optimisation's assistance).",
+)
 @robot_option("sawyer", what="the stand-in's arm the picks run on")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print the report as JSON (eval.json's content) instead of the Markdown tables.",
+)
 def eval_cmd(
     scene_name: str,
     layout_specs: tuple[str, ...],
@@ -94,8 +109,10 @@ def eval_cmd(
     episodes_per_goal: int | None,
     top_k: int | None,
     operator_file: Path | None,
+    assist: AssistPolicy,
     robot: str,
     quiet: bool,
+    as_json: bool,
 ) -> None:
     """Run the simulation protocol (method.md §8) and report accuracy, T_infer and rates,
     and the person's metrics (method.md §9) with 95 % bootstrap intervals over layouts
@@ -134,11 +151,14 @@ def eval_cmd(
         report = run_eval(
             scene, layouts, seed, params=Params(cost=cost), workers=workers, progress=bar.update,
             episodes_per_goal=episodes_per_goal, elites=elites, operator=operator, arm=robot,
+            assist=assist,
         )  # fmt: skip
     text = markdown(report)
+    data = json.dumps(report, indent=2, allow_nan=False) + "\n"
     if out_dir is not None:
-        write_atomic(
-            out_dir / "eval.json", (json.dumps(report, indent=2, allow_nan=False) + "\n").encode()
-        )
+        write_atomic(out_dir / "eval.json", data.encode())
         write_atomic(out_dir / "eval.md", text.encode())
-    echo(text)
+    if as_json:
+        click.echo(data, nl=False)  # machine-readable: JSON, not the printable text
+    else:
+        echo(text)

@@ -293,6 +293,7 @@ class StatusMessage(_Message):
 EventKind = Literal[
     "commit",
     "cancel",
+    "override",
     "stage_done",
     "task_done",
     "fault",

@@ -113,6 +113,10 @@ class ControlSpec(_Model):
     #: the operator file (``legws operator calibrate``/``fit``) of the person the daemon
     #: certifies for, relative to the profile's folder; made absolute by :func:`load_profile`
     operator: Annotated[str, Strict(), Field(min_length=1, max_length=4096)] | None = None
+    #: help before the commit (:mod:`legws_daemon.core.arbitration`): ``commit`` none,
+    #: ``blend`` the operator's motion blended with the robot's toward the likely goal,
+    #: ``hindsight`` the posterior-weighted assistance of hindsight optimisation
+    assist: Literal["commit", "blend", "hindsight"] = "commit"
 
 
 class WorkspaceBox(_Model):

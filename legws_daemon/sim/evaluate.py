@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
 from legws_daemon.arms import DEFAULT_ARM
+from legws_daemon.core.arbitration import AssistPolicy
 from legws_daemon.core.geometry import FloatArray
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
@@ -70,9 +71,10 @@ def _init_worker(
     params: Params,
     operator: OperatorModel | None = None,
     arm: str = DEFAULT_ARM,
+    assist: AssistPolicy = "commit",
 ) -> None:
     global _worker
-    _worker = Evaluator(load_scene(scene_source), params, operator=operator, arm=arm)
+    _worker = Evaluator(load_scene(scene_source), params, operator=operator, arm=arm, assist=assist)
 
 
 Job = tuple[int, Layout, int, int | None]
@@ -326,6 +328,7 @@ def run_eval(
     resamples: int = RESAMPLES,
     operator: OperatorModel | None = None,
     arm: str = DEFAULT_ARM,
+    assist: AssistPolicy = "commit",
 ) -> dict[str, Any]:
     """Evaluate ``layouts``; returns the report (JSON-ready).
 
@@ -344,6 +347,8 @@ def run_eval(
         operator: the simulated user steers like this operator (method.md §10, with the
             robot's clip) instead of section 2's user; recorded as ``operator``.
         arm: the stand-in's arm; recorded as ``arm``.
+        assist: the help before the commit (:mod:`legws_daemon.core.arbitration`);
+            recorded as ``assist``, in the report and its ``aggregate``.
 
     The report's ``aggregate`` holds :func:`metrics` over the pooled picks and
     ``intervals``: percentile bootstrap intervals (level 95 %) of :data:`INTERVAL_KEYS`
@@ -361,7 +366,7 @@ def run_eval(
     ]
     results: dict[int, tuple[dict[str, Any], list[PickResult]]] = {}
     if workers <= 1:
-        _init_worker(scene.source, params, operator, arm)
+        _init_worker(scene.source, params, operator, arm, assist)
         for job in jobs:
             i, extra, picks = _evaluate(job)
             results[i] = (extra, picks)
@@ -371,7 +376,7 @@ def run_eval(
         with ProcessPoolExecutor(
             max_workers=workers,
             initializer=_init_worker,
-            initargs=(scene.source, params, operator, arm),
+            initargs=(scene.source, params, operator, arm, assist),
             mp_context=worker_context(),
         ) as pool:
             for i, extra, picks in pool.map(_evaluate, jobs):
@@ -414,6 +419,7 @@ def run_eval(
             **GroupStats(by_run).intervals(interval_seed(seed, "runs"), resamples),
         }
     aggregate = {
+        "assist": assist,
         **metrics(all_picks),
         "accuracy_layout_mean": float(np.mean(accs)) if accs else None,
         "accuracy_layout_sd": float(np.std(accs, ddof=1)) if len(accs) > 1 else 0.0,
@@ -431,6 +437,8 @@ def run_eval(
         "user": "section 2's simulated user" if operator is None else "operator",
         "operator": None if operator is None else operator.as_dict(),
         "arm": arm,
+        "assist": assist,
+        "summary": summary_of(aggregate, assist),
         "aggregate": aggregate,
         "timing": {
             "seconds": seconds,
@@ -453,6 +461,36 @@ def run_eval(
             for k in positions
         ]
     return report
+
+
+#: The overall summary's keys (``legws eval --json``'s ``summary``), from the aggregate.
+SUMMARY_KEYS = (
+    "time_to_grasp_s",
+    "time_to_task_s",
+    "effort",
+    "robot_share",
+    "wrong_grasp_rate",
+    "overrides",
+    "completion",
+    "commit_true_rate",
+    "t_infer_km_median",
+)
+
+
+def summary_of(aggregate: dict[str, Any], assist: str) -> dict[str, Any]:
+    """The overall summary: the policy, the value of its help over all picks (mean time to
+    grasp and to the task, s; effort, s at full deflection; the robot's share of the
+    approach; wrong grasps; overrides; completion of the picks acted on) and the count of
+    picks behind them."""
+    counts = aggregate["counts"]
+    return {
+        "assist": assist,
+        **{k: aggregate.get(k) for k in SUMMARY_KEYS},
+        "picks": counts["picks"],
+        "acted_on": counts["acted_on"],
+        "completed": counts["completed"],
+        "wrong_grasps": counts["wrong_grasps"],
+    }
 
 
 # --- the whole numbers behind the rates, and their intervals -------------------------------

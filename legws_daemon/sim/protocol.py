@@ -41,9 +41,10 @@ from typing import Any
 import numpy as np
 
 from legws_daemon.autonomy.controller import Controller
-from legws_daemon.autonomy.events import AssistFailed, Commit, Event, Fault, StageDone
+from legws_daemon.autonomy.events import AssistFailed, Commit, Event, Fault, Override, StageDone
 from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.autonomy.modes import Mode
+from legws_daemon.core.arbitration import AssistPolicy
 from legws_daemon.core.geometry import quat_to_matrix
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
@@ -110,6 +111,14 @@ class PickResult:
             confirmed, or a single candidate's: 0), else to the end of the user's steering
             (the :data:`TIMEOUT_S` limit, or a fault); the clock of ``commit_time``.
             ``None`` without an episode.
+        grasp_time: seconds from motion onset to the gripper closing on an object (``None``:
+            it never did); grasped: the object it closed on.
+        effort: the operator's effort, the integral of the deflection ``|u| dt`` over the
+            pick, seconds at full deflection.
+        robot_distance, operator_distance: how far the EE moved at the robot's and at the
+            operator's asking (:class:`~legws_daemon.autonomy.inputs.TickRecord`) from
+            motion onset to the grasp (to the pick's end without one), m.
+        overrides: the operator's overrides (:mod:`legws_daemon.autonomy.override`).
     """
 
     true_goal: str
@@ -124,6 +133,26 @@ class PickResult:
     detail: str = ""
     duration: float = 0.0
     decision_time: float | None = None
+    grasp_time: float | None = None
+    grasped: str | None = None
+    effort: float = 0.0
+    robot_distance: float = 0.0
+    operator_distance: float = 0.0
+    overrides: int = 0
+
+    @property
+    def robot_share(self) -> float | None:
+        """The share of the approach the robot drove (``None``: nothing moved)."""
+        total = self.robot_distance + self.operator_distance
+        return self.robot_distance / total if total > 0 else None
+
+    @property
+    def wrong_grasp(self) -> bool:
+        """The gripper closed on another object than the one wanted — or would have: a
+        wrong commit ends the pick (the protocol), and its plan grasps the wrong object."""
+        if self.grasped is not None:
+            return self.grasped != self.true_goal
+        return self.failure == "wrong_commit"
 
     @property
     def correct(self) -> bool:
@@ -249,7 +278,13 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
         "completed": sum(p.completed for p in acted),
         "goal_picks": {g: goal_picks[g] for g in sorted(goal_picks)},
         "goal_commit_true": {g: goal_hits[g] for g in sorted(goal_picks)},
+        "grasped_true": sum(p.grasped == p.true_goal for p in picks),
+        "wrong_grasps": sum(p.wrong_grasp for p in picks),
+        "overrides": sum(p.overrides for p in picks),
     }
+    grasps = [p.grasp_time for p in picks if p.grasp_time is not None and p.grasped == p.true_goal]
+    robot = sum(p.robot_distance for p in ran)
+    driven = robot + sum(p.operator_distance for p in ran)
     return {
         "episodes": n,
         "accuracy": sum(p.correct for p in picks) / n if n else None,
@@ -273,6 +308,14 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
         "t_infer_km_picks": len(km_times),
         "t_infer_km_events": sum(km_observed),
         "t_infer_km_max_time": max(km_times) if km_times else None,
+        # the value of the assistance (time to grasp, effort, the robot's share)
+        "time_to_grasp_s": _mean(grasps),
+        "time_to_task_s": _mean(done),
+        "effort": _mean([p.effort for p in ran]),
+        "robot_share": robot / driven if driven > 0 else None,
+        "wrong_grasp_rate": sum(p.wrong_grasp for p in picks) / n if n else None,
+        "overrides": sum(p.overrides for p in picks),
+        "completion": (sum(p.completed for p in acted) / len(acted) if acted else None),
         "counts": counts,
     }
 
@@ -316,6 +359,7 @@ class Evaluator:
         operator: the simulated user steers like this operator (method.md §10, the
             robot's clip) instead of section 2's user.
         arm: the stand-in's arm (default the profile's).
+        assist: the help before the commit (default the profile's, ``commit``).
     """
 
     def __init__(
@@ -326,11 +370,16 @@ class Evaluator:
         *,
         operator: OperatorModel | None = None,
         arm: str | None = None,
+        assist: AssistPolicy | None = None,
     ) -> None:
         self.scene = scene
         self.params = params or Params()
         self.operator = operator
         base = profile if profile is not None else stand_in_profile(self.params)
+        if assist is not None:
+            base = base.model_copy(
+                update={"control": base.control.model_copy(update={"assist": assist})}
+            )
         self.profile = with_arm(base, arm) if arm is not None else base
         self.clock = SimClock(self.params.dt)
         self.events: list[Event] = []
@@ -421,6 +470,10 @@ class Evaluator:
         completed = False
         targets: dict[str, np.ndarray] = {}
         stage = None
+        grasp_time: float | None = None
+        grasped: str | None = None
+        effort = robot_distance = operator_distance = 0.0
+        overrides = 0
         while True:
             now = (clock.ticks - start) * clock.dt
             if c.mode == Mode.IDLE or failure is not None:
@@ -438,8 +491,16 @@ class Evaluator:
             here = a.kinematics.ee_position()
             view = UserView(c.mode.value, c.decisions, c.stage.name, here, targets)
             act = user.act(view, now)
-            c.tick(OperatorInput(act.axes, act.confirm, act.cancel, clock()))
+            rec = c.tick(OperatorInput(act.axes, act.confirm, act.cancel, clock()))
             clock.advance()
+            effort += float(np.linalg.norm(act.axes)) * clock.dt
+            if grasped is None:
+                if rec.robot_velocity is not None:
+                    robot_distance += float(np.linalg.norm(rec.robot_velocity)) * clock.dt
+                if rec.operator_velocity is not None:
+                    operator_distance += float(np.linalg.norm(rec.operator_velocity)) * clock.dt
+                if a.held is not None:
+                    grasped, grasp_time = a.held, (clock.ticks - start) * clock.dt
             for event in self.events[first:]:
                 match event:
                     case Commit():
@@ -458,6 +519,8 @@ class Evaluator:
                         detail = f"{event.phase}: {event.error}"
                     case Fault():
                         failure, detail = "fault", event.error
+                    case Override():
+                        overrides += 1
                     case StageDone() if not completed:
                         failure, detail = "not_lifted", f"'{goal}' was not lifted clear"
                     case _:
@@ -474,5 +537,6 @@ class Evaluator:
             decision_time = duration
         return PickResult(
             goal, True, committed, commit_time, confirmed, final, completed, complete_time,
-            failure, detail, duration, decision_time,
+            failure, detail, duration, decision_time, grasp_time, grasped, effort,
+            robot_distance, operator_distance, overrides,
         )  # fmt: skip

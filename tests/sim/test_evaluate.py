@@ -305,3 +305,44 @@ def test_eval_rejects_a_bad_top_k(tmp_path: Path, capsys: pytest.CaptureFixture[
         _call(capsys, *base, "--layouts", "random:1", "--episodes-per-goal", "0"),
         "--episodes-per-goal",
     )
+
+
+def test_eval_json_summarises_the_value_of_the_help(capsys: pytest.CaptureFixture[str]) -> None:
+    summaries = {}
+    for assist in ("commit", "blend"):
+        result = _call(capsys, "eval", "--scene", "desk", "--layouts", "random:1",
+                       "--episodes-per-goal", "1", "--workers", "1", "--quiet", "--json",
+                       "--assist", assist)  # fmt: skip
+        assert result.code == 0, result.err
+        report = json.loads(result.out)
+        assert report["assist"] == report["aggregate"]["assist"] == assist
+        summaries[assist] = s = report["summary"]
+        assert s["assist"] == assist
+        for key in ("time_to_grasp_s", "time_to_task_s", "effort", "robot_share", "completion"):
+            assert isinstance(s[key], float), key
+        assert 0 < s["time_to_grasp_s"] < s["time_to_task_s"]
+        assert 0.0 < s["robot_share"] < 1.0  # the assistance drove part of every approach
+        assert s["completion"] == s["completed"] / s["acted_on"]
+        assert s["wrong_grasps"] == 0 and s["overrides"] == 0
+    # the same picks (seeded): the blend's robot drove more of the approach and the
+    # operator pushed less (how much sooner, if at all: docs/benchmarks.md)
+    commit, blend = summaries["commit"], summaries["blend"]
+    assert blend["robot_share"] > commit["robot_share"]
+    assert blend["effort"] < commit["effort"]
+
+
+def test_pick_results_time_the_grasp_and_split_the_approach() -> None:
+    from legws_daemon.sim.protocol import Evaluator
+
+    sc = load_scene("desk")
+    for assist in ("commit", "hindsight"):
+        picks = Evaluator(sc, assist=assist).evaluate(sc.default_layout(), [0, 0], 1).picks
+        for p in picks:
+            if not p.feasible:
+                continue
+            assert p.completed and p.grasped == p.true_goal and not p.wrong_grasp
+            assert p.grasp_time is not None and p.complete_time is not None
+            assert p.grasp_time < p.complete_time <= p.duration
+            assert 0.0 < p.effort <= p.duration  # |u| <= 1
+            share = p.robot_share
+            assert share is not None and 0.0 < share < 1.0
