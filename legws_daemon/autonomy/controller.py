@@ -79,7 +79,7 @@ from legws_daemon.autonomy.override import HandBack, OverrideDetector
 from legws_daemon.autonomy.placing import PlacementReport
 from legws_daemon.autonomy.recovery import Recovery
 from legws_daemon.core.arbitration import Blended, blend, hindsight, slew
-from legws_daemon.core.geometry import FloatArray
+from legws_daemon.core.geometry import FloatArray, axis_rotation
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import HardwareError, InfeasibleError, InputError, LegwsError
@@ -191,7 +191,7 @@ class Controller:
         self.committed: str | None = None
         self.last_state: RobotState | None = None
         self.inference = Inference(
-            params, self.dt, scene.home.rotation, from_input=self.policy != "commit"
+            params, self.dt, scene.home.rotation, from_input=self.policy in ("blend", "hindsight")
         )
         self._held: Held | None = None  # what the gripper closed on, and how
         self.decisions = 0
@@ -420,6 +420,7 @@ class Controller:
         if state is not None:
             self.last_state = state
             if self.mode == Mode.TELEOP:
+                self._hand_grip(state, inp)
                 command = self._teleop(state, inp)
             elif self.mode == Mode.CALIBRATE:
                 command = self._calibrate(state, inp)
@@ -474,6 +475,17 @@ class Controller:
 
     def _teleop(self, state: RobotState, inp: OperatorInput | None) -> Command:
         confirm = inp is not None and inp.confirm
+        if self.policy == "none":
+            # teleoperation alone: the observer infers (status, the live certificate), the
+            # robot never acts on it; the operator grasps with the gripper button
+            if self.inference.observer is not None:
+                if inp is not None:
+                    self.inference.steered(inp.axes)
+                self.inference.update(state)
+            if inp is None:
+                return zero()
+            self._turn(inp)
+            return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
         if self.inference.observer is None:
             # a single-candidate stage: it starts by itself, but after a failed attempt
             # only when the user confirms (no retrying for ever on its own)
@@ -494,6 +506,7 @@ class Controller:
         if inp is None:
             self._robot_part = np.zeros(3)
             return zero()  # deadman: nothing moves, not even the orientation
+        self._turn(inp)
         v_max = self.profile.control.v_max
         if self.inference.from_input:
             # the observer follows the operator's own motion, clipped as the EE's would be
@@ -502,6 +515,53 @@ class Controller:
             ) if self.inference.shadow is not None else np.zeros(3)  # fmt: skip
             self.inference.moved(own)
         return Cartesian(self._help(state, inp.axes), self.inference.hold)
+
+    def _turn(self, inp: OperatorInput) -> None:
+        """The rotation axes turn the orientation teleoperation holds, about the base
+        frame's axes at ``w_teleop`` times the deflection (the envelope caps the turning)."""
+        r = inp.rotation
+        if r is None or not np.any(r):
+            return
+        norm = float(np.linalg.norm(r))
+        angle = self.profile.control.w_teleop * min(1.0, norm) * self.dt
+        self.inference.hold = axis_rotation(r / norm, angle) @ self.inference.hold
+
+    def _hand_grip(self, state: RobotState, inp: OperatorInput | None) -> None:
+        """The operator's gripper button, in teleoperation: the gripper is told what it asks
+        for when that differs from what it was last told (a fault if the gripper fails);
+        what it closed on is remembered as a plan's grasp is (a reset puts it back)."""
+        if inp is None or inp.gripper is None:
+            return
+        if Gripper.of(inp.gripper) == self.modes.gripper:
+            return
+        try:
+            self.adapter.grip(inp.gripper)
+        except LegwsError as err:
+            self._to_fault(f"grip: {err}")
+            return
+        self.modes.gripped_by_hand(inp.gripper)
+        if not inp.gripper:
+            self._held = None
+            return
+        name = self._object_at(state.ee_position)
+        if name is not None:
+            self._held = held_object(
+                self.scene, self.layouts.layout, name, state.ee_position, state.ee_rotation,
+                state.q,
+            )  # fmt: skip
+
+    def _object_at(self, position: FloatArray) -> str | None:
+        """The movable object whose centre is nearest ``position`` within 6 cm (what a
+        closing gripper there takes), or ``None``."""
+        poses = self.scene.poses(dict(self.layouts.layout))
+        best, best_d = None, 0.06
+        for name in self.scene.movable:
+            pose = poses[name]
+            centre = np.array([pose.x, pose.y, self.scene.z_center(name)])
+            d = float(np.linalg.norm(centre - position))
+            if d < best_d:
+                best, best_d = name, d
+        return best
 
     def _help(self, state: RobotState, axes: FloatArray) -> FloatArray:
         """This tick's EE velocity before the commit under :attr:`policy` (the operator's

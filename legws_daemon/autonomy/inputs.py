@@ -30,6 +30,9 @@ class OperatorInput:
         cancel: the cancel button (give control back during assistance).
         received: when it arrived, local monotonic seconds.
         seq, stamp: the publisher's sequence number and clock (for traces).
+        rotation: (3,) the rotation axes (turn about the base frame's x, y, z), norm <= 1,
+            or ``None`` (no turning).
+        gripper: the gripper the operator asks for (``True`` closed), or ``None``.
     """
 
     axes: FloatArray
@@ -38,6 +41,8 @@ class OperatorInput:
     received: float = 0.0
     seq: int | None = None
     stamp: float | None = None
+    rotation: FloatArray | None = None
+    gripper: bool | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -237,9 +237,17 @@ class ModeMachine:
         self.state = dataclasses.replace(self.state, single=SingleCommit.CONFIRM)
 
     def gripped(self, closed: bool) -> None:
-        """The gripper was told to close (``True``) or open: only a plan grips."""
+        """The gripper was told to close (``True``) or open by a plan: only in its
+        activities (the operator's button: :meth:`gripped_by_hand`)."""
         if not self.state.activity.moving:
             raise AssertionError(f"a grip in {self.state.activity}")
+        self.state = dataclasses.replace(self.state, gripper=Gripper.of(closed))
+
+    def gripped_by_hand(self, closed: bool) -> None:
+        """The operator's gripper button closed (``True``) or opened the gripper: only in
+        ``teleop`` (teleoperation: the person grasps)."""
+        if self.state.activity != Activity.TELEOP:
+            raise AssertionError(f"a hand grip in {self.state.activity}")
         self.state = dataclasses.replace(self.state, gripper=Gripper.of(closed))
 
     def forget_gripper(self) -> None:

@@ -2,7 +2,8 @@
 
 Pure math on one tick's numbers (the controller calls it; docs/decisions.md argues why
 inference never sees the result). Three policies share the commit of method.md §9; they
-differ in what the arm does *before* it:
+differ in what the arm does *before* it (a fourth, ``none``, is teleoperation alone: no
+commit, the operator's gripper button grasps):
 
 - ``commit`` — nothing: the EE moves at ``v_max · u`` until the commit.
 - ``blend`` — policy blending (Dragan & Srinivasa 2013): the command is
@@ -36,7 +37,7 @@ from numpy.typing import ArrayLike
 from legws_daemon.core.geometry import FloatArray
 
 #: The assistance policies (profile ``control.assist``, ``--assist``).
-AssistPolicy = Literal["commit", "blend", "hindsight"]
+AssistPolicy = Literal["commit", "blend", "hindsight", "none"]
 POLICIES: tuple[str, ...] = get_args(AssistPolicy)
 
 #: The blend's largest arbitration weight ...

@@ -71,9 +71,11 @@ class Sample:
     def operator(self) -> OperatorInput:
         """The sample as the controller takes it."""
         m = self.message
+        rotation = None if m.rotation is None else np.array(m.rotation, dtype=np.float64)
         return OperatorInput(
             np.array(m.axes, dtype=np.float64), m.buttons.confirm or self.confirm_pressed,
             m.buttons.cancel or self.cancel_pressed, self.received, m.seq, m.stamp,
+            rotation, m.buttons.gripper,
         )  # fmt: skip
 
 

@@ -15,7 +15,7 @@ keys are refused and every error is one line naming the file and the field. Exam
 
     [[axis]]                             # one table per evdev axis
     code = "ABS_Y"                       # ABS_* (absolute) or REL_* (relative) code name
-    drives = "x"                         # base-frame axis: "x", "y" or "z"
+    drives = "x"                         # base-frame axis "x", "y", "z"; a turn "rx", "ry", "rz"
     invert = true                        # stick up reports negative ABS_Y: up = +x
     deadzone = 0.15                      # fraction of the range around rest: output 0
     curve = "quadratic"                  # "linear", "quadratic", "cubic" or an exponent
@@ -25,6 +25,8 @@ keys are refused and every error is one line naming the file and the field. Exam
     enable = "BTN_TL"                    # hold-to-run; a list: any of them; or "none"
     confirm = "BTN_SOUTH"                # optional, a code or a list
     cancel = "BTN_EAST"                  # optional, a code or a list
+    gripper = "BTN_NORTH"                # optional: each press opens or closes the gripper
+    speed = "BTN_WEST"                   # optional: each press steps the speed 1, 0.5, 0.25
 
 ``[device]``: a device is recognised when its name contains one of ``match`` (compared
 case-insensitively) or its vendor (and product, if given) is one of ``ids``; at least one of
@@ -35,7 +37,9 @@ their main node is not taken.
 
 ``[[axis]]``: one entry per evdev axis; two codes may drive the same base axis (a d-pad and
 a stick): their contributions are summed, each base axis is clipped to [-1, 1] and then the
-deflection to norm 1. The raw value is normalised to [-1, 1] first:
+deflection to norm 1. ``drives = "rx"``, ``"ry"`` or ``"rz"``: the axis turns the EE about
+that base-frame axis (the message's ``rotation``, clipped the same way; the EE turns at the
+profile's ``w_teleop`` times it). The raw value is normalised to [-1, 1] first:
 
 - ``ABS_*`` (absolute: sticks, d-pads, triggers; a SpaceMouse on some kernels): the range
   is ``min``/``max`` if given (both or neither), else the device's own (its absinfo) when
@@ -60,8 +64,11 @@ of its range; ``min``/``max`` as for axes), or a list of these (any of them pres
 ``enable`` (hold-to-run) must be declared: without it held the publisher sends zero
 deflection and no confirm or cancel, with ``enable: false``; ``enable = "none"`` says
 explicitly that the device has no such button (every message then says ``enable: true``
-and the stream itself is the dead-man signal). ``confirm`` and ``cancel`` are optional. A
-code may appear only once in the whole file (as an axis or in one button role).
+and the stream itself is the dead-man signal). ``confirm`` and ``cancel`` are optional, and
+so are ``gripper`` (each press toggles the gripper asked for: ``buttons.gripper``) and
+``speed`` (each press steps the speed scale by which deflection and rotation are multiplied:
+:mod:`legws_daemon.joystick.hand`). A code may appear only once in the whole file (as an
+axis or in one button role).
 """
 
 from __future__ import annotations
@@ -98,6 +105,8 @@ from legws_daemon.formats.validation import (
 
 #: The base-frame axes, in the order of a joystick message's ``axes``.
 BASE_AXES: tuple[str, str, str] = ("x", "y", "z")
+#: The turns about them, in the order of a joystick message's ``rotation``.
+TURN_AXES: tuple[str, str, str] = ("rx", "ry", "rz")
 #: Named response curves and their exponents.
 CURVES: dict[str, float] = {"linear": 1.0, "quadratic": 2.0, "cubic": 3.0}
 #: How long a relative axis's value lasts without a new event, s (see ``hold``).
@@ -222,7 +231,7 @@ class AxisSpec(_Model):
     """One evdev axis driving one base-frame axis (see the module docstring)."""
 
     code: AxisCode
-    drives: Literal["x", "y", "z"]
+    drives: Literal["x", "y", "z", "rx", "ry", "rz"]
     scale: Gain = 1.0
     invert: StrictBool = False
     deadzone: Ratio = 0.0
@@ -265,9 +274,14 @@ class AxisSpec(_Model):
         return self.code.startswith("REL_")
 
     @property
+    def turns(self) -> bool:
+        """Whether the axis turns the EE (``rotation``) rather than moving it (``axes``)."""
+        return self.drives in TURN_AXES
+
+    @property
     def index(self) -> int:
-        """The base-frame axis as an index into ``axes``."""
-        return BASE_AXES.index(self.drives)
+        """The base-frame axis as an index into ``axes`` (or ``rotation``, for a turn)."""
+        return TURN_AXES.index(self.drives) if self.turns else BASE_AXES.index(self.drives)
 
     @property
     def exponent(self) -> float:
@@ -318,7 +332,7 @@ ENABLE_REQUIRED = (
     'required: the hold-to-run button (e.g. "BTN_TL"), a list of them (any one held '
     'enables), or "none" (the device has none: every message is enabled)'
 )
-_ROLES = ("enable", "confirm", "cancel")
+_ROLES = ("enable", "confirm", "cancel", "gripper", "speed")
 
 
 def _button_list(value: Any, role: str) -> list[Any]:
@@ -358,6 +372,8 @@ class ButtonsSpec(_Model):
     enable: tuple[ButtonRef, ...]
     confirm: tuple[ButtonRef, ...] = ()
     cancel: tuple[ButtonRef, ...] = ()
+    gripper: tuple[ButtonRef, ...] = ()
+    speed: tuple[ButtonRef, ...] = ()
 
     @model_validator(mode="before")
     @classmethod

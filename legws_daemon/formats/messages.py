@@ -66,6 +66,9 @@ class Buttons(BaseModel):
     #: (or left out): the publisher has no such button; every message is enabled and the
     #: stream itself is the dead-man signal.
     enable: StrictBool | None = None
+    #: the gripper the operator asks for: ``true`` closed, ``false`` open; ``null`` (or left
+    #: out): no request (a publisher without a gripper button). Acted on in teleoperation.
+    gripper: StrictBool | None = None
 
     @property
     def enabled(self) -> bool:
@@ -89,13 +92,39 @@ class JoystickMessage(_Message):
     #: a keyed session's tag (:func:`auth_tag`): HMAC-SHA256 with the key of its ``hello``
     #: over :func:`canonical_bytes`; the daemon refuses a keyed session's message without it
     auth: AuthTag | None = None
+    #: the rotation axes: turn the EE about the base frame's x, y, z, |rotation| <= 1 (the
+    #: EE turns at the profile's ``w_teleop`` times it); left out: no turning (schema-1
+    #: senders before rotation)
+    rotation: tuple[Axis, Axis, Axis] | None = None
 
     @model_validator(mode="after")
     def _norm(self) -> JoystickMessage:
-        norm = math.sqrt(sum(a * a for a in self.axes))
-        if norm > 1.0 + 1e-6:
-            raise field_error(("axes",), f"deflection must have norm <= 1, got {norm:.4f}")
+        for name in ("axes", "rotation"):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            norm = math.sqrt(sum(a * a for a in values))
+            if norm > 1.0 + 1e-6:
+                what = "deflection" if name == "axes" else "rotation"
+                raise field_error((name,), f"{what} must have norm <= 1, got {norm:.4f}")
         return self
+
+
+#: Fields the canonical bytes leave out while they are ``null``: added after keyed sessions
+#: were specified, so a schema-1 sender that knows nothing of them keeps its tags.
+_LATER_FIELDS = ("rotation",)
+_LATER_BUTTONS = ("gripper",)
+
+
+def _drop_later(data: dict[str, Any]) -> None:
+    """A joystick message's JSON form without those of :data:`_LATER_FIELDS` and
+    :data:`_LATER_BUTTONS` that are ``null``."""
+    for name in _LATER_FIELDS:
+        if data.get(name) is None:
+            data.pop(name, None)
+    for name in _LATER_BUTTONS:
+        if data["buttons"].get(name) is None:
+            data["buttons"].pop(name, None)
 
 
 def canonical_bytes(message: JoystickMessage) -> bytes:
@@ -103,6 +132,7 @@ def canonical_bytes(message: JoystickMessage) -> bytes:
     daemon reads the message (defaults filled in), JSON with sorted keys, no spaces,
     ASCII only — the same bytes on both sides whatever the sender's JSON looked like."""
     data = message.model_dump(mode="json", by_alias=True, exclude={"auth"})
+    _drop_later(data)
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
     return text.encode("ascii")
 
@@ -424,5 +454,11 @@ def _load(payload: bytes | str, source: str) -> Any:
 
 
 def dump(message: _Message) -> bytes:
-    """The wire form of a message (with its ``schema`` field)."""
-    return message.model_dump_json(by_alias=True).encode()
+    """The wire form of a message (with its ``schema`` field); a joystick message leaves out
+    the fields added since schema 1 began while they are ``null`` (a daemon that predates
+    them reads it)."""
+    if not isinstance(message, JoystickMessage):
+        return message.model_dump_json(by_alias=True).encode()
+    data = message.model_dump(mode="json", by_alias=True)
+    _drop_later(data)
+    return json.dumps(data, separators=(",", ":")).encode()

@@ -115,8 +115,12 @@ class ControlSpec(_Model):
     operator: Annotated[str, Strict(), Field(min_length=1, max_length=4096)] | None = None
     #: help before the commit (:mod:`legws_daemon.core.arbitration`): ``commit`` none,
     #: ``blend`` the operator's motion blended with the robot's toward the likely goal,
-    #: ``hindsight`` the posterior-weighted assistance of hindsight optimisation
-    assist: Literal["commit", "blend", "hindsight"] = "commit"
+    #: ``hindsight`` the posterior-weighted assistance of hindsight optimisation, ``none``
+    #: teleoperation only (no commit: the operator grasps with the gripper button)
+    assist: Literal["commit", "blend", "hindsight", "none"] = "commit"
+    #: the EE's turning speed at full deflection of the rotation axes, rad/s (the envelope
+    #: caps turning at 0.8 rad/s whatever this says)
+    w_teleop: Annotated[float, Strict(), Field(gt=0.0, le=3.0, allow_inf_nan=False)] = 0.5
 
 
 class WorkspaceBox(_Model):
@@ -193,6 +197,11 @@ class CanSpec(_Model):
     #: bit 2 of the button byte is a hold-to-run (enable) button; ``false``: every frame is
     #: enabled and the frame stream itself is the dead-man signal
     enable_bit: StrictBool = False
+    #: the rotation axes (turns about the base frame's x, y, z): three more signed 16-bit
+    #: little-endian values at these offsets, scaled and inverted as the axes; ``null``:
+    #: the device has none
+    rotation_offsets: tuple[int, int, int] | None = None
+    rotation_invert: tuple[StrictBool, StrictBool, StrictBool] = (False, False, False)
 
 
 class ProfileSpec(_Model):

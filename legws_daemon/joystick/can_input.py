@@ -3,7 +3,10 @@
 The profile's ``[can]`` table gives the frame layout: one frame of ``arbitration_id`` with
 three signed 16-bit little-endian axes at ``axis_offsets`` and a button byte at
 ``button_offset`` (bit 0 cancel, bit 1 confirm, bit 2 enable — the hold-to-run button — when
-``enable_bit`` is set; else every frame counts as enabled). Counts are divided by ``scale``, negated
+``enable_bit`` is set; else every frame counts as enabled; bit 3 the gripper button, bit 4 the
+speed button: each press toggles the gripper asked for or steps the speed scale,
+:mod:`legws_daemon.joystick.hand`), and with ``rotation_offsets`` three more for the rotation
+axes. Counts are divided by ``scale``, negated
 where ``invert`` says so, clipped to [-1, 1] and the deflection to norm 1
 (:func:`decode_frame`; :func:`encode_frame` is its inverse).
 
@@ -25,6 +28,7 @@ import can
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import Buttons
 from legws_daemon.formats.profile import CanSpec
+from legws_daemon.joystick.hand import HandState
 from legws_daemon.joystick.publisher import Publisher, Sample, clip_norm
 
 Interface = Literal["socketcan", "virtual"]
@@ -32,12 +36,16 @@ INTERFACES: tuple[Interface, ...] = ("socketcan", "virtual")
 CANCEL_BIT = 0x01
 CONFIRM_BIT = 0x02
 ENABLE_BIT = 0x04
+GRIPPER_BIT = 0x08
+SPEED_BIT = 0x10
 _INT16 = struct.Struct("<h")
 
 
 def frame_length(spec: CanSpec) -> int:
     """Bytes a frame needs for the layout; :class:`InputError` if the layout is impossible."""
     spans = [(off, off + 2, f"can.axis_offsets[{i}]") for i, off in enumerate(spec.axis_offsets)]
+    for i, off in enumerate(spec.rotation_offsets or ()):
+        spans.append((off, off + 2, f"can.rotation_offsets[{i}]"))
     spans.append((spec.button_offset, spec.button_offset + 1, "can.button_offset"))
     for i, (lo, hi, name) in enumerate(spans):
         if lo < 0 or hi > 64:
@@ -68,31 +76,61 @@ def decode_frame(spec: CanSpec, arbitration_id: int, data: bytes) -> Sample:
             source=_source(arbitration_id),
             field="data",
         )
-    raw = [
-        _INT16.unpack_from(data, off)[0] / spec.scale * (-1.0 if inv else 1.0)
-        for off, inv in zip(spec.axis_offsets, spec.invert, strict=True)
-    ]
     bits = data[spec.button_offset]
     buttons = Buttons(
         cancel=bool(bits & CANCEL_BIT),
         confirm=bool(bits & CONFIRM_BIT),
         enable=bool(bits & ENABLE_BIT) if spec.enable_bit else None,
     )
-    return clip_norm([min(1.0, max(-1.0, v)) for v in raw]), buttons
+    axes = _values(spec, data, spec.axis_offsets, spec.invert)
+    if spec.rotation_offsets is None:
+        return axes, buttons
+    return axes, buttons, _values(spec, data, spec.rotation_offsets, spec.rotation_invert)
 
 
-def encode_frame(spec: CanSpec, axes: Sequence[float], buttons: Buttons | None = None) -> bytes:
-    """The frame data :func:`decode_frame` reads back as ``axes`` (to 1/scale) and ``buttons``.
+def _values(
+    spec: CanSpec, data: bytes, offsets: Sequence[int], invert: Sequence[bool]
+) -> tuple[float, float, float]:
+    raw = [
+        _INT16.unpack_from(data, off)[0] / spec.scale * (-1.0 if inv else 1.0)
+        for off, inv in zip(offsets, invert, strict=True)
+    ]
+    return clip_norm([min(1.0, max(-1.0, v)) for v in raw])
+
+
+def hand_bits(spec: CanSpec, data: bytes) -> tuple[bool, bool]:
+    """Whether the frame holds the gripper button and the speed button down."""
+    bits = data[spec.button_offset]
+    return bool(bits & GRIPPER_BIT), bool(bits & SPEED_BIT)
+
+
+def encode_frame(
+    spec: CanSpec,
+    axes: Sequence[float],
+    buttons: Buttons | None = None,
+    rotation: Sequence[float] | None = None,
+    *,
+    gripper_down: bool = False,
+    speed_down: bool = False,
+) -> bytes:
+    """The frame data :func:`decode_frame` reads back as ``axes`` (to 1/scale), ``buttons``
+    and ``rotation`` (with ``rotation_offsets``), and :func:`hand_bits` as the gripper and
+    speed buttons held.
 
     Counts are rounded and saturate at the 16-bit range; unused bytes are zero.
     """
-    values = clip_norm(axes)
     data = bytearray(frame_length(spec))
-    for value, off, inv in zip(values, spec.axis_offsets, spec.invert, strict=True):
-        count = round((-value if inv else value) * spec.scale)
-        _INT16.pack_into(data, off, max(-32768, min(32767, count)))
+    groups = [(clip_norm(axes), spec.axis_offsets, spec.invert)]
+    if spec.rotation_offsets is not None:
+        turn = clip_norm(rotation if rotation is not None else (0.0, 0.0, 0.0))
+        groups.append((turn, spec.rotation_offsets, spec.rotation_invert))
+    for values, offsets, invert in groups:
+        for value, off, inv in zip(values, offsets, invert, strict=True):
+            count = round((-value if inv else value) * spec.scale)
+            _INT16.pack_into(data, off, max(-32768, min(32767, count)))
     b = buttons if buttons is not None else Buttons()
     bits = (CANCEL_BIT if b.cancel else 0) | (CONFIRM_BIT if b.confirm else 0)
+    bits |= (GRIPPER_BIT if gripper_down else 0) | (SPEED_BIT if speed_down else 0)
     data[spec.button_offset] = bits | (ENABLE_BIT if spec.enable_bit and b.enabled else 0)
     return bytes(data)
 
@@ -152,6 +190,8 @@ class CanReader:
         self.last_error: str | None = None
         self._latest: Sample | None = None
         self._received = -float("inf")
+        #: the gripper asked for and the speed scale (the presses of bits 3 and 4)
+        self.hand = HandState()
 
     def poll(self) -> None:
         """Read every frame waiting on the bus (without blocking); keep the newest valid one.
@@ -169,7 +209,9 @@ class CanReader:
             if msg.arbitration_id != self.spec.arbitration_id:
                 continue  # other devices share the bus
             try:
-                self._latest = decode_frame(self.spec, msg.arbitration_id, bytes(msg.data))
+                data = bytes(msg.data)
+                self._latest = decode_frame(self.spec, msg.arbitration_id, data)
+                self.hand.update(*hand_bits(self.spec, data))
             except InputError as err:
                 self.rejected += 1
                 self.last_error = str(err)
@@ -179,11 +221,19 @@ class CanReader:
             self._received = self.clock() - (age if 0.0 <= age <= 60.0 else 0.0)
 
     def sample(self) -> Sample | None:
-        """Poll, then the newest valid sample if it is fresh, else ``None`` (publish nothing)."""
+        """Poll, then the newest valid sample if it is fresh, else ``None`` (publish nothing):
+        scaled by the speed scale, with the gripper asked for."""
         self.poll()
         if self._latest is None or self.clock() - self._received > self.timeout:
             return None
-        return self._latest
+        k = self.hand.scale
+        axes, buttons = self._latest[0], self._latest[1]
+        out_axes = (axes[0] * k, axes[1] * k, axes[2] * k)
+        buttons = buttons.model_copy(update={"gripper": self.hand.gripper})
+        if len(self._latest) == 2 or not any(self._latest[2]):
+            return out_axes, buttons  # no turning: the message leaves rotation out
+        r = self._latest[2]
+        return out_axes, buttons, (r[0] * k, r[1] * k, r[2] * k)
 
 
 def run_can(

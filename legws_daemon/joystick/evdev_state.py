@@ -43,6 +43,7 @@ from legws_daemon.formats.input_mapping import (
     InputMapping,
 )
 from legws_daemon.formats.messages import Buttons
+from legws_daemon.joystick.hand import HandState
 from legws_daemon.joystick.publisher import ZERO, Axes, Sample, clip_norm
 
 #: (min, max) of an absolute axis, raw units.
@@ -112,6 +113,10 @@ def recognises(mapping: InputMapping, device: DeviceIdentity) -> bool:
     ) and not missing_capabilities(mapping, device)
 
 
+def _scaled(v: Axes, k: float) -> Axes:
+    return (v[0] * k, v[1] * k, v[2] * k)
+
+
 class DeviceState:
     """The state of one device under one mapping; pure (the caller passes the times).
 
@@ -128,6 +133,11 @@ class DeviceState:
         self._enable = tuple(mapping.buttons.enable)
         self._confirm = tuple(mapping.buttons.confirm)
         self._cancel = tuple(mapping.buttons.cancel)
+        self._gripper = tuple(mapping.buttons.gripper)
+        self._speed = tuple(mapping.buttons.speed)
+        #: the gripper request and the speed scale (the presses of those buttons)
+        self.hand = HandState()
+        self._turns = any(a.turns for a in mapping.axis)
         #: absolute codes the mapping reads (axes and trigger buttons)
         self.abs_codes = frozenset(
             [a.number for a in self._axes if a.etype == EV_ABS]
@@ -149,7 +159,7 @@ class DeviceState:
         self.set_ranges(absinfo or {})
 
     def _buttons(self) -> tuple[ButtonRef, ...]:
-        return self._enable + self._confirm + self._cancel
+        return self._enable + self._confirm + self._cancel + self._gripper + self._speed
 
     def set_ranges(self, absinfo: Mapping[int, AbsRange]) -> None:
         """The device's absolute ranges (the mapping's own ``min``/``max`` win); a range
@@ -256,10 +266,13 @@ class DeviceState:
             return False
         return normalise_abs(raw, span[0], span[1], rest_min=True) >= ref.cutoff
 
-    def deflection(self, now: float) -> Axes:
-        """The mapped deflection at ``now``, whatever the enable button says."""
+    def deflection(self, now: float, turns: bool = False) -> Axes:
+        """The mapped deflection at ``now`` (``turns``: the rotation axes'), whatever the
+        enable button says."""
         sums = [0.0, 0.0, 0.0]
         for axis in self._axes:
+            if axis.turns != turns:
+                continue
             value = shape(self._value(axis, now), axis.deadzone, axis.exponent) * axis.scale
             sums[axis.index] += -value if axis.invert else value
         return clip_norm([min(1.0, max(-1.0, s)) for s in sums])
@@ -273,9 +286,18 @@ class DeviceState:
         zero with ``enable``, ``confirm`` and ``cancel`` false."""
         if not self.enabled():
             return NO_INPUT
+        self.hand.update(
+            any(self._pressed(b) for b in self._gripper), any(self._pressed(b) for b in self._speed)
+        )
         buttons = Buttons(
             enable=True if self._enable else None,  # None: the device has no such button
             confirm=any(self._pressed(b) for b in self._confirm),
             cancel=any(self._pressed(b) for b in self._cancel),
+            gripper=self.hand.gripper,
         )
-        return self.deflection(now), buttons
+        k = self.hand.scale
+        axes = _scaled(self.deflection(now), k)
+        turn = self.deflection(now, turns=True) if self._turns else ZERO
+        if not any(turn):
+            return axes, buttons  # no turning: the message leaves rotation out
+        return axes, buttons, _scaled(turn, k)

@@ -1,6 +1,8 @@
 """``legws joystick keyboard``: steer from a terminal (no display needed).
 
 Keys: ``w``/``s`` = +x/-x, ``a``/``d`` = +y/-y, ``r``/``f`` = +z/-z, space = zero,
+``j``/``l`` turn about x, ``i``/``k`` about y, ``u``/``o`` about z (the rotation axes),
+``g`` = the gripper (each press opens or closes it), ``v`` = the speed scale (1, 0.5, 0.25),
 ``c`` = cancel (in one message), ``q`` = quit. A terminal reports key presses but no key
 releases, so a key sets the deflection on its axis and the deflection falls back to zero
 unless the key comes again within the hold time (the terminal's key repeat keeps a held
@@ -27,6 +29,7 @@ from typing import TextIO
 from legws_daemon.errors import InputError
 from legws_daemon.formats.messages import Buttons
 from legws_daemon.joystick.daemon_status import fit
+from legws_daemon.joystick.hand import HandState
 from legws_daemon.joystick.publisher import Axes, Publisher, Sample, clip_norm
 
 #: key -> (axis index, sign)
@@ -38,13 +41,24 @@ AXIS_KEYS: dict[str, tuple[int, float]] = {
     "r": (2, 1.0),
     "f": (2, -1.0),
 }
+#: key -> (rotation axis index, sign)
+TURN_KEYS: dict[str, tuple[int, float]] = {
+    "j": (0, 1.0),
+    "l": (0, -1.0),
+    "i": (1, 1.0),
+    "k": (1, -1.0),
+    "u": (2, 1.0),
+    "o": (2, -1.0),
+}
+GRIPPER_KEY = "g"
+SPEED_KEY = "v"
 ZERO_KEY = " "
 CANCEL_KEY = "c"
 CONFIRM_KEYS = frozenset({"\r", "\n"})  # Enter
 QUIT_KEYS = frozenset({"q", "\x03", "\x04"})  # q, and Ctrl-C / Ctrl-D should ISIG be off
 HELP = (
-    "keys: w/s +x/-x  a/d +y/-y  r/f +z/-z  space zero (hold: let assistance run)  "
-    "Enter confirm  c cancel  q quit"
+    "keys: w/s +x/-x  a/d +y/-y  r/f +z/-z  j/l i/k u/o turn about x y z  g gripper  "
+    "v speed  space zero (hold: let assistance run)  Enter confirm  c cancel  q quit"
 )
 #: Default hold time, s: a key's deflection lasts this long unless the key repeats.
 HOLD = 0.3
@@ -74,6 +88,10 @@ class KeyboardState:
         self.hold_to_run = hold_to_run
         self._value = [0.0, 0.0, 0.0]
         self._since = [-math.inf, -math.inf, -math.inf]
+        self._turn = [0.0, 0.0, 0.0]
+        self._turn_since = [-math.inf, -math.inf, -math.inf]
+        #: the gripper asked for and the speed scale (``g`` and ``v``)
+        self.hand = HandState()
         self._held = -math.inf  # the last steering key or space
         self._cancel = False
         self._confirm = False
@@ -90,10 +108,21 @@ class KeyboardState:
             self._value[axis] = sign * self.step
             self._since[axis] = now
             self._held = now
+        elif key in TURN_KEYS:
+            axis, sign = TURN_KEYS[key]
+            self._turn[axis] = sign * self.step
+            self._turn_since[axis] = now
+            self._held = now
         elif key == ZERO_KEY:
             self._value = [0.0, 0.0, 0.0]
             self._since = [-math.inf, -math.inf, -math.inf]
+            self._turn = [0.0, 0.0, 0.0]
+            self._turn_since = [-math.inf, -math.inf, -math.inf]
             self._held = now
+        elif key == GRIPPER_KEY:
+            self.hand.toggle_gripper()
+        elif key == SPEED_KEY:
+            self.hand.step_speed()
         elif key == CANCEL_KEY:
             self._cancel = True
         elif key in CONFIRM_KEYS:
@@ -109,9 +138,15 @@ class KeyboardState:
 
         A deflection on several axes is scaled down to norm 1.
         """
+        return self._held_axes(self._value, self._since, now)
+
+    def rotation(self, now: float) -> Axes:
+        """The rotation axes at ``now``, as :meth:`axes`."""
+        return self._held_axes(self._turn, self._turn_since, now)
+
+    def _held_axes(self, values: list[float], since: list[float], now: float) -> Axes:
         held = [
-            v if 0.0 <= now - t <= self.hold else 0.0
-            for v, t in zip(self._value, self._since, strict=True)
+            v if 0.0 <= now - t <= self.hold else 0.0 for v, t in zip(values, since, strict=True)
         ]
         return clip_norm(held)
 
@@ -124,9 +159,17 @@ class KeyboardState:
         used up (and sent enabled: pressing it is the operator's act)."""
         pressed = self._cancel or self._confirm
         enable = (pressed or self.enabled(now)) if self.hold_to_run else None
-        buttons = Buttons(cancel=self._cancel, confirm=self._confirm, enable=enable)
+        buttons = Buttons(
+            cancel=self._cancel, confirm=self._confirm, enable=enable, gripper=self.hand.gripper
+        )
         self._cancel = self._confirm = False
-        return self.axes(now), buttons
+        k = self.hand.scale
+        x, y, z = self.axes(now)
+        axes = (k * x, k * y, k * z)
+        turn = self.rotation(now)
+        if not any(turn):
+            return axes, buttons  # no turning: the message leaves rotation out
+        return axes, buttons, (k * turn[0], k * turn[1], k * turn[2])
 
 
 def keys_of(text: str) -> list[str]:
@@ -232,7 +275,8 @@ def run_keyboard(
         if state.quit or terminal.closed:
             stop.set()
             return None
-        axes, buttons = state.sample(now)
+        taken = state.sample(now)
+        axes, buttons = taken[0], taken[1]
         line = status_line(axes, buttons)
         said = daemon() if daemon is not None else None
         if said is not None:
@@ -241,7 +285,7 @@ def run_keyboard(
             stream.write("\r" + fit(line, stream) + "\x1b[K")
             stream.flush()
             shown = line
-        return axes, buttons
+        return taken
 
     try:
         return publisher.run(sample, rate, duration, stop)

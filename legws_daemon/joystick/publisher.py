@@ -65,8 +65,9 @@ from legws_daemon.transport.session import (
 
 #: A deflection (x, y, z) in the robot base frame.
 Axes = tuple[float, float, float]
-#: What an input device yields per tick: a deflection and the buttons.
-Sample = tuple[Axes, Buttons]
+#: What an input device yields per tick: a deflection and the buttons, and with rotation
+#: axes the rotation (``rotation`` of the message).
+Sample = tuple[Axes, Buttons] | tuple[Axes, Buttons, Axes]
 #: Called once per tick; ``None`` means "publish nothing this tick".
 SampleFn = Callable[[], Sample | None]
 
@@ -393,7 +394,12 @@ class Publisher:
     # -- publishing -----------------------------------------------------------------------
 
     def publish(
-        self, axes: Sequence[float], buttons: Buttons | None = None, *, bye: bool = False
+        self,
+        axes: Sequence[float],
+        buttons: Buttons | None = None,
+        rotation: Sequence[float] | None = None,
+        *,
+        bye: bool = False,
     ) -> JoystickMessage:
         """Validate and put one message; returns it. The recording gets it too.
 
@@ -406,9 +412,16 @@ class Publisher:
                 raise LegwsError("publisher is not open (use it in a with block)")
             if not bye:
                 self._ensure_key(time.monotonic())
-            return self._put(axes, buttons, bye=bye)
+            return self._put(axes, buttons, rotation, bye=bye)
 
-    def _put(self, axes: Sequence[float], buttons: Buttons | None, *, bye: bool) -> JoystickMessage:
+    def _put(
+        self,
+        axes: Sequence[float],
+        buttons: Buttons | None,
+        rotation: Sequence[float] | None = None,
+        *,
+        bye: bool,
+    ) -> JoystickMessage:
         """Under the lock: validate, tag, put, record one message of the current session."""
         assert self._publisher is not None
         data = {
@@ -421,6 +434,8 @@ class Publisher:
             "session": self._wire,
             "bye": bye,
         }
+        if rotation is not None:
+            data["rotation"] = [float(a) for a in rotation]
         message = validate(JoystickMessage, data, self.key)
         if self._key is not None:
             message = message.model_copy(update={"auth": auth_tag(self._key, message)})

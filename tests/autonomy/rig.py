@@ -125,7 +125,7 @@ class Rig:
         assert isinstance(a, StandIn)
         return a
 
-    def sample(self, axes: Any, **buttons: bool) -> OperatorInput:
+    def sample(self, axes: Any, rotation: Any = None, **buttons: bool | None) -> OperatorInput:
         """A joystick message through the daemon's inbox, as the controller gets it."""
         self.seq += 1
         msg: dict[str, Any] = {"schema": 1, "seq": self.seq, "stamp": 0.0,
@@ -133,6 +133,8 @@ class Rig:
                                "session": "rig"}  # fmt: skip
         if buttons:
             msg["buttons"] = buttons
+        if rotation is not None:
+            msg["rotation"] = [float(a) for a in rotation]
         now = self.c.dt * self.seq
         assert self.inbox.offer(json.dumps(msg).encode(), now) is not None
         s, why = self.inbox.poll(now)  # the tick takes it as the daemon's does

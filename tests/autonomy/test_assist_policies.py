@@ -12,6 +12,7 @@ import pytest
 
 from legws_daemon.autonomy.inputs import TickRecord
 from legws_daemon.autonomy.override import HANDBACK_ACCELERATION, OVERRIDE_SECONDS
+from legws_daemon.core.geometry import rotation_angle
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
@@ -165,3 +166,56 @@ def test_pushing_against_the_blends_guess_overrides_it(blend_rig: Rig) -> None:
     np.testing.assert_allclose(records[-1].command, c.profile.control.v_max * away, atol=1e-9)
     # the operator turned the stick at once (their jump); from the override on, no jump
     assert max(_steps(records[at:])) <= HANDBACK_ACCELERATION * c.dt + 1e-9
+
+
+@pytest.fixture
+def hand_rig(desk: Scene) -> Iterator[Rig]:
+    r = Rig(_with(stand_in_profile(), "none"), desk)
+    yield r
+    r.c.shutdown()
+
+
+def test_without_assistance_nothing_commits_even_at_the_goal_or_on_confirm(
+    hand_rig: Rig,
+) -> None:
+    rig, c = hand_rig, hand_rig.c
+    goal = "white_mug"
+    for _ in range(400):
+        d = c.stage.target(goal).position - rig.adapter.read_state().ee_position
+        n = float(np.linalg.norm(d))
+        c.tick(rig.sample(d / n if n > 0.01 else np.zeros(3), confirm=n <= 0.01))
+    assert c.mode == "teleop" and c.committed is None and "commit" not in rig.kinds()
+    assert max(c.posterior().values()) > 0.9  # it inferred all the same (status shows it)
+
+
+def test_the_rotation_axes_turn_the_held_orientation_at_w_teleop(hand_rig: Rig) -> None:
+    rig, c = hand_rig, hand_rig.c
+    before = c.inference.hold.copy()
+    ticks = 20
+    for _ in range(ticks):
+        c.tick(rig.sample([0, 0, 0], rotation=[0.0, 0.0, 1.0]))
+    turned = float(rotation_angle(before, c.inference.hold))
+    assert turned == pytest.approx(c.profile.control.w_teleop * ticks * c.dt, rel=1e-9)
+    held = c.inference.hold.copy()
+    for _ in range(5):  # no input: nothing turns, not even the orientation held
+        c.tick(None)
+    np.testing.assert_array_equal(c.inference.hold, held)
+    # the arm follows the held orientation (the envelope caps the turning rate)
+    for _ in range(40):
+        c.tick(rig.hands_off())
+    assert float(rotation_angle(rig.adapter.read_state().ee_rotation, held)) < 0.05
+
+
+def test_the_gripper_button_acts_in_teleoperation_only(blend_rig: Rig) -> None:
+    rig, c = blend_rig, blend_rig.c
+    c.tick(rig.sample([0, 0, 0], gripper=True))
+    c.tick(rig.sample([0, 0, 0], gripper=True))  # the same request: nothing more
+    assert rig.adapter.grips == [True] and c.modes.gripper == "closed"
+    assert c.held is None  # closed on nothing
+    c.tick(rig.sample([0, 0, 0], gripper=False))
+    assert rig.adapter.grips == [True, False]
+    rig.drive_to_commit("white_mug")
+    grips = list(rig.adapter.grips)
+    for _ in range(5):  # during assistance the plan owns the gripper
+        c.tick(rig.sample([0, 0, 0], gripper=True))
+    assert c.mode == "assist" and rig.adapter.grips == grips

@@ -133,6 +133,7 @@ def test_the_machine_takes_only_the_tables_edges_and_a_refusal_changes_nothing(
 STEPS = (
     "toward", "toward", "toward", "hands_off", "deadman", "confirm", "cancel", "push_away",
     "stop", "reset", "calibrate", "load", "fail", "heal", "grip_fail", "grip_heal",
+    "gripper_button",
 )  # fmt: skip
 
 
@@ -181,6 +182,8 @@ def _ticks(rig: Rig, step: str, n: int) -> None:
                 inp = rig.sample([0.0, 0.0, 0.0], confirm=True)
             case "cancel":
                 inp = rig.sample([0.0, 0.0, 0.0], cancel=True)
+            case "gripper_button":  # the operator's gripper button: closed, then open
+                inp = rig.sample([0.0, 0.0, 0.0], gripper=rig.seq % 2 == 0)
             case "deadman":
                 inp = None
             case _:
@@ -194,9 +197,9 @@ def _ticks(rig: Rig, step: str, n: int) -> None:
         if record.mode in STILL:
             assert not np.any(record.command), record
             assert record.joints is None or not np.any(record.joints)
-        # only a plan grips
+        # only a plan grips, or the operator's gripper button in teleoperation
         if len(rig.adapter.grips) > grips:
-            assert before == Mode.ASSIST
+            assert before == Mode.ASSIST or (before == Mode.TELEOP and step == "gripper_button")
 
 
 def _command(rig: Rig, step: str) -> None:

@@ -279,7 +279,8 @@ def test_every_error_of_an_input_mapping_with_its_line(tmp_path: Path) -> None:
     bad = tmp_path / "pad.toml"
     bad.write_text("".join(lines), encoding="utf-8")
     assert _errors(load_mapping, bad) == [
-        f"{bad}:{drives}: axis[0].drives: Input should be 'x', 'y' or 'z' (got 'w')",
+        f"{bad}:{drives}: axis[0].drives: Input should be 'x', 'y', 'z', 'rx', 'ry' or 'rz' "
+        "(got 'w')",
         f"{bad}:{deadzone}: axis[1].deadzon: Extra inputs are not permitted; did you mean "
         "'deadzone'?",
     ]

@@ -45,11 +45,20 @@ def test_the_shipped_mappings_load() -> None:
         ("ABS_Y", "x", True),
         ("ABS_X", "y", True),
         ("ABS_RY", "z", True),
+        ("ABS_RX", "rz", True),  # the right stick turns the gripper about z
     }
+    assert [b.code for b in xbox.buttons.gripper] == ["BTN_NORTH"]
+    assert [b.code for b in xbox.buttons.speed] == ["BTN_WEST"]
+    assert [a.index for a in xbox.axis if a.turns] == [2, 0]  # rz, rx
     puck = mappings["spacemouse"]
     assert [b.code for b in puck.buttons.enable] == ["BTN_0"]  # the left button, held
     assert [b.code for b in puck.buttons.confirm] == ["BTN_1"] and puck.buttons.cancel == ()
-    assert {a.code for a in puck.axis} == {"REL_X", "REL_Y", "REL_Z", "ABS_X", "ABS_Y", "ABS_Z"}
+    moves = {"REL_X", "REL_Y", "REL_Z", "ABS_X", "ABS_Y", "ABS_Z"}
+    assert {a.code for a in puck.axis if not a.turns} == moves
+    assert {a.code for a in puck.axis if a.turns} == {
+        "REL_RX", "REL_RY", "REL_RZ", "ABS_RX", "ABS_RY", "ABS_RZ"
+    }  # fmt: skip
+    assert [b.code for b in puck.buttons.gripper] == ["BTN_2"]
     assert all(a.full_scale == 350 and a.hold_time == 0.1 for a in puck.axis if a.relative)
     assert all((a.min, a.max) == (-350, 350) for a in puck.axis if not a.relative)
     hid = mappings["hid_joystick"]
@@ -130,7 +139,12 @@ BAD: list[tuple[str, Edit, str | None, str]] = [
     ("button as axis", _set(("axis", 0, "code"), "BTN_A"), "axis[0].code", "is not an absolute"),
     ("lowercase code", _set(("axis", 0, "code"), "abs_y"), "axis[0].code", "did you mean ABS_Y"),
     ("limit code", _set(("axis", 1, "code"), "ABS_MAX"), "axis[1].code", "unknown evdev code"),
-    ("base axis", _set(("axis", 0, "drives"), "w"), "axis[0].drives", "'x', 'y' or 'z'"),
+    (
+        "base axis",
+        _set(("axis", 0, "drives"), "w"),
+        "axis[0].drives",
+        "'x', 'y', 'z', 'rx', 'ry' or 'rz'",
+    ),
     ("deadzone 1", _set(("axis", 0, "deadzone"), 1.0), "axis[0].deadzone", "less than 1"),
     ("deadzone < 0", _set(("axis", 0, "deadzone"), -0.1), "axis[0].deadzone", "greater than"),
     ("deadzone text", _set(("axis", 0, "deadzone"), "0.1"), "axis[0].deadzone", "valid number"),
