@@ -22,7 +22,7 @@ run again) and ``OUT/SOURCE.md`` (the table) and prints it.
 
 Usage:
     python benchmarks/assist.py [--source random|optimised] [--tiers a,b]
-        [--policies commit,blend,hindsight] [--layouts 30] [--picks 300] [--top-k 3]
+        [--policies commit,blend,hindsight,none] [--layouts 30] [--picks 300] [--top-k 3]
         [--seed 0] [--workers 2] [--runs docs/results/tables/runs] [--out docs/results/assist]
 """
 
@@ -136,7 +136,7 @@ def table(source: str, reports: dict[tuple[str, str], dict[str, Any]], seed: int
     ]
     for name, tier in TIERS.items():
         base = reports.get((name, "commit"))
-        for policy in ("commit", "blend", "hindsight"):
+        for policy in ("commit", "blend", "hindsight", "none"):
             r = reports.get((name, policy))
             if r is None:
                 continue
@@ -166,7 +166,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", choices=("random", "optimised"), default="random")
     ap.add_argument("--tiers", default=",".join(TIERS))
-    ap.add_argument("--policies", default="commit,blend,hindsight")
+    ap.add_argument("--policies", default="commit,blend,hindsight,none")
     ap.add_argument("--layouts", type=int, default=30)
     ap.add_argument("--picks", type=int, default=300)
     ap.add_argument("--top-k", type=int, default=3)

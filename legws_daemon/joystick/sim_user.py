@@ -94,11 +94,14 @@ def _not_offered(view: UserView, wants: Sequence[str], used: set[str]) -> str:
 
 @dataclass(frozen=True, slots=True)
 class UserAction:
-    """What the user does this tick: a deflection (3,) and the buttons."""
+    """What the user does this tick: a deflection (3,) and the buttons (with the rotation
+    axes and the gripper button of a hand that finishes a pick itself: ``None``, untouched)."""
 
     axes: FloatArray
     confirm: bool = False
     cancel: bool = False
+    rotation: FloatArray | None = None
+    gripper: bool | None = None
 
 
 def _hands_off() -> UserAction:
@@ -192,7 +195,7 @@ class SimUser:
         eps = noise(self.rng, (), self.sigma, self.v_max)
         return clip_unit(deflection(position, target, eps))
 
-    def _steer(self, goal: str, target: FloatArray, position: FloatArray, now: float) -> FloatArray:
+    def steer(self, goal: str, target: FloatArray, position: FloatArray, now: float) -> FloatArray:
         """This tick's deflection toward ``goal`` at ``target``: a new reach (another goal
         or target, or steering again after a pause) starts the operator's noise afresh."""
         reach = (goal, tuple(float(v) for v in target))
@@ -214,7 +217,7 @@ class SimUser:
             if target is None:
                 self._reach = None
                 return _hands_off()
-            return UserAction(self._steer(CALIBRATION_TARGET, target, view.ee_position, now))
+            return UserAction(self.steer(CALIBRATION_TARGET, target, view.ee_position, now))
         if view.mode == "teleop":
             self._assist_since = None
             goal = self._choose(view)
@@ -226,7 +229,7 @@ class SimUser:
             if math.sqrt(float(to_goal @ to_goal)) < ARRIVED:
                 # at the goal and still no commit: confirm it, as a person would
                 return UserAction(np.zeros(3), confirm=True)
-            return UserAction(self._steer(goal, target, view.ee_position, now))
+            return UserAction(self.steer(goal, target, view.ee_position, now))
         self._reach = None  # the robot acts (or stands): the next steering is a new reach
         if view.mode == "assist" and self.cancel_after is not None and not self.cancelled:
             if self._assist_since is None:

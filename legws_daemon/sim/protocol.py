@@ -55,6 +55,7 @@ from legws_daemon.joystick.sim_user import SimUser, UserView
 from legws_daemon.robot.feasibility import GraspCheck
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Layout, Scene
+from legws_daemon.sim.hand import HandUser
 from legws_daemon.sim.statistics import km_median
 from legws_daemon.task.runner import scene_graph
 
@@ -72,6 +73,7 @@ LIFT_CLEARANCE = 0.02
 FAILURES = (
     "infeasible_grasp",  # the grasp failed the feasibility check: no episode
     "no_commit",  # neither a commit nor a confirmation within TIMEOUT_S
+    "no_grasp",  # without assistance: the operator closed no gripper within TIMEOUT_S
     "wrong_commit",  # the controller acted on another goal
     "plan_failed",  # the commit's assistance could not be planned
     "assist_failed",  # a step of the assistance timed out or made no progress
@@ -262,7 +264,7 @@ def metrics(picks: Sequence[PickResult]) -> dict[str, Any]:
     times = [p.commit_time for p in picks if p.commit_time is not None]
     committed = [p for p in picks if p.committed is not None]
     wrong = [p for p in committed if p.committed != p.true_goal]
-    acted = [p for p in ran if p.committed is not None or p.confirmed is not None]
+    acted = [p for p in ran if p.committed is not None or p.confirmed is not None or p.grasped]
     done = [p.complete_time for p in picks if p.complete_time is not None]
     failures = Counter(p.failure for p in picks if p.failure is not None)
     by_goal = commit_by_goal(picks)
@@ -463,6 +465,9 @@ class Evaluator:
             [goal], self.params.sigma, self.params.v_max, rng, operator=self.operator,
             dt=self.params.dt,
         )  # fmt: skip
+        # without assistance the operator finishes the pick by hand (nothing commits)
+        by_hand = self.profile.control.assist == "none"
+        hand = HandUser(user, c.stage.target(goal)) if by_hand else None
         start = clock.ticks
         committed = confirmed = failure = None
         commit_time = complete_time = decision_time = None
@@ -478,10 +483,15 @@ class Evaluator:
             now = (clock.ticks - start) * clock.dt
             if c.mode == Mode.IDLE or failure is not None:
                 break
-            acted = committed is not None or confirmed is not None
+            acted = committed is not None or confirmed is not None or grasped is not None
             if not acted and now >= TIMEOUT_S:
-                failure, detail = "no_commit", f"no commit within {TIMEOUT_S:g} s"
+                if by_hand:
+                    failure, detail = "no_grasp", f"no grasp within {TIMEOUT_S:g} s"
+                else:
+                    failure, detail = "no_commit", f"no commit within {TIMEOUT_S:g} s"
                 break
+            if by_hand and completed:
+                break  # lifted by hand: the pick is done (no plan takes it home)
             if now >= TIMEOUT_S + ASSIST_LIMIT_S:
                 failure, detail = "limit", f"still in '{c.mode}' after {now:.0f} s"
                 break
@@ -489,9 +499,15 @@ class Evaluator:
                 stage = c.stage
                 targets = {t.name: t.position for t in stage.targets}
             here = a.kinematics.ee_position()
-            view = UserView(c.mode.value, c.decisions, c.stage.name, here, targets)
-            act = user.act(view, now)
-            rec = c.tick(OperatorInput(act.axes, act.confirm, act.cancel, clock()))
+            if hand is not None:
+                act = hand.act(here, a.kinematics.ee_rotation(), now)
+            else:
+                view = UserView(c.mode.value, c.decisions, c.stage.name, here, targets)
+                act = user.act(view, now)
+            rec = c.tick(
+                OperatorInput(act.axes, act.confirm, act.cancel, clock(),
+                              rotation=act.rotation, gripper=act.gripper)
+            )  # fmt: skip
             clock.advance()
             effort += float(np.linalg.norm(act.axes)) * clock.dt
             if grasped is None:

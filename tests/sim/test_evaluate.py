@@ -331,6 +331,24 @@ def test_eval_json_summarises_the_value_of_the_help(capsys: pytest.CaptureFixtur
     assert blend["effort"] < commit["effort"]
 
 
+def test_without_assistance_the_simulated_operator_picks_by_hand() -> None:
+    from legws_daemon.sim.protocol import Evaluator
+
+    sc = load_scene("desk")
+    ev = Evaluator(sc, assist="none")
+    picks = [p for p in ev.evaluate(sc.default_layout(), [0, 0], 2).picks if p.feasible]
+    assert picks
+    for p in picks:
+        assert p.completed and p.grasped == p.true_goal, p
+        assert p.committed is None and p.confirmed is None  # nothing assisted
+        assert p.robot_share == 0.0 and p.robot_distance == 0.0
+        assert p.grasp_time is not None and p.complete_time is not None
+        assert p.grasp_time < p.complete_time == p.duration  # the pick ends lifted
+    m = metrics(picks)
+    assert m["completion"] == 1.0 and m["counts"]["acted_on"] == len(picks)
+    assert [e.kind for e in ev.events] == []  # no commit, no warning
+
+
 def test_pick_results_time_the_grasp_and_split_the_approach() -> None:
     from legws_daemon.sim.protocol import Evaluator
 
