@@ -44,6 +44,8 @@ STALL_ANGLE = 0.02
 STALL_JOINTS = 0.01
 #: ... and the patience of a reset's moves before it lets go of the object, seconds.
 STALL_SECONDS = 2.0
+#: Withdrawals before one joint-space move at most (the second from where the first ended).
+MAX_WITHDRAWALS = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,16 +79,17 @@ class Assistant:
     #: checks a joint-space move from where the arm is when it begins: the configurations
     #: to pass on the way (none: straight), or an InfeasibleError (the move fails)
     path: Callable[[FloatArray, FloatArray], list[FloatArray]] | None = None
-    #: when ``path`` finds no way: a Cartesian move to make first (the joint move is then
-    #: checked again from where the move ends), or ``None`` (the move fails)
-    withdraw: Callable[[FloatArray, FloatArray], Move | None] | None = None
+    #: when ``path`` finds no way: Cartesian moves to make first (the joint move is then
+    #: checked again from where they end), or ``None`` (the move fails)
+    withdraw: Callable[[FloatArray, FloatArray], list[Move] | None] | None = None
     joint_speed_limits: FloatArray = field(
         default_factory=lambda: np.array(arm(DEFAULT_ARM).speed_limits)
     )
     index: int = 0
     elapsed: float = 0.0
     _entered: int = field(default=-1, repr=False)
-    _withdrawn: set[int] = field(default_factory=set, repr=False)  # (once per joint move)
+    # withdrawals made before each joint move (at most MAX_WITHDRAWALS)
+    _withdrawn: dict[int, int] = field(default_factory=dict, repr=False)
     # progress of the current move: best distances since the last progress, and the
     # active seconds since then
     _best: tuple[float, float] | None = field(default=None, repr=False)
@@ -158,17 +161,19 @@ class Assistant:
             try:
                 vias = self.path(np.asarray(q, dtype=np.float64), prim.q)
             except InfeasibleError as err:
-                move = None
-                if self.withdraw is not None and id(prim) not in self._withdrawn:
-                    move = self.withdraw(np.asarray(q, dtype=np.float64), prim.q)
-                if move is None:
+                moves = None
+                made = self._withdrawn.get(id(prim), 0)
+                if self.withdraw is not None and made < MAX_WITHDRAWALS:
+                    moves = self.withdraw(np.asarray(q, dtype=np.float64), prim.q)
+                if not moves:
                     return AssistStep(zero(), None, prim.label, failed=f"'{prim.label}': {err}")
-                # in from the box's edge first, in a straight line; the joint move is checked
-                # again from where that ends (once: a second refusal fails it)
-                self._withdrawn.add(id(prim))
-                self.plan.insert(self.index, move)
+                # in from the box's edge first, in straight lines; the joint move is checked
+                # again from where they really end (the arm's own path there is not the
+                # planner's IK: at most MAX_WITHDRAWALS times, then a refusal fails it)
+                self._withdrawn[id(prim)] = made + 1
+                self.plan[self.index : self.index] = moves
                 self._entered = -1
-                return self._move(move, position, rotation)
+                return self._move(moves[0], position, rotation)
             if vias:  # pass them first, as moves of the same phase
                 passes = [JointMove(prim.label, v, prim.tolerance, prim.patience) for v in vias]
                 self.plan[self.index : self.index] = passes

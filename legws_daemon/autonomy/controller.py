@@ -681,7 +681,7 @@ class Controller:
         def path(q0: FloatArray, q1: FloatArray) -> list[FloatArray]:
             return self.planner.joint_path(q0, q1, self.adapter.box, ignore)
 
-        def withdraw(q0: FloatArray, q1: FloatArray) -> Move | None:
+        def withdraw(q0: FloatArray, q1: FloatArray) -> list[Move] | None:
             return self.planner.withdraw(q0, q1, self.adapter.box, ignore)
 
         speed = self.profile.control.assist_speed

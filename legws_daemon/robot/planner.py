@@ -34,13 +34,15 @@ last given.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping
 from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation, Slerp
 
-from legws_daemon.core.geometry import FloatArray, Pose
+from legws_daemon.core.geometry import FloatArray, Pose, rotation_angle
 from legws_daemon.errors import InfeasibleError
 from legws_daemon.robot.feasibility import GraspCheck, check_grasp, ik_seeds
 from legws_daemon.robot.gripper import FINGERTIP_CLEARANCE, floor_height
@@ -52,6 +54,7 @@ from legws_daemon.robot.motion import (
     LIFT_HEIGHT,
     POSITION_TOLERANCE,
     PREGRASP_DISTANCE,
+    ROTATION_TOLERANCE,
     JointMove,
     Move,
     Primitive,
@@ -80,6 +83,8 @@ PATH_STEP = 0.05
 #: A joint-space move keeps the fingertips at least this far above the table (the envelope
 #: keeps 5 mm; the prediction by samples gets this margin), m.
 PATH_CLEARANCE = 0.01
+#: A withdrawal's turn in place is made in steps of at most this angle, rad.
+TURN_STEP = 0.35
 #: How far a withdrawal (:meth:`MotionPlanner.withdraw`) may go toward the other end of a
 #: blocked joint-space move, as fractions of the horizontal way, the farthest first.
 WITHDRAW_FRACTIONS = (1.0, 0.75, 0.5, 0.25)
@@ -301,14 +306,17 @@ class MotionPlanner:
 
     def withdraw(
         self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str] = frozenset()
-    ) -> Move | None:
-        """A straight Cartesian move that makes the joint-space move ``q0 -> q1`` possible
+    ) -> list[Move] | None:
+        """Straight Cartesian moves that make the joint-space move ``q0 -> q1`` possible
         when :meth:`joint_path` finds none (the EE at the box's edge, where every joint line
-        swings it out): from the EE at ``q0``, at its height and orientation, toward the EE
-        at ``q1`` (horizontally; :data:`WITHDRAW_FRACTIONS` of the way, the farthest first),
-        to the first point whose configuration has a clear way to ``q1``. ``None`` when no
-        such point is reachable. The move is optional (cut short where the arm stalls) and
-        the joint move is checked again from where it really ends."""
+        swings it out; a wrist far from ``q1``'s, whose joint line sweeps the fingers
+        through a neighbour): from the EE at ``q0``, at its height and orientation, toward
+        the EE at ``q1`` (horizontally; :data:`WITHDRAW_FRACTIONS` of the way, the farthest
+        first), to the first point whose configuration has a clear way to ``q1``; failing
+        that, all the way to the EE at ``q1`` and there a turn in place to its orientation
+        (the joint move that is left only settles the arm). ``None`` when neither is
+        reachable. The moves are optional (cut short where the arm stalls) and the joint
+        move is checked again from where they really end."""
         q0 = np.asarray(q0, dtype=np.float64)
         q1 = np.asarray(q1, dtype=np.float64)
         w = self.world
@@ -335,11 +343,49 @@ class MotionPlanner:
                         self._blocked(q, q1, box, ignore) is None
                         or self._via(q, q1, R0, R1, box, ignore) is not None
                     ):
-                        return Move("withdraw", target, R0.copy(), 2 * POSITION_TOLERANCE,
-                                    JOINT_PATIENCE, optional=True)  # fmt: skip
-            return None
+                        return [self._withdrawal(target, R0)]
+            return self._turn_there(q0, p1, R0, R1, q1, box, ignore)
         finally:
             w.set_q(self.q_home)
+
+    @staticmethod
+    def _withdrawal(target: FloatArray, rotation: FloatArray) -> Move:
+        return Move("withdraw", np.asarray(target, dtype=np.float64), rotation.copy(),
+                    2 * POSITION_TOLERANCE, JOINT_PATIENCE, optional=True)  # fmt: skip
+
+    def _turn_there(
+        self,
+        q0: FloatArray,
+        p1: FloatArray,
+        R0: FloatArray,
+        R1: FloatArray,
+        q1: FloatArray,
+        box: Box,
+        ignore: frozenset[str],
+    ) -> list[Move] | None:
+        """To the EE position at ``q1`` keeping the orientation, then a turn there to
+        ``R1``, when both poses are reachable in turn and the rest has a clear way."""
+        angle = float(rotation_angle(R0, R1))
+        if not box.contains(p1) or angle < ROTATION_TOLERANCE:
+            return None  # no turn to make (the straight withdrawal was tried already)
+        q = self._near(p1, R0, q0)
+        if q is q0:
+            return None
+        moves = [self._withdrawal(p1, R0)]
+        # the turn in steps of at most TURN_STEP, each solved from the last (a far turn in
+        # one solve misses from an arm whose wrist stands far from home's)
+        steps = max(1, math.ceil(angle / TURN_STEP))
+        turns = Rotation.from_matrix(np.stack([R0, R1]))
+        path = Slerp([0.0, 1.0], turns)(np.linspace(0.0, 1.0, steps + 1)[1:]).as_matrix()
+        for R in path:
+            q_next = self._near(p1, R, q)
+            if q_next is q:
+                return None
+            q = q_next
+            moves.append(self._withdrawal(p1, R))
+        if self._blocked(q, q1, box, ignore) is not None:
+            return None
+        return moves
 
     def _rotation_at(self, q: FloatArray) -> FloatArray:
         self.world.set_q(q)

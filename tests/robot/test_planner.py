@@ -101,8 +101,10 @@ def test_a_withdrawal_keeps_its_orientation_and_leaves_a_clear_way_or_is_none(
     assert side is not home  # reachable
     w.set_q(side)
     p0, R0 = w.ee_position(), w.ee_rotation()
-    move = planner.withdraw(side, home, BOX)
-    assert move is not None and move.label == "withdraw" and move.optional
+    moves = planner.withdraw(side, home, BOX)
+    assert moves is not None and len(moves) == 1
+    move = moves[0]
+    assert move.label == "withdraw" and move.optional
     np.testing.assert_allclose(move.rotation, R0)
     assert np.all(move.position >= BOX.lower) and np.all(move.position <= BOX.upper)
     w.set_q(home)

@@ -94,6 +94,62 @@ def test_the_way_home_from_the_edge_of_the_box_withdraws_first_and_completes(nam
     np.testing.assert_allclose(ev.stand_in.kinematics.ee_position(), sc.home.position, atol=0.01)
 
 
+#: Random layouts of benchmarks/assist.py whose way home failed before the turn in place
+#: (name -> layout, seed, picks per goal, the goal, the policy)
+WRIST_LAYOUTS: dict[str, tuple[dict[str, ObjectPose], list[int], int, str, str]] = {
+    # the red can's grasp leaves the wrist far from home's: a joint line home leaves the box
+    # and the home pose is out of one IK solve's reach from there (a turn in steps is not)
+    "meal_assembly": (
+        {
+            "cereal_box": ObjectPose(0.6851168615973775, -0.2481091899806648, 1.8403388775846228),
+            "banana": ObjectPose(0.4473975705643815, -0.31837537793205295, 1.4845105383671937),
+            "red_apple": ObjectPose(0.7101323579278898, -0.0061963854386541, -2.4157868429749505),
+            "red_can": ObjectPose(0.5585394461338291, -0.17191924837021128, 1.5888236523302384),
+            "green_bottle": ObjectPose(0.7033924964355998, 0.18312411092634667, 0.373754039386631),
+        },
+        [0, 23], 2, "red_can", "commit",
+    ),
+    # the milk carton: a withdrawal home that the arm's own path ends elsewhere than the
+    # planner's IK, whose joint line home then sweeps a finger through the cereal box
+    "breakfast": (
+        {
+            "cereal_box": ObjectPose(0.520223469573612, -0.17439843162966157, -1.9603045585151173),
+            "banana": ObjectPose(0.8009863153613455, 0.239669732891528, 0.39069863246295755),
+            "milk_carton": ObjectPose(0.38248494666965893, -0.15209553806825754, -0.89888698141),
+        },
+        [0, 27], 4, "milk_carton", "blend",
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(WRIST_LAYOUTS))
+def test_the_way_home_turns_in_place_at_home_when_the_wrist_is_far_from_homes(
+    name: str,
+) -> None:
+    layout, seed, per_goal, goal, assist = WRIST_LAYOUTS[name]
+    sc = load_scene(name)
+    ev = Evaluator(sc, assist=assist)  # type: ignore[arg-type]
+    planner = ev.controller.planner
+    withdraw = planner.withdraw
+    turned: list[int] = []
+
+    def watched(*args: Any, **kwargs: Any) -> Any:
+        moves = withdraw(*args, **kwargs)
+        if moves is not None and len(moves) > 1:
+            turned.append(len(moves))  # to home, then the turn in steps
+        return moves
+
+    planner.withdraw = watched  # type: ignore[method-assign]
+    result = ev.evaluate(layout, seed=seed, episodes_per_goal=per_goal)
+    picks = [p for p in result.picks if p.true_goal == goal]
+    assert picks and all(p.completed and p.failure is None for p in picks), [
+        p.detail for p in picks
+    ]
+    assert turned  # it took the turn in place at least once
+    assert all(p.failure in (None, "infeasible_grasp") for p in result.picks)
+
+
 def test_a_pick_lifts_the_true_goal_clear_of_the_table() -> None:
     sc = load_scene("kitchen_prep")
     ev = Evaluator(sc)
