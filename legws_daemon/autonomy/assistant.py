@@ -27,7 +27,14 @@ from legws_daemon.arms import DEFAULT_ARM, arm
 from legws_daemon.autonomy.inputs import Cartesian, Command, Joints, zero
 from legws_daemon.core.geometry import FloatArray, rotation_angle
 from legws_daemon.errors import InfeasibleError
-from legws_daemon.robot.motion import ROTATION_TOLERANCE, Grip, JointMove, Move, Primitive
+from legws_daemon.robot.motion import (
+    FALLBACK_PATIENCE,
+    ROTATION_TOLERANCE,
+    Grip,
+    JointMove,
+    Move,
+    Primitive,
+)
 
 #: Proportional gain of a Cartesian move, 1/s.
 POSITION_GAIN = 2.0
@@ -143,6 +150,11 @@ class Assistant:
         angle = float(rotation_angle(np.asarray(rotation, dtype=np.float64), prim.rotation))
         if dist < prim.tolerance and angle < ROTATION_TOLERANCE:
             return self._advance(None)
+        if prim.fallback is not None and self._stalled((dist, angle), FALLBACK_PATIENCE):
+            # held short of its target (a joint at its limit): the joint-space way there
+            self.plan[self.index] = JointMove(prim.label, prim.fallback, patience=prim.patience)
+            self._entered, self._best, self._still = -1, None, 0.0
+            return AssistStep(zero(), None, prim.label)
         if prim.patience is not None and self._stalled((dist, angle), prim.patience):
             if prim.optional:
                 return self._advance(None)  # it only gave room: go on from here

@@ -33,6 +33,10 @@ JOINT_PATIENCE = 2.0
 BOX_MARGIN = 0.005
 
 
+#: How long a move with a joint-space fallback may make no progress before it takes it, s.
+FALLBACK_PATIENCE = 2.0
+
+
 @dataclass(frozen=True, slots=True)
 class Move:
     """Move the EE along a straight line to ``position`` with orientation ``rotation``.
@@ -48,6 +52,9 @@ class Move:
             the envelope's floor).
         optional: when it makes no progress (its patience) the plan goes on with the next
             primitive instead of failing (a move that only gives the next one more room).
+        fallback: joint angles at the target (the feasibility check's IK): when the
+            straight line stalls for :data:`FALLBACK_PATIENCE` (a joint at its limit holds
+            the arm short of it), a joint-space move there instead; ``None``: none.
     """
 
     label: str
@@ -57,6 +64,7 @@ class Move:
     patience: float | None = None
     floor: float | None = None
     optional: bool = False
+    fallback: FloatArray | None = None
 
 
 @dataclass(frozen=True, slots=True)

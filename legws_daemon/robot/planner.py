@@ -85,6 +85,8 @@ PATH_STEP = 0.05
 PATH_CLEARANCE = 0.01
 #: A withdrawal's turn in place is made in steps of at most this angle, rad.
 TURN_STEP = 0.35
+#: Carries' arrivals kept for a withdrawal back the way the arm came.
+MAX_ARRIVALS = 8
 #: How far a withdrawal (:meth:`MotionPlanner.withdraw`) may go toward the other end of a
 #: blocked joint-space move, as fractions of the horizontal way, the farthest first.
 WITHDRAW_FRACTIONS = (1.0, 0.75, 0.5, 0.25)
@@ -112,6 +114,9 @@ class MotionPlanner:
         self._checks: dict[tuple[str, bytes, bytes, int], GraspCheck] = {}
         self._layout: dict[str, ObjectPose] = {}
         self._table = world.scene.workspace.table_height
+        #: where the carries of the latest plans arrived (joint angles): a way the arm came,
+        #: the last resort of a withdrawal (:meth:`withdraw`)
+        self.arrivals: list[FloatArray] = []
 
     def set_layout(self, layout: Mapping[str, ObjectPose]) -> None:
         """The objects stand at ``layout`` now (collisions are checked against it; the
@@ -206,6 +211,11 @@ class MotionPlanner:
         p, R_now = start
         q = np.asarray(q, dtype=np.float64)
         ignore = frozenset({check.name})
+        # the check's configuration, where the move in ends when it is at the check's pose:
+        # the reach's joint-space fallback (a straight line held short at a joint limit)
+        self.world.set_q(check.q)
+        at_check = float(np.linalg.norm(self.world.ee_position() - goal)) < POSITION_TOLERANCE
+        fallback = check.q.copy() if at_check else None
         why = "nothing tried"
         path_why = ""  # the first joint-space move found blocked (what matters most)
         try:
@@ -225,14 +235,14 @@ class MotionPlanner:
                         blocked = self._blocked(q_start, way, box, ignore)
                         if blocked is None:
                             return self._moves(p, R_now, rise, [way], pre, goal, R, labels,
-                                               patience)  # fmt: skip
+                                               patience, fallback)  # fmt: skip
                         path_why = path_why or f"the joint-space move to it {blocked}"
                         ways.append(way)
                     for way in ways:  # not straight: through a configuration between
                         via = self._via(q_start, way, R_now, R, box, ignore)
                         if via is not None:
                             return self._moves(p, R_now, rise, [via, way], pre, goal, R,
-                                               labels, patience)  # fmt: skip
+                                               labels, patience, fallback)  # fmt: skip
             if not np.array_equal(q, self.q_home):  # the way in from home, going home first
                 back = self.joint_path(q, self.q_home, box, frozenset({check.name}))
                 w = self.world
@@ -314,11 +324,14 @@ class MotionPlanner:
         the EE at ``q1`` (horizontally; :data:`WITHDRAW_FRACTIONS` of the way, the farthest
         first), to the first point whose configuration has a clear way to ``q1``; failing
         that, all the way to the EE at ``q1`` and there a turn in place to its orientation
-        (the joint move that is left only settles the arm). ``None`` when neither is
-        reachable. The moves are optional (cut short where the arm stalls) and the joint
-        move is checked again from where they really end."""
+        (the joint move that is left only settles the arm); failing that, back to where a
+        recent carry arrived (:meth:`_back`). ``None`` when none is reachable. The moves
+        are optional (cut short where the arm stalls) and the joint move is checked again
+        from where they really end."""
         q0 = np.asarray(q0, dtype=np.float64)
         q1 = np.asarray(q1, dtype=np.float64)
+        if np.allclose(q0, q1, atol=1e-6):
+            return None  # there already: nothing to withdraw from
         w = self.world
         try:
             w.set_q(q0)
@@ -344,9 +357,24 @@ class MotionPlanner:
                         or self._via(q, q1, R0, R1, box, ignore) is not None
                     ):
                         return [self._withdrawal(target, R0)]
-            return self._turn_there(q0, p1, R0, R1, q1, box, ignore)
+            turned = self._turn_there(q0, p1, R0, R1, q1, box, ignore)
+            return turned if turned is not None else self._back(q1, box, ignore)
         finally:
             w.set_q(self.q_home)
+
+    def _back(self, q1: FloatArray, box: Box, ignore: frozenset[str]) -> list[Move] | None:
+        """Back the way the arm came: to the pose where a recent carry arrived (the latest
+        first), from which a joint line to ``q1`` is clear — an arm that reached its grasp
+        on another IK branch than home's (near the base) returns to the branch it knows."""
+        w = self.world
+        for q in reversed(self.arrivals):
+            if self._blocked(q, q1, box, ignore) is not None:
+                continue
+            w.set_q(q)
+            p, R = w.ee_position().copy(), w.ee_rotation().copy()
+            if box.contains(p):
+                return [self._withdrawal(p, R)]
+        return None
 
     @staticmethod
     def _withdrawal(target: FloatArray, rotation: FloatArray) -> Move:
@@ -403,6 +431,7 @@ class MotionPlanner:
         R: FloatArray,
         labels: tuple[str, str],
         patience: float | None,
+        fallback: FloatArray | None = None,
     ) -> list[Primitive]:
         loose = 2 * POSITION_TOLERANCE
         moves: list[Primitive] = []
@@ -411,11 +440,13 @@ class MotionPlanner:
         stall = JOINT_PATIENCE if patience is None else patience
         moves += [JointMove("carry", q, patience=stall) for q in joints]
         q_above = joints[-1]
+        self.arrivals = [*self.arrivals[-(MAX_ARRIVALS - 1) :], q_above.copy()]
         self.world.set_q(q_above)
         if float(np.linalg.norm(self.world.ee_position() - pre)) > loose:
             moves.append(Move(labels[0], pre, R, loose, patience))
         floor = float(goal[2]) - POSITION_TOLERANCE
-        moves.append(Move(labels[1], goal, R, POSITION_TOLERANCE, patience, floor))
+        moves.append(Move(labels[1], goal, R, POSITION_TOLERANCE, patience, floor,
+                          fallback=fallback))  # fmt: skip
         return moves
 
     def _ways(

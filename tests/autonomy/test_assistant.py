@@ -15,7 +15,7 @@ from legws_daemon.autonomy.assistant import (
 from legws_daemon.autonomy.cancel import CancelDetector
 from legws_daemon.autonomy.inputs import Cartesian, Joints
 from legws_daemon.errors import InfeasibleError
-from legws_daemon.robot.motion import Grip, JointMove, Move
+from legws_daemon.robot.motion import FALLBACK_PATIENCE, Grip, JointMove, Move
 
 SAWYER = arm("sawyer")
 JOINT_SPEED_LIMITS = np.array(SAWYER.speed_limits)
@@ -179,3 +179,29 @@ def test_cancel_detector(axes: list[float], expected: str | None) -> None:
     if expected:
         assert out.index(expected) == 7  # 0.4 s at 20 Hz: the eighth tick
     assert d.update(None, v, button=True) == "button"
+
+
+def test_a_reach_held_short_takes_its_joint_space_fallback() -> None:
+    """A straight move in that makes no progress (a joint at its limit holds the EE) turns
+    into the joint-space move to the check's configuration after FALLBACK_PATIENCE; a
+    move that arrives never does."""
+    q_grasp = np.array([0.3, -0.5, 0.2, 1.2, -0.4, 0.9, 1.0])
+    goal = np.array([0.7, 0.1, 0.05])
+    a = Assistant([Move("reach", goal, DOWN, fallback=q_grasp)], 0.1, 0.05, "bottle")
+    p, q, phases = np.array([0.67, 0.1, 0.05]), Q0.copy(), []
+    for _ in range(400):
+        step = a.step(q, p, DOWN)  # the EE stays where it is: Cartesian commands do nothing
+        phases.append(step.phase)
+        if isinstance(step.command, Joints):
+            q = q + step.command.qdot * a.dt
+        if step.done or step.failed:
+            break
+    assert step.done and step.failed is None
+    np.testing.assert_allclose(q, q_grasp, atol=0.002)
+    assert isinstance(a.plan[0], JointMove) and a.plan[0].label == "reach"
+    assert len(phases) * a.dt >= FALLBACK_PATIENCE  # it waited that long first
+    # a straight move that gets there keeps its way
+    b = Assistant([Move("reach", goal, DOWN, fallback=q_grasp)], 0.1, 0.05, "bottle")
+    _, q_b, _, _ = run(b, np.array([0.6, 0.1, 0.05]), Q0.copy())
+    assert b.finished and isinstance(b.plan[0], Move)
+    np.testing.assert_array_equal(q_b, Q0)
