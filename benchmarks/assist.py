@@ -17,13 +17,18 @@ Intervals: the time to grasp's mean and its ratio to ``commit``'s get the 95 % p
 bootstrap over layouts (paired: one draw of layouts for both policies); a rate where every
 pick (or none) counted succeeded gets the Clopper–Pearson bound, else the bootstrap.
 
-Writes ``OUT/SOURCE/SCENE-POLICY.json`` (the eval report; an existing one is read back, not
-run again) and ``OUT/SOURCE.md`` (the table) and prints it.
+The simulated user is section 2's (``O_paper``), or with ``--operator`` one of method.md
+§10's operators (those of benchmarks/operator_design.py: ``correlated`` rho 0.8,
+``slow_biased`` speed 0.6 and a 20° bias, ``keyboard`` axis-aligned steering).
+
+Writes ``OUT/SOURCE[-OPERATOR]/SCENE-POLICY.json`` (the eval report; an existing one is read
+back, not run again) and ``OUT/SOURCE[-OPERATOR].md`` (the table) and prints it.
 
 Usage:
     python benchmarks/assist.py [--source random|optimised] [--tiers a,b]
         [--policies commit,blend,hindsight,none] [--layouts 30] [--picks 300] [--top-k 3]
-        [--seed 0] [--workers 2] [--runs docs/results/tables/runs] [--out docs/results/assist]
+        [--seed 0] [--workers 2] [--operator correlated|slow_biased|keyboard]
+        [--runs docs/results/tables/runs] [--out docs/results/assist]
 """
 
 from __future__ import annotations
@@ -32,24 +37,26 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from tqdm import tqdm
 
+from legws_daemon.core.arbitration import POLICIES, AssistPolicy
+from legws_daemon.core.operator import OperatorModel
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.sim.evaluate import Elite, load_elites, random_layouts, run_eval
 from legws_daemon.sim.statistics import rate_interval
 
-TIERS = {
-    "breakfast_easy": "Easy",
-    "desk": "Med-A",
-    "breakfast": "Med-B",
-    "kitchen_prep": "Med-C",
-    "meal_assembly": "Hard-A",
-    "cluttered": "Hard-B",
-}
+#: The paper's six tiers, in order (each scene file names its tier).
+SCENES = ("breakfast_easy", "desk", "breakfast", "kitchen_prep", "meal_assembly", "cluttered")
 RESAMPLES = 2000
+#: method.md §10's operators (as benchmarks/operator_design.py)
+OPERATORS = {
+    "correlated": OperatorModel(1.0, 0.03, 0.8, 0.0, "free"),
+    "keyboard": OperatorModel(1.0, 0.03, 0.0, 0.0, "axes"),
+    "slow_biased": OperatorModel(0.6, 0.03, 0.0, 20.0, "free"),
+}
 
 
 def _layouts(
@@ -65,8 +72,12 @@ def _layouts(
     return [layout for layout, _ in loaded], [elite for _, elite in loaded]
 
 
+def _folder(args: argparse.Namespace) -> str:
+    return args.source if args.operator is None else f"{args.source}-{args.operator}"
+
+
 def run(source: str, name: str, policy: str, args: argparse.Namespace) -> dict[str, Any]:
-    path = args.out / source / f"{name}-{policy}.json"
+    path = args.out / _folder(args) / f"{name}-{policy}.json"
     if path.exists():
         return dict(json.loads(path.read_text()))
     scene = load_scene(name)
@@ -75,7 +86,8 @@ def run(source: str, name: str, policy: str, args: argparse.Namespace) -> dict[s
     with tqdm(total=len(layouts), desc=f"{source} {name} {policy}", unit="layout") as bar:
         report = run_eval(
             scene, layouts, args.seed, workers=args.workers, progress=bar.update,
-            episodes_per_goal=per_goal, elites=elites, assist=policy,
+            episodes_per_goal=per_goal, elites=elites, assist=cast(AssistPolicy, policy),
+            operator=None if args.operator is None else OPERATORS[args.operator],
         )  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(report, indent=1, allow_nan=False) + "\n")
@@ -127,14 +139,14 @@ def _rate(k: int, n: int) -> str:
     return pct
 
 
-def table(source: str, reports: dict[tuple[str, str], dict[str, Any]], seed: int) -> str:
+def table(reports: dict[tuple[str, str], dict[str, Any]], seed: int) -> str:
     lines = [
         "| tier | M | assist | time to grasp, s | vs commit | time to task, s | effort, s "
         "| robot's share | wrong grasps | overrides | completion, acted on | failures "
         "| picks |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, tier in TIERS.items():
+    for name in SCENES:
         base = reports.get((name, "commit"))
         for policy in ("commit", "blend", "hindsight", "none"):
             r = reports.get((name, policy))
@@ -152,7 +164,8 @@ def table(source: str, reports: dict[tuple[str, str], dict[str, Any]], seed: int
             named = ", ".join(f"{k} {v}" for k, v in failures.items()) or "none"
             share = a["robot_share"]
             lines.append(
-                f"| {tier} | {r['m']} | {policy} | {a['time_to_grasp_s']:.1f} [{lo:.1f}, {hi:.1f}] "
+                f"| {r['tier']} | {r['m']} | {policy} "
+                f"| {a['time_to_grasp_s']:.1f} [{lo:.1f}, {hi:.1f}] "
                 f"| {versus} | {a['time_to_task_s']:.1f} | {a['effort']:.1f} "
                 f"| {'—' if share is None else f'{100 * share:.0f} %'} "
                 f"| {c['wrong_grasps']} of {c['picks']}: {_rate(c['wrong_grasps'], c['picks'])} "
@@ -165,26 +178,30 @@ def table(source: str, reports: dict[tuple[str, str], dict[str, Any]], seed: int
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", choices=("random", "optimised"), default="random")
-    ap.add_argument("--tiers", default=",".join(TIERS))
+    ap.add_argument("--tiers", default=",".join(SCENES))
     ap.add_argument("--policies", default="commit,blend,hindsight,none")
     ap.add_argument("--layouts", type=int, default=30)
     ap.add_argument("--picks", type=int, default=300)
     ap.add_argument("--top-k", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--operator", choices=sorted(OPERATORS), default=None)
     ap.add_argument("--runs", type=Path, default=Path("docs/results/tables/runs"))
     ap.add_argument("--out", type=Path, default=Path("docs/results/assist"))
     args = ap.parse_args()
     reports: dict[tuple[str, str], dict[str, Any]] = {}
+    unknown = set(args.policies.split(",")) - set(POLICIES)
+    if unknown:
+        ap.error(f"--policies: unknown {', '.join(sorted(unknown))}; known: {', '.join(POLICIES)}")
     for name in args.tiers.split(","):
         for policy in args.policies.split(","):
             reports[(name, policy)] = run(args.source, name, policy, args)
     # the table covers every report on disk (an interrupted run resumes tier by tier)
-    for path in sorted((args.out / args.source).glob("*.json")):
+    for path in sorted((args.out / _folder(args)).glob("*.json")):
         name, policy = path.stem.rsplit("-", 1)
         reports.setdefault((name, policy), json.loads(path.read_text()))
-    text = table(args.source, reports, args.seed)
-    (args.out / f"{args.source}.md").write_text(text)
+    text = table(reports, args.seed)
+    (args.out / f"{_folder(args)}.md").write_text(text)
     print(text)
 
 

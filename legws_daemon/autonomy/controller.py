@@ -241,7 +241,7 @@ class Controller:
         if self.task.finished:
             self.modes.to(Activity.IDLE)
             self.emit(TaskDone(self.graph.name, tuple(self.task.history)))
-        elif len(targets) == 1:
+        elif len(targets) == 1 and self.policy != "none":  # without assistance: teleop
             self.modes.single_stage()
             self.modes.to(Activity.TELEOP)
             state = self._read_state_safely()

@@ -3,9 +3,10 @@
 With ``assist = "none"`` nothing commits, so ``legws eval`` needs a user who grasps: this
 one steers like the simulated user of method.md §2 (or an operator model of §10: the same
 :class:`~legws_daemon.joystick.sim_user.SimUser`, the same noise) but to the *pre-grasp* —
-:data:`PRE_GRASP` back along the grasp's approach axis — then, the stick centred, turns the
-gripper in place to the grasp's orientation (the rotation axes, proportional: full
-deflection beyond :data:`TURN_FULL`; the nearest of the grasp's symmetric orientations),
+:data:`PRE_GRASP` back along the grasp's approach axis (less where that would leave the
+workspace box) — then turns the gripper in place to the grasp's orientation (the rotation
+axes, proportional: full deflection beyond :data:`TURN_FULL`; the nearest of the grasp's
+symmetric orientations), the stick holding the pre-grasp (the arm drifts while it turns),
 then steers in along the approach to the grasp position, closes the gripper there and
 pushes straight up until the object is lifted (the protocol's completion). Each step
 starts once the last is reached within :data:`~legws_daemon.joystick.sim_user.ARRIVED`
@@ -24,10 +25,14 @@ from scipy.spatial.transform import Rotation
 
 from legws_daemon.core.geometry import FloatArray, axis_rotation, rotation_angle
 from legws_daemon.joystick.sim_user import ARRIVED, SimUser, UserAction
+from legws_daemon.safety.envelope import Box
 from legws_daemon.task.targets import Target
 
-#: The pre-grasp: this far back along the approach axis from the grasp position, m.
+#: The pre-grasp: this far back along the approach axis from the grasp position, m (or
+#: less: the largest of these fractions of it that stays inside the workspace box).
 PRE_GRASP = 0.08
+PRE_FRACTIONS = (1.0, 0.75, 0.5, 0.25, 0.0)
+BOX_MARGIN = 0.005
 #: The turn is done within this angle, rad; a larger one is turned at full deflection
 #: from :data:`TURN_FULL` on (proportionally below it).
 TURNED = 0.05
@@ -57,8 +62,22 @@ class HandUser:
 
     user: SimUser
     target: Target
+    box: Box | None = None  # the workspace box the pre-grasp must lie in
     step: str = "approach"
     _grip: FloatArray | None = field(default=None, repr=False)
+    _pre: FloatArray | None = field(default=None, repr=False)
+
+    def pre_grasp(self) -> FloatArray:
+        """Back along the approach axis from the grasp: :data:`PRE_GRASP`, or the largest
+        of :data:`PRE_FRACTIONS` of it inside the box (the EE cannot leave it)."""
+        if self._pre is None:
+            t = self.target
+            for fraction in PRE_FRACTIONS:
+                pre = t.position - fraction * PRE_GRASP * t.rotation[:, 2]
+                if self.box is None or self.box.contains(pre, -BOX_MARGIN):
+                    break
+            self._pre = np.asarray(pre, dtype=np.float64)
+        return self._pre
 
     def act(self, position: FloatArray, rotation: FloatArray, now: float) -> UserAction:
         """This tick's stick, rotation axes and gripper button at the EE pose."""
@@ -66,7 +85,7 @@ class HandUser:
         if self._grip is None:
             self._grip = nearest_grasp(t, rotation)
         turn = self._turn(rotation)
-        pre = t.position - PRE_GRASP * t.rotation[:, 2]
+        pre = self.pre_grasp()
         if self.step == "approach":
             if float(np.linalg.norm(pre - position)) < ARRIVED:
                 self.step = "turn"
@@ -75,8 +94,10 @@ class HandUser:
         if self.step == "turn":
             if not np.any(turn):
                 self.step = "in"
-            else:  # in place, the stick centred
-                return UserAction(np.zeros(3), rotation=turn)
+            else:  # in place: the stick holds the pre-grasp while the gripper turns
+                off = float(np.linalg.norm(pre - position)) >= ARRIVED
+                axes = self.user.steer(t.name, pre, position, now) if off else np.zeros(3)
+                return UserAction(axes, rotation=turn)
         if self.step == "in":
             if float(np.linalg.norm(t.position - position)) < ARRIVED:
                 self.step = "grip"

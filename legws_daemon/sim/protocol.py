@@ -467,7 +467,7 @@ class Evaluator:
         )  # fmt: skip
         # without assistance the operator finishes the pick by hand (nothing commits)
         by_hand = self.profile.control.assist == "none"
-        hand = HandUser(user, c.stage.target(goal)) if by_hand else None
+        hand = HandUser(user, c.stage.target(goal), a.box) if by_hand else None
         start = clock.ticks
         committed = confirmed = failure = None
         commit_time = complete_time = decision_time = None

@@ -16,6 +16,7 @@ from legws_daemon.core.geometry import rotation_angle
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.scene.catalog import load_scene
 from legws_daemon.scene.scene import Scene
+from legws_daemon.task.runner import scene_graph
 from tests.autonomy.rig import Rig, stand_in_profile
 
 
@@ -219,3 +220,14 @@ def test_the_gripper_button_acts_in_teleoperation_only(blend_rig: Rig) -> None:
     for _ in range(5):  # during assistance the plan owns the gripper
         c.tick(rig.sample([0, 0, 0], gripper=True))
     assert c.mode == "assist" and rig.adapter.grips == grips
+
+
+def test_without_assistance_a_single_candidate_is_not_taken_either(desk: Scene) -> None:
+    rig = Rig(_with(stand_in_profile(), "none"), desk, graph=scene_graph(desk, ["white_mug"]))
+    try:
+        for _ in range(20):
+            rig.c.tick(rig.sample([0.0, 0.0, 0.0], confirm=True))
+        assert rig.c.mode == "teleop" and rig.c.assistant is None
+        assert "commit" not in rig.kinds()
+    finally:
+        rig.c.shutdown()

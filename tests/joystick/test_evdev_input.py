@@ -431,17 +431,6 @@ def test_missing_capabilities_name_the_codes() -> None:
 # --- discovery ----------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def devices(tmp_path: Path) -> Iterator[FakeInputDir]:
-    folder = tmp_path / "input"
-    folder.mkdir()
-    fake = FakeInputDir(folder)
-    try:
-        yield fake
-    finally:
-        fake.close_all()
-
-
 def test_list_devices_in_number_order_with_mappings_and_reasons(devices: FakeInputDir) -> None:
     devices.plug(10, spacemouse_rel())
     devices.plug(3, xbox_pad())

@@ -7,11 +7,8 @@ fake_evdev.py)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
-import pytest
 from evdev import ecodes
 
 from legws_daemon.core.geometry import symmetric_angle
@@ -61,17 +58,6 @@ class Operator:
         self.node.frame((EV_KEY, ecodes.BTN_NORTH, 0))
         self.reader.pump()
         return sample
-
-
-@pytest.fixture
-def devices(tmp_path: Path) -> Iterator[FakeInputDir]:
-    folder = tmp_path / "input"
-    folder.mkdir()
-    fake = FakeInputDir(folder)
-    try:
-        yield fake
-    finally:
-        fake.close_all()
 
 
 def _feed(rig: Rig, sample: Sample) -> None:
