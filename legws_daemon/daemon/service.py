@@ -454,6 +454,7 @@ class DaemonService:
             "layout": c.layout_status(),
             "calibration": calibration,
             "operator_model": self._operator_status(),
+            "assist": c.policy,
         }
         if state is not None:
             data["ee"] = {

@@ -318,6 +318,9 @@ class StatusMessage(_Message):
     #: the person the certificates are for (``legws daemon --operator``); None: section 2's
     #: user
     operator_model: OperatorModelStatus | None = None
+    #: the help before the commit (profile ``control.assist``, ``--assist``); None: a daemon
+    #: from before the policies (it commits, nothing more)
+    assist: Literal["commit", "blend", "hindsight", "none"] | None = None
 
 
 EventKind = Literal[

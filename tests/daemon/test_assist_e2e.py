@@ -104,6 +104,7 @@ def test_blend_helps_before_the_commit_and_an_override_hands_back_without_a_jump
         while (s := client.latest()) is None or s["tick"] == 0:
             assert time.monotonic() < deadline, "no status from the daemon"
             time.sleep(0.05)
+        assert s["assist"] == "blend"  # status says what help to expect
         # steer toward the mug until the daemon commits (confirm on arrival)
         while (s := client.latest()) is not None and s["mode"] == "teleop":
             assert time.monotonic() < deadline, f"no commit: {s}"
