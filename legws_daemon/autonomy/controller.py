@@ -11,6 +11,12 @@ the observer, the assistance, the command's safety envelope, and (through the re
 status and telemetry. Modes and transitions: :mod:`.modes`. In every mode, no valid
 joystick input means zero velocity: the joystick is a dead-man switch for assistance too.
 
+Before the commit the profile's ``control.assist`` policy may add the robot's motion to the
+operator's (:mod:`legws_daemon.core.arbitration`: ``blend``, ``hindsight``; ``none`` never
+commits); the observer then follows the operator's own integrated input, never the EE's
+blended path. The stick held against the robot's goal is an override (:mod:`.override`):
+control comes back ramped, inference restarts.
+
 Every certificate it computes (the decision's from home, the live slack, the placed
 layout's J and K, those its events carry) is for ``operator`` when one is given (a person's
 operator model, method.md §10), else for section 2's user. In mode ``calibrate``
