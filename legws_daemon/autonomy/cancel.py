@@ -3,10 +3,7 @@ against the robot's motion."""
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
+from legws_daemon.autonomy.override import OverrideDetector
 from legws_daemon.core.geometry import FloatArray
 
 #: Cancel when the stick points against the assisted motion (cosine below this) ...
@@ -22,10 +19,13 @@ class CancelDetector:
 
     def __init__(self, dt: float) -> None:
         self.dt = dt
-        self._against = 0.0
+        # the override's mechanism, against the motion instead of a goal
+        self._held = OverrideDetector(
+            dt, CANCEL_COSINE, CANCEL_DEFLECTION, CANCEL_SECONDS, min_direction=1e-6
+        )
 
     def reset(self) -> None:
-        self._against = 0.0
+        self._held.reset()
 
     def update(self, axes: FloatArray | None, motion: FloatArray, button: bool) -> str | None:
         """Returns the reason to cancel (``button`` or ``opposed``), or ``None``.
@@ -38,13 +38,4 @@ class CancelDetector:
         """
         if button:
             return "button"
-        if axes is None:
-            return None
-        u = np.asarray(axes, dtype=np.float64)
-        un = math.sqrt(float(u @ u))
-        vn = math.sqrt(float(motion @ motion))
-        if un >= CANCEL_DEFLECTION and vn > 1e-6 and float(u @ motion) / (un * vn) < CANCEL_COSINE:
-            self._against += self.dt
-        else:
-            self._against = 0.0
-        return "opposed" if self._against >= CANCEL_SECONDS - 1e-9 else None
+        return "opposed" if self._held.update(axes, motion) else None

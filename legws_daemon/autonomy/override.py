@@ -32,10 +32,20 @@ HANDBACK_ACCELERATION = 0.5
 
 
 class OverrideDetector:
-    """Sustained input against a goal's direction (the module docstring)."""
+    """Sustained input against a direction: a goal's (the module docstring, the default
+    thresholds), or the assisted motion's (:class:`~.cancel.CancelDetector`)."""
 
-    def __init__(self, dt: float) -> None:
+    def __init__(
+        self,
+        dt: float,
+        cosine: float = OVERRIDE_COSINE,
+        deflection: float = OVERRIDE_DEFLECTION,
+        seconds: float = OVERRIDE_SECONDS,
+        min_direction: float = 1e-9,
+    ) -> None:
         self.dt = dt
+        self.cosine, self.deflection, self.seconds = cosine, deflection, seconds
+        self.min_direction = min_direction
         self._against = 0.0
 
     def reset(self) -> None:
@@ -46,11 +56,11 @@ class OverrideDetector:
         from the EE toward the goal; ``True`` once it has been held against long enough."""
         if axes is None:
             return False
-        if against(axes, direction, OVERRIDE_COSINE, OVERRIDE_DEFLECTION):
+        if against(axes, direction, self.cosine, self.deflection, self.min_direction):
             self._against += self.dt
         else:
             self._against = 0.0
-        return self._against >= OVERRIDE_SECONDS - 1e-9
+        return self._against >= self.seconds - 1e-9
 
 
 class HandBack:

@@ -191,14 +191,21 @@ def hindsight(
     return Blended(operator + robot, operator, robot, float(weights[best]), best)
 
 
-def against(axes: ArrayLike, direction: ArrayLike, cosine: float, deflection: float) -> bool:
+def against(
+    axes: ArrayLike,
+    direction: ArrayLike,
+    cosine: float,
+    deflection: float,
+    min_direction: float = 1e-9,
+) -> bool:
     """Whether the stick points against ``direction``: a deflection of at least
-    ``deflection`` at an angle whose cosine is below ``cosine``."""
+    ``deflection`` at an angle whose cosine is below ``cosine`` (a direction no longer than
+    ``min_direction`` has none to point against)."""
     u = np.asarray(axes, dtype=np.float64)
     d = np.asarray(direction, dtype=np.float64)
     un = math.sqrt(float(u @ u))
     dn = math.sqrt(float(d @ d))
-    return un >= deflection and dn > 1e-9 and float(u @ d) / (un * dn) < cosine
+    return un >= deflection and dn > min_direction and float(u @ d) / (un * dn) < cosine
 
 
 def slew(previous: ArrayLike, wanted: ArrayLike, step: float) -> FloatArray:
