@@ -481,31 +481,22 @@ class Controller:
 
     def _teleop(self, state: RobotState, inp: OperatorInput | None) -> Command:
         confirm = inp is not None and inp.confirm
-        if self.policy == "none":
-            # teleoperation alone: the observer infers (status, the live certificate), the
-            # robot never acts on it; the operator grasps with the gripper button
-            if self.inference.observer is not None:
-                if inp is not None:
-                    self.inference.steered(inp.axes)
-                self.inference.update(state)
-            if inp is None:
-                return zero()
-            self._turn(inp)
-            return Cartesian(self.profile.control.v_max * inp.axes, self.inference.hold)
+        acts = self.policy != "none"  # without assistance the observer only infers (status)
         if self.inference.observer is None:
             # a single-candidate stage: it starts by itself, but after a failed attempt
             # only when the user confirms (no retrying for ever on its own)
-            if len(self.stage.targets) == 1 and (self.modes.single == SingleCommit.AUTO or confirm):
+            single = len(self.stage.targets) == 1
+            if acts and single and (self.modes.single == SingleCommit.AUTO or confirm):
                 self._commit(self.stage.targets[0].name, 1.0, state, confirmed=confirm, single=True)
                 return zero()
         else:
             if inp is not None:
                 self.inference.steered(inp.axes)
             commit = self.inference.update(state)
-            if commit is not None:
+            if commit is not None and acts:
                 self._commit(*commit, state, confirmed=False)
                 return zero()  # assistance starts from this state
-            if confirm:
+            if confirm and acts:
                 # the user vouches for the most likely goal (e.g. the stick is already there)
                 self._commit(*self.inference.most_likely(), state, confirmed=True)
                 return zero()
@@ -575,26 +566,27 @@ class Controller:
         acceleration bound per tick, and a ``blend`` guess held against is overridden."""
         v_max = self.profile.control.v_max
         obs = self.inference.observer
-        if self.policy == "commit" or obs is None:
+        if self.policy in ("commit", "none") or obs is None:
             return np.asarray(v_max * axes, dtype=np.float64)
         names, positions, post = obs.goals.names, obs.goals.positions, obs.posterior
         ee = state.ee_position
         if self.policy == "blend":
             speed = self.profile.control.assist_speed
             b = blend(axes, v_max, ee, positions, post, self.params.p_thresh, speed)
-            guess = names[b.guess] if b.guess is not None else None
             if self._declined is not None and names[int(np.argmax(post))] != self._declined:
                 self._declined = None  # inference guesses another goal: help toward it
-            if guess is not None and guess == self._declined:
-                b = Blended(v_max * axes, v_max * axes, np.zeros(3), 0.0, None)
-            elif guess is None:
+            alone = Blended(v_max * axes, v_max * axes, np.zeros(3), 0.0, None)
+            guess = b.guess
+            if guess is None:
                 self.override.reset()
-            elif b.guess is not None and self.override.update(axes, positions[b.guess] - ee):
-                self._declined = guess
+            elif names[guess] == self._declined:
+                b = alone
+            elif self.override.update(axes, positions[guess] - ee):
+                self._declined = names[guess]
                 self.override.reset()
                 self.handback.start()  # the operator's share grows back to all of it smoothly
-                self.emit(Override(guess, "blend"))
-                b = Blended(v_max * axes, v_max * axes, np.zeros(3), 0.0, None)
+                self.emit(Override(names[guess], "blend"))
+                b = alone
         else:
             b = hindsight(axes, v_max, ee, positions, post, self.dt)
         # the robot's share never jumps — but a centred stick stops it at once
