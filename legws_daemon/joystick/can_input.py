@@ -226,14 +226,8 @@ class CanReader:
         self.poll()
         if self._latest is None or self.clock() - self._received > self.timeout:
             return None
-        k = self.hand.scale
-        axes, buttons = self._latest[0], self._latest[1]
-        out_axes = (axes[0] * k, axes[1] * k, axes[2] * k)
-        buttons = buttons.model_copy(update={"gripper": self.hand.gripper})
-        if len(self._latest) == 2 or not any(self._latest[2]):
-            return out_axes, buttons  # no turning: the message leaves rotation out
-        r = self._latest[2]
-        return out_axes, buttons, (r[0] * k, r[1] * k, r[2] * k)
+        turn = self._latest[2] if len(self._latest) == 3 else None
+        return self.hand.sample(self._latest[0], self._latest[1], turn)
 
 
 def run_can(

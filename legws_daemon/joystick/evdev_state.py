@@ -113,10 +113,6 @@ def recognises(mapping: InputMapping, device: DeviceIdentity) -> bool:
     ) and not missing_capabilities(mapping, device)
 
 
-def _scaled(v: Axes, k: float) -> Axes:
-    return (v[0] * k, v[1] * k, v[2] * k)
-
-
 class DeviceState:
     """The state of one device under one mapping; pure (the caller passes the times).
 
@@ -293,11 +289,6 @@ class DeviceState:
             enable=True if self._enable else None,  # None: the device has no such button
             confirm=any(self._pressed(b) for b in self._confirm),
             cancel=any(self._pressed(b) for b in self._cancel),
-            gripper=self.hand.gripper,
         )
-        k = self.hand.scale
-        axes = _scaled(self.deflection(now), k)
-        turn = self.deflection(now, turns=True) if self._turns else ZERO
-        if not any(turn):
-            return axes, buttons  # no turning: the message leaves rotation out
-        return axes, buttons, _scaled(turn, k)
+        turn = self.deflection(now, turns=True) if self._turns else None
+        return self.hand.sample(self.deflection(now), buttons, turn)

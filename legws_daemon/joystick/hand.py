@@ -14,6 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from legws_daemon.formats.messages import Buttons
+from legws_daemon.joystick.publisher import Axes, Sample
+
 #: The speed scales the speed button steps through, starting at the first.
 SPEED_LEVELS: tuple[float, ...] = (1.0, 0.5, 0.25)
 
@@ -51,3 +54,14 @@ class HandState:
     def step_speed(self) -> None:
         """One press of the speed button."""
         self.level = (self.level + 1) % len(SPEED_LEVELS)
+
+    def sample(self, axes: Axes, buttons: Buttons, turn: Axes | None = None) -> Sample:
+        """What a device publishes: the deflection and the rotation times the speed scale,
+        the gripper asked for in the buttons; no rotation (``None``, or zero) leaves it out
+        of the message."""
+        k = self.scale
+        out = (axes[0] * k, axes[1] * k, axes[2] * k)
+        buttons = buttons.model_copy(update={"gripper": self.gripper})
+        if turn is None or not any(turn):
+            return out, buttons
+        return out, buttons, (turn[0] * k, turn[1] * k, turn[2] * k)

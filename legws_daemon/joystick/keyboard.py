@@ -159,17 +159,9 @@ class KeyboardState:
         used up (and sent enabled: pressing it is the operator's act)."""
         pressed = self._cancel or self._confirm
         enable = (pressed or self.enabled(now)) if self.hold_to_run else None
-        buttons = Buttons(
-            cancel=self._cancel, confirm=self._confirm, enable=enable, gripper=self.hand.gripper
-        )
+        buttons = Buttons(cancel=self._cancel, confirm=self._confirm, enable=enable)
         self._cancel = self._confirm = False
-        k = self.hand.scale
-        x, y, z = self.axes(now)
-        axes = (k * x, k * y, k * z)
-        turn = self.rotation(now)
-        if not any(turn):
-            return axes, buttons  # no turning: the message leaves rotation out
-        return axes, buttons, (k * turn[0], k * turn[1], k * turn[2])
+        return self.hand.sample(self.axes(now), buttons, self.rotation(now))
 
 
 def keys_of(text: str) -> list[str]:
