@@ -497,8 +497,8 @@ class Controller:
                 self._commit(*commit, state, confirmed=False)
                 return zero()  # assistance starts from this state
             if confirm and acts:
-                # the user vouches for the most likely goal (e.g. the stick is already there)
-                self._commit(*self.inference.most_likely(), state, confirmed=True)
+                # the user vouches for the object the hand is at, else the most likely goal
+                self._commit(*self.inference.confirmed(state.ee_position), state, confirmed=True)
                 return zero()
         if inp is None:
             self._robot_part = np.zeros(3)

@@ -29,6 +29,10 @@ from legws_daemon.scene.scene import Layout, ObjectPose, Scene
 from legws_daemon.task.runner import TaskRun
 from legws_daemon.task.targets import Target, goal_set
 
+#: A confirm with the EE this close to a candidate's grasp position acts on that candidate
+#: (m; the simulated user confirms within 1 cm, ``joystick.sim_user.ARRIVED``).
+CONFIRM_RADIUS = 0.03
+
 
 def slack_for(goals: GoalSet, params: Params, operator: OperatorModel | None = None) -> float:
     """``J`` of ``goals`` for section 2's user (``operator`` ``None``), or for ``operator``
@@ -205,11 +209,28 @@ class Inference:
         return obs.goals.names[obs.committed], float(post[obs.committed])
 
     def most_likely(self) -> tuple[str, float]:
-        """The argmax goal and its probability (what the confirm button commits to)."""
+        """The argmax goal and its probability."""
         obs = self.observer
         assert obs is not None
         best = int(np.argmax(obs.posterior))
         return obs.goals.names[best], float(obs.posterior[best])
+
+    def confirmed(self, ee_position: FloatArray) -> tuple[str, float]:
+        """What a press of *confirm* commits to, and its probability: the candidate whose
+        grasp position the EE is within :data:`CONFIRM_RADIUS` of (the nearest) — the
+        object the person has brought the hand to — else the most likely goal.
+
+        With help before the commit the observer reads the operator's integrated input,
+        which lags the EE the robot has moved; at the object its argmax can name a
+        neighbour the hand is not at. Where the hand is names what the person vouches for.
+        """
+        obs = self.observer
+        assert obs is not None
+        d = np.linalg.norm(obs.goals.positions - np.asarray(ee_position), axis=1)
+        at = int(np.argmin(d))
+        if d[at] <= CONFIRM_RADIUS:
+            return obs.goals.names[at], float(obs.posterior[at])
+        return self.most_likely()
 
     def posterior(self) -> dict[str, float]:
         if self.observer is None:

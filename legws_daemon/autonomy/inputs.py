@@ -26,7 +26,8 @@ class OperatorInput:
 
     Attributes:
         axes: (3,) deflection in the robot base frame, ``|axes| <= 1``.
-        confirm: the confirm button (commit the most likely goal).
+        confirm: the confirm button (commit the object the hand is at, else the most
+            likely goal: :meth:`~legws_daemon.autonomy.decision.Inference.confirmed`).
         cancel: the cancel button (give control back during assistance).
         received: when it arrived, local monotonic seconds.
         seq, stamp: the publisher's sequence number and clock (for traces).

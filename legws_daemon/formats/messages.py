@@ -60,7 +60,7 @@ class Buttons(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     cancel: StrictBool = False  # give control back to the user during assistance
-    confirm: StrictBool = False  # commit to the most likely goal now
+    confirm: StrictBool = False  # commit now: the object the hand is at, else the most likely
     #: the hold-to-run (enable) button: ``true`` held, ``false`` released — the message is
     #: then no input (zero velocity, assistance paused), however the stick stands. ``null``
     #: (or left out): the publisher has no such button; every message is enabled and the

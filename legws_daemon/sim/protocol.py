@@ -16,7 +16,8 @@ sim-user``). The protocol's definitions are kept:
 - the user steers toward the true goal's grasp position; the observer commits at
   ``p >= p_thresh``; a user who reaches the grasp position (within
   :data:`~legws_daemon.joystick.sim_user.ARRIVED`) before any commit presses *confirm*
-  (the controller then acts on its most likely goal); a pick with neither within
+  (the controller then acts on the candidate the EE is at, docs/decisions.md; the observer's
+  argmax then is the pick's inferred goal); a pick with neither within
   :data:`TIMEOUT_S` of motion onset is a failure.
 
 Beyond the paper, the whole pick runs: after the commit the controller's assistance plans
@@ -102,9 +103,10 @@ class PickResult:
         commit_time: seconds from motion onset to that commit (``None`` for none, and for
             a single candidate, which needs no inference).
         confirmed: the goal the controller acted on after the user's confirmation (at the
-            grasp without a commit), or ``None``.
-        final_goal: the goal acted on, else the observer's argmax at the end (``None``
-            without an episode).
+            grasp without a commit: the candidate the hand is at), or ``None``.
+        final_goal: the final inferred goal of the paper's accuracy — the commit, at a
+            confirmation the observer's argmax then (which the hand's object may overrule),
+            else its argmax at the end (``None`` without an episode).
         completed: the true goal's object was lifted clear of the table.
         complete_time: seconds from motion onset to completion.
         failure: one of :data:`FAILURES`, or ``None``; detail: what exactly.
@@ -469,7 +471,7 @@ class Evaluator:
         by_hand = self.profile.control.assist == "none"
         hand = HandUser(user, c.stage.target(goal), a.box) if by_hand else None
         start = clock.ticks
-        committed = confirmed = failure = None
+        committed = confirmed = inferred = failure = None
         commit_time = complete_time = decision_time = None
         detail = ""
         completed = False
@@ -524,6 +526,8 @@ class Evaluator:
                             decision_time = event.seconds
                         if event.confirmed:
                             confirmed = event.goal
+                            if event.posterior:  # what the observer said when confirmed
+                                inferred = max(event.posterior, key=event.posterior.__getitem__)
                         else:
                             committed = event.goal
                             if not event.single:
@@ -544,7 +548,7 @@ class Evaluator:
             first = len(self.events)
             if not completed and self._lifted(goal):
                 completed, complete_time = True, (clock.ticks - start) * clock.dt
-        final = committed or confirmed
+        final = committed or inferred or confirmed
         if final is None and c.inference.observer is not None:
             final = c.inference.most_likely()[0]
         self.events.clear()

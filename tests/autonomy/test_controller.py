@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from legws_daemon.autonomy.cancel import CANCEL_SECONDS
+from legws_daemon.autonomy.decision import CONFIRM_RADIUS
 from legws_daemon.errors import HardwareError, InputError
 from legws_daemon.formats.messages import CommandRequest
 from legws_daemon.formats.profile import ProfileSpec
@@ -117,15 +118,32 @@ def test_holding_the_stick_against_the_motion_after_the_grasp_cancels(rig: Rig) 
     assert ticks * rig.c.dt >= CANCEL_SECONDS - 1e-9
 
 
-def test_confirm_commits_the_most_likely_goal(rig: Rig) -> None:
+def test_confirm_away_from_every_candidate_commits_the_most_likely_goal(rig: Rig) -> None:
     for _ in range(10):
         rig.c.tick(rig.toward("black_stapler"))
+    ee = rig.adapter.read_state().ee_position
+    gap = min(float(np.linalg.norm(t.position - ee)) for t in rig.c.stage.targets)
+    assert gap > CONFIRM_RADIUS  # the hand is at no candidate yet
     rig.c.tick(rig.sample([0.0, 0.0, 0.0], confirm=True))
     assert rig.c.mode == "assist"
     kind, detail = rig.events[-1]
     assert kind == "commit"
     assert detail["confirmed"] is True
     assert detail["goal"] == max(detail["posterior"], key=detail["posterior"].get)
+
+
+def test_confirm_at_a_candidate_acts_on_the_object_the_hand_is_at(rig: Rig) -> None:
+    for _ in range(10):
+        rig.c.tick(rig.toward("black_stapler"))
+    post = rig.c.posterior()
+    likely = max(post, key=post.__getitem__)
+    other = next(t for t in rig.c.stage.targets if t.name != likely)
+    inference = rig.c.inference
+    at = other.position + np.array([0.0, 0.0, 0.9 * CONFIRM_RADIUS])
+    assert inference.confirmed(at) == (other.name, pytest.approx(post[other.name]))
+    # just outside the radius the hand names nothing: the posterior decides
+    off = other.position + np.array([0.0, 0.0, 1.1 * CONFIRM_RADIUS])
+    assert inference.confirmed(off)[0] == likely
 
 
 def test_adapter_failure_is_a_safe_stop_with_one_fault_event(rig: Rig) -> None:

@@ -219,6 +219,21 @@ def test_without_a_commit_the_user_confirms_at_the_grasp() -> None:
     assert m["t_infer_mean"] is None
 
 
+def test_a_confirm_at_the_grasp_takes_the_object_there_when_the_lagging_argmax_is_another() -> None:
+    """With help before the commit the observer reads the operator's integrated input, which
+    lags the EE: at the grasp its argmax can be a neighbour. The confirm acts on the object
+    the hand is at; the pick's inferred goal (the paper's accuracy) stays the observer's."""
+    sc = load_scene("cluttered")
+    layout = random_layouts(sc, 6, 0)[5]
+    result = Evaluator(sc, assist="hindsight").evaluate(layout, seed=[0, 5], episodes_per_goal=2)
+    overruled = [p for p in result.picks if p.confirmed is not None and p.final_goal != p.confirmed]
+    assert overruled  # the argmax at the confirmation named a neighbour
+    for p in overruled:
+        assert p.confirmed == p.true_goal and not p.correct
+        assert p.completed and not p.wrong_grasp and p.failure is None
+    assert not any(p.wrong_grasp for p in result.picks)
+
+
 def test_a_single_feasible_candidate_is_taken_at_once_and_scored() -> None:
     """With one feasible grasp the robot needs no inference: the pick is a commit (without a
     time), correct, and completed (the restart itself commits: it counts)."""
