@@ -220,7 +220,7 @@ class MotionPlanner:
         path_why = ""  # the first joint-space move found blocked (what matters most)
         try:
             for fraction in APPROACH_FRACTIONS:
-                pre = goal - fraction * distance * R[:, 2]
+                pre = _off_the_faces(goal - fraction * distance * R[:, 2], goal, box)
                 for extra in HIGHER:
                     z = min(max(float(carry_height), float(pre[2])) + extra, box.upper[2])
                     z = max(z, float(pre[2]))
@@ -589,6 +589,28 @@ class MotionPlanner:
                 f"{ik.position_error * 100:.1f} cm and {np.degrees(ik.rotation_error):.0f} deg"
             )
         return ik.q
+
+
+def _off_the_faces(pre: FloatArray, goal: FloatArray, box: Box) -> FloatArray:
+    """``pre`` moved toward ``goal`` until it stands :data:`BOX_MARGIN` inside the box's side
+    faces, when it is on one — closer to it than that, inside or out — and ``goal`` stands
+    inside the margin; else ``pre`` itself. The move down to a pre-pose on a face runs along
+    it, where every step of the differential IK that strays a fraction of a millimetre out
+    is cut to nothing by the box: the arm stalls there (the cereal box grasped from the side
+    next to the base). A pre-pose farther out is left to the joint-space check, which
+    refuses the way to it."""
+    lo, hi = box.lower[:2], box.upper[:2]
+    p, g = pre[:2], goal[:2]
+    if np.any(g < lo + BOX_MARGIN) or np.any(g > hi - BOX_MARGIN):
+        return pre
+    on = (np.abs(p - lo) < BOX_MARGIN) | (np.abs(p - hi) < BOX_MARGIN)
+    if not np.any(on):
+        return pre
+    t = 0.0  # the first point of the segment pre -> goal inside the margin (goal is)
+    for k in np.flatnonzero(on):
+        edge = lo[k] + BOX_MARGIN if abs(p[k] - lo[k]) < BOX_MARGIN else hi[k] - BOX_MARGIN
+        t = max(t, float((edge - p[k]) / (g[k] - p[k])))
+    return np.asarray(pre + t * (goal - pre), dtype=np.float64)
 
 
 class _IKMissError(InfeasibleError):

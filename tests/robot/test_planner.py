@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from legws_daemon.core.geometry import symmetric_angle
 from legws_daemon.errors import InfeasibleError
 from legws_daemon.robot.kinematics import small_rotation_error, velocity_step
-from legws_daemon.robot.motion import JointMove, Move
-from legws_daemon.robot.planner import MotionPlanner
+from legws_daemon.robot.motion import BOX_MARGIN, JointMove, Move
+from legws_daemon.robot.planner import MotionPlanner, _off_the_faces
 from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
@@ -113,3 +115,53 @@ def test_a_withdrawal_keeps_its_orientation_and_leaves_a_clear_way_or_is_none(
     q = planner._near(move.position, R0, side)
     assert planner.joint_path(q, home, BOX) is not None  # (raises when there is no way)
     np.testing.assert_allclose(w.ee_position(), planner.home_position, atol=1e-3)  # left home
+
+
+BOX = Box(np.array([0.2, -0.55, 0.0]), np.array([0.95, 0.7, 0.6]))
+_coord = st.floats(-0.02, 0.02)
+
+
+@given(
+    face=st.sampled_from([(0, 0), (0, 1), (1, 0), (1, 1)]),
+    off=st.floats(-0.99 * BOX_MARGIN, 0.99 * BOX_MARGIN),
+    along=st.floats(-0.2, 0.2),
+    z=st.floats(0.05, 0.5),
+    depth=st.floats(0.02, 0.1),
+    slant=_coord,
+)
+def test_a_pre_pose_on_a_side_face_is_pulled_in_toward_the_grasp(
+    face: tuple[int, int], off: float, along: float, z: float, depth: float, slant: float
+) -> None:
+    """Within BOX_MARGIN of a side face (in or out) the pre-pose moves along the line to the
+    grasp to BOX_MARGIN inside; the grasp itself stands inside the margin."""
+    axis, side = face
+    bound = BOX.lower if side == 0 else BOX.upper
+    inward = 1.0 if side == 0 else -1.0
+    pre = np.array([0.5, 0.1, z])
+    pre[axis] = bound[axis] + inward * off
+    pre[1 - axis] += along
+    goal = pre.copy()
+    goal[axis] = bound[axis] + inward * (BOX_MARGIN + depth)
+    goal[1 - axis] += slant
+    out = _off_the_faces(pre, goal, BOX)
+    assert abs(out[axis] - (bound[axis] + inward * BOX_MARGIN)) < 1e-9  # on the margin
+    t = (out - pre) @ (goal - pre) / ((goal - pre) @ (goal - pre))
+    np.testing.assert_allclose(out, pre + t * (goal - pre), atol=1e-12)  # on the segment
+    assert 0.0 < t < 1.0
+
+
+@given(
+    x=st.floats(0.2 + BOX_MARGIN, 0.95 - BOX_MARGIN),
+    y=st.floats(-0.55 + BOX_MARGIN, 0.7 - BOX_MARGIN),
+)
+def test_a_pre_pose_off_the_faces_is_left_where_it_is(x: float, y: float) -> None:
+    pre = np.array([x, y, 0.3])
+    goal = np.array([0.5, 0.1, 0.2])
+    np.testing.assert_array_equal(_off_the_faces(pre, goal, BOX), pre)
+    # farther out than the margin: left to the joint-space check (it refuses the way)
+    far = np.array([0.2 - 2 * BOX_MARGIN, y, 0.3])
+    np.testing.assert_array_equal(_off_the_faces(far, goal, BOX), far)
+    # a grasp on a face itself: nothing to pull toward
+    edge = np.array([0.2 + 0.5 * BOX_MARGIN, 0.1, 0.2])
+    on = np.array([0.2 + 0.2 * BOX_MARGIN, y, 0.3])
+    np.testing.assert_array_equal(_off_the_faces(on, edge, BOX), on)

@@ -141,6 +141,27 @@ REACH_LAYOUT = {
 }
 
 
+#: The commit-optimised Med-B elite (seed 1) whose cereal box, grasped from the side next to
+#: the base, had its pre-pose 0.4 mm outside the box's face x = 0.20: the move down to it
+#: stalled there (9 of its 10 picks of the cereal box failed).
+FACE_LAYOUT = {
+    "cereal_box": ObjectPose(0.3, 0.31702352518468807, 0.5100698352506163),
+    "banana": ObjectPose(0.8356701407944009, 0.25740588743604836, -1.4409774237100164),
+    "milk_carton": ObjectPose(0.572235914104483, -0.35590839672571867, 1.9334076128815099),
+}
+
+
+def test_a_grasp_whose_pre_pose_is_on_the_box_face_comes_in_from_inside() -> None:
+    sc = load_scene("breakfast")
+    ev = Evaluator(sc)
+    ev.check(FACE_LAYOUT)
+    ev.controller.load(sc, FACE_LAYOUT, scene_graph(sc))
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        pick = ev.pick("cereal_box", rng)
+        assert pick.completed and pick.failure is None, pick.detail
+
+
 @pytest.mark.slow
 def test_a_reach_held_short_at_a_joint_limit_completes_in_joint_space() -> None:
     sc = load_scene("kitchen_prep")
