@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from legws_daemon.core.geometry import FloatArray, axis_rotation, rotation_angle
 from legws_daemon.joystick.sim_user import ARRIVED, SimUser, UserAction
+from legws_daemon.robot.motion import BOX_MARGIN
 from legws_daemon.safety.envelope import Box
 from legws_daemon.task.targets import Target
 
@@ -32,7 +33,6 @@ from legws_daemon.task.targets import Target
 #: less: the largest of these fractions of it that stays inside the workspace box).
 PRE_GRASP = 0.08
 PRE_FRACTIONS = (1.0, 0.75, 0.5, 0.25, 0.0)
-BOX_MARGIN = 0.005
 #: The turn is done within this angle, rad; a larger one is turned at full deflection
 #: from :data:`TURN_FULL` on (proportionally below it).
 TURNED = 0.05
