@@ -34,6 +34,7 @@ last given.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import replace
@@ -66,7 +67,7 @@ from legws_daemon.scene.scene import ObjectPose
 
 #: What a feasible goal is (a cached optimisation or plan made under another notion is
 #: made again): IK, collisions, a straight approach, a clear way from home.
-FEASIBILITY = "ik+collisions+approach+way-from-home"
+FEASIBILITY = "ik+collisions+approach+way-from-home+box-clearance"
 #: IK tolerances of the poses on the way (the straight moves correct what is left), m, rad.
 PRE_TOL_POSITION = 2e-3
 PRE_TOL_ROTATION = 2e-2
@@ -83,6 +84,16 @@ PATH_STEP = 0.05
 #: A joint-space move keeps the fingertips at least this far above the table (the envelope
 #: keeps 5 mm; the prediction by samples gets this margin), m.
 PATH_CLEARANCE = 0.01
+#: ... and inside the box's faces at least this far (or as far as its ends are, when they
+#: are closer): a line that grazes a face (0.03 mm inside, as checked from the plan's
+#: configurations; the arm's own line starts where the move before it ended, within its
+#: tolerance) is cut to nothing there by the envelope, and the arm stalls on the face, m.
+PATH_BOX_CLEARANCE = 0.0005
+#: Where a sample comes this close to the clearance of a face, m, the line is checked at
+#: this many points more between it and its neighbours (the EE may swing several cm between
+#: samples; a tangent to a face would pass between them unseen).
+PATH_REFINE_DISTANCE = 0.01
+PATH_REFINE = 8
 #: A withdrawal's turn in place is made in steps of at most this angle, rad.
 TURN_STEP = 0.35
 #: Carries' arrivals kept for a withdrawal back the way the arm came.
@@ -547,24 +558,45 @@ class MotionPlanner:
         What is already so at ``q0`` does not count against the line (the arm may stand in
         an object's model after teleoperation, or low after a grasp): the line must not
         bring the fingertips lower, nor the EE further out of the box, than at ``q0``, nor
-        touch anything else.
+        touch anything else. Inside, it keeps :data:`PATH_BOX_CLEARANCE` from every face of
+        the box, or as much as its ends have when that is less.
         """
         w = self.world
+        w.set_q(q1)
+        inside1 = np.concatenate([w.ee_position() - box.lower, box.upper - w.ee_position()])
         w.set_q(q0)
         p0 = w.ee_position()
         floor0 = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
-        allowed = np.maximum(np.maximum(box.lower - p0, p0 - box.upper), 0.0) + 1e-6
+        inside0 = np.concatenate([p0 - box.lower, box.upper - p0])
+        # the least distance inside each face (negative: outside) the line may come to
+        need = np.minimum(np.minimum(inside0, np.maximum(inside1, 0.0)), PATH_BOX_CLEARANCE)
+        need = need - 1e-6
         below0 = max(floor0 + PATH_CLEARANCE - float(p0[2]), 0.0) + 1e-9
         ignore = ignore | {other for _, other in w.arm_contacts(ignore=ignore)}
         steps = max(PATH_SAMPLES, int(np.ceil(float(np.max(np.abs(q1 - q0))) / PATH_STEP)) + 1)
-        for s in np.linspace(0.0, 1.0, steps)[1:]:
-            w.set_q(q0 + s * (q1 - q0))
-            p = w.ee_position()
+        samples = np.linspace(0.0, 1.0, steps)
+        near_before = float(np.min(inside0 - need)) < PATH_REFINE_DISTANCE
+        for before, s in itertools.pairwise(samples):
+            q = q0 + s * (q1 - q0)
+            w.set_q(q)
+            p = w.ee_position().copy()
+            inside = np.concatenate([p - box.lower, box.upper - p])
+            near = float(np.min(inside - need)) < PATH_REFINE_DISTANCE
+            if near or near_before:  # close to a face: between the samples too
+                for t in np.linspace(before, s, PATH_REFINE + 1)[1:-1]:
+                    w.set_q(q0 + t * (q1 - q0))
+                    why = _box_why(np.concatenate([w.ee_position() - box.lower,
+                                                   box.upper - w.ee_position()]), need)  # fmt: skip
+                    if why is not None:
+                        return why
+                w.set_q(q)
+            near_before = near
+            why = _box_why(inside, need)
+            if why is not None:
+                return why
             floor = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
             if floor + PATH_CLEARANCE - float(p[2]) > below0:
                 return f"brings the fingertips within {PATH_CLEARANCE * 100:g} cm of the table"
-            if np.any(np.maximum(box.lower - p, p - box.upper) > allowed):
-                return "leaves the workspace box"
             hits = w.arm_contacts(ignore=ignore)
             if hits:
                 return f"touches {hits[0][1]} ({hits[0][0]})"
@@ -589,6 +621,16 @@ class MotionPlanner:
                 f"{ik.position_error * 100:.1f} cm and {np.degrees(ik.rotation_error):.0f} deg"
             )
         return ik.q
+
+
+def _box_why(inside: FloatArray, need: FloatArray) -> str | None:
+    """Why a point of a joint-space line with these distances inside the box's faces
+    (:meth:`MotionPlanner._blocked`'s order) is not clear of them, or ``None``."""
+    if np.all(inside >= need):
+        return None
+    if np.any(inside < np.minimum(need, 0.0)):
+        return "leaves the workspace box"
+    return f"comes within {PATH_BOX_CLEARANCE * 1000:g} mm of the workspace box"
 
 
 def _off_the_faces(pre: FloatArray, goal: FloatArray, box: Box) -> FloatArray:

@@ -165,3 +165,52 @@ def test_a_pre_pose_off_the_faces_is_left_where_it_is(x: float, y: float) -> Non
     edge = np.array([0.2 + 0.5 * BOX_MARGIN, 0.1, 0.2])
     on = np.array([0.2 + 0.2 * BOX_MARGIN, y, 0.3])
     np.testing.assert_array_equal(_off_the_faces(on, edge, BOX), on)
+
+
+def _swing(planner: MotionPlanner, a: float, b: float) -> tuple[np.ndarray, np.ndarray]:
+    """Home's configuration with the base turned by ``a`` and by ``b``: a joint line between
+    them carries the EE along an arc, farthest out (in x) where the base angle is home's."""
+    q0, q1 = planner.q_home.copy(), planner.q_home.copy()
+    q0[0] += a
+    q1[0] += b
+    return q0, q1
+
+
+def _far_x(planner: MotionPlanner) -> float:
+    w = planner.world
+    w.set_q(planner.q_home)
+    return float(w.ee_position()[0])
+
+
+def test_a_joint_line_that_grazes_a_face_is_blocked_and_one_with_clearance_is_not(
+    planner: MotionPlanner,
+) -> None:
+    """The arc's ends stand ~5 cm inside x's upper face and its farthest point, home's, lies
+    midway between two of the line's 15 samples (0.17 mm beyond them): 0.4 mm from the face
+    it is blocked (the envelope would cut the arm's step there to nothing; the samples alone
+    stand 0.57 mm inside), 0.6 mm from it clear."""
+    everything = frozenset(planner.world.scene.objects)
+    q0, q1 = _swing(planner, -0.375, 0.325)
+    x = _far_x(planner)
+    for clearance, clear in ((0.0004, False), (0.0006, True)):
+        box = Box(BOX.lower, np.array([x + clearance, BOX.upper[1], BOX.upper[2]]))
+        why = planner._blocked(q0, q1, box, everything)
+        assert (why is None) == clear, why
+        if not clear:
+            assert why == "comes within 0.5 mm of the workspace box"
+    planner.world.set_q(planner.q_home)
+
+
+def test_a_joint_line_may_end_closer_to_a_face_than_the_clearance(
+    planner: MotionPlanner,
+) -> None:
+    """From the face (1 mm inside) and back to it: the ends' own clearance is the bound."""
+    everything = frozenset(planner.world.scene.objects)
+    q_face, q_off = _swing(planner, 0.0, 0.35)
+    x = _far_x(planner)
+    box = Box(BOX.lower, np.array([x + 0.001, BOX.upper[1], BOX.upper[2]]))
+    assert planner._blocked(q_face, q_off, box, everything) is None
+    assert planner._blocked(q_off, q_face, box, everything) is None
+    outside = Box(BOX.lower, np.array([x - 0.001, BOX.upper[1], BOX.upper[2]]))
+    assert planner._blocked(q_off, q_face, outside, everything) == "leaves the workspace box"
+    planner.world.set_q(planner.q_home)
