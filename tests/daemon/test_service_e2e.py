@@ -12,6 +12,7 @@ import json
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -32,6 +33,13 @@ from tests.net import free_port
 
 ROBOT = "sawyer_sim"
 pytestmark = pytest.mark.slow
+
+
+def _of_the_load(event: dict[str, Any]) -> bool:
+    """A warning of the machine's load, not of the task: the loop overran its period, or
+    the telemetry worker fell behind (a busy CI machine may cause either at any time)."""
+    detail = event.get("detail") or {}
+    return event["kind"] == "warning" and ("overrun_ms" in detail or "telemetry" in detail)
 
 
 def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Path) -> None:
@@ -87,8 +95,12 @@ def test_sim_user_commits_the_right_goal_and_the_recording_holds_it(tmp_path: Pa
             assert 0 < done["ticks"] <= last["tick"]
             assert done["ticks"] > last["tick"] - commit_status["tick"]
             input_kinds = ("operator", "deadman", "input_rejected")
-            task_kinds = [k for k in m.kinds() if k not in input_kinds]
-            assert task_kinds[-2:] == ["stage_done", "task_done"]
+            task_events = [
+                e for e in m.events if e["kind"] not in input_kinds and not _of_the_load(e)
+            ]
+            assert [e["kind"] for e in task_events][-2:] == ["stage_done", "task_done"], [
+                (e["kind"], e["detail"]) for e in task_events[-4:]
+            ]
             claim = next(e["detail"] for e in m.events if e["kind"] == "operator")
             assert claim["reason"] == "first_input"
             assert claim["operator"]["source"].startswith("sim-user:")
