@@ -187,6 +187,7 @@ def main() -> None:
 
 def markdown(results: dict[str, Any]) -> str:
     from legws_daemon.core.montecarlo import clopper_pearson
+    from legws_daemon.sim.evaluate import outward_percent
 
     lines = [
         "| arm | tier | M | J | picks | commit on the true goal % | wrong commits | "
@@ -198,7 +199,7 @@ def markdown(results: dict[str, Any]) -> str:
             n, k = row["acted_on"], row["completed"]
             done = f"{100 * k / n:.1f}" if n else "—"
             if n and k == n:
-                done += f" [≥ {100 * clopper_pearson(k, n, 0.95)[0]:.1f}]"
+                done += f" [≥ {outward_percent(clopper_pearson(k, n, 0.95)[0], 1, 'low')}]"
             fails = ", ".join(f"{f} {c}" for f, c in row["failures"].items()) or "none"
             km = row["t_infer_km_median"]
             lines.append(

@@ -46,7 +46,13 @@ from tqdm import tqdm
 from legws_daemon.core.arbitration import POLICIES, AssistPolicy
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.evaluate import Elite, load_elites, random_layouts, run_eval
+from legws_daemon.sim.evaluate import (
+    Elite,
+    load_elites,
+    outward_percent,
+    random_layouts,
+    run_eval,
+)
 from legws_daemon.sim.statistics import rate_interval
 
 #: The paper's six tiers, in order (each scene file names its tier).
@@ -130,16 +136,16 @@ def _mean_interval(report: dict[str, Any], seed: int) -> tuple[float, float]:
 
 def _rate(k: int, n: int) -> str:
     """``k`` of ``n`` in per cent, with its Clopper–Pearson bound where k = n or k = 0,
-    rounded outward (a lower bound of 98.99 % reads 98.9, never 99.0: the targets are
-    judged on it)."""
+    rounded outward as every report's (a lower bound of 98.99 % reads 98.9, never 99.0:
+    the targets are judged on it)."""
     ri = rate_interval(k, n)
     if n == 0:
         return "—"
     pct = f"{100 * k / n:.1f} %"
     if ri.kind == "at_least":
-        return f"{pct} (≥ {math.floor(1000 * (ri.low or 0) + 1e-9) / 10:.1f} %)"
+        return f"{pct} (≥ {outward_percent(ri.low or 0.0, 1, 'low')} %)"
     if ri.kind == "at_most":
-        return f"{pct} (≤ {math.ceil(1000 * (ri.high or 0) - 1e-9) / 10:.1f} %)"
+        return f"{pct} (≤ {outward_percent(ri.high or 0.0, 1, 'high')} %)"
     return pct
 
 

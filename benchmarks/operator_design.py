@@ -39,7 +39,7 @@ from legws_daemon.design.optimize import optimize
 from legws_daemon.formats.goalset import load_goalset
 from legws_daemon.formats.operator_file import NUMBERS, OperatorFile
 from legws_daemon.scene.catalog import load_scene
-from legws_daemon.sim.evaluate import load_elites, run_eval
+from legws_daemon.sim.evaluate import load_elites, outward_percent, run_eval
 from legws_daemon.sim.statistics import rate_interval
 
 SCENES = ("breakfast_easy", "desk", "meal_assembly", "cluttered")
@@ -139,9 +139,9 @@ def _rate(a: dict[str, Any], key: str, k_key: str, n_key: str) -> str:
         return _pct(a.get(key))
     r = rate_interval(int(k), int(n), iv)
     if r.kind == "at_least":
-        return f"{_pct(r.rate)} [≥ {100 * (r.low or 0):.1f}]"
+        return f"{_pct(r.rate)} [≥ {outward_percent(r.low or 0.0, 1, 'low')}]"
     if r.kind == "at_most":
-        return f"{_pct(r.rate)} [≤ {100 * (r.high or 0):.1f}]"
+        return f"{_pct(r.rate)} [≤ {outward_percent(r.high or 0.0, 1, 'high')}]"
     if r.kind == "bootstrap":
         return f"{_pct(r.rate)} [{_pct(r.low)}, {_pct(r.high)}]"
     return _pct(r.rate)

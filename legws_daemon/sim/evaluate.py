@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
@@ -584,20 +584,31 @@ def rate_intervals(m: dict[str, Any], ci: dict[str, Any] | None) -> dict[str, Ra
     return out
 
 
+def outward_percent(x: float, digits: int, side: Literal["low", "high"]) -> str:
+    """The bound ``x`` (a fraction) in per cent with ``digits`` decimals, rounded away from
+    the rate it bounds: a Clopper–Pearson lower bound of 98.99 % reads 98.9, never 99.0 (a
+    target such as "at least 99 %" is judged on it), an upper bound of 1.22 % reads 1.3."""
+    scale = 10**digits
+    scaled = 100 * x * scale
+    rounded = math.floor(scaled + 1e-9) if side == "low" else math.ceil(scaled - 1e-9)
+    return f"{rounded / scale:.{digits}f}"
+
+
 def format_rate(
     r: RateInterval | None, digits: int = 1, bound_digits: int = 1, unit: str = " %"
 ) -> str:
     """A rate with its interval, in per cent: ``76.1 % [69.0, 83.0]`` (the bootstrap),
-    ``100.0 % [≥ 98.8]`` / ``0.0 % [≤ 1.2]`` (Clopper–Pearson, every pick / no pick of ``n``),
+    ``100.0 % [≥ 98.7]`` / ``0.0 % [≤ 1.3]`` (Clopper–Pearson, every pick / no pick of ``n``),
     ``75.0 % (no spread)`` (every group the same), or the rate alone. Bootstrap bounds take
-    ``digits`` decimals, the Clopper–Pearson ones ``bound_digits``."""
+    ``digits`` decimals, the Clopper–Pearson ones ``bound_digits``, rounded outward
+    (:func:`outward_percent`)."""
     if r is None or r.rate is None:
         return "—"
     value = f"{100 * r.rate:.{digits}f}{unit}"
     if r.kind == "at_least" and r.low is not None:
-        return f"{value} [≥ {100 * r.low:.{bound_digits}f}]"
+        return f"{value} [≥ {outward_percent(r.low, bound_digits, 'low')}]"
     if r.kind == "at_most" and r.high is not None:
-        return f"{value} [≤ {100 * r.high:.{bound_digits}f}]"
+        return f"{value} [≤ {outward_percent(r.high, bound_digits, 'high')}]"
     if r.kind == "no_spread":
         return f"{value} (no spread)"
     if r.kind == "bootstrap" and r.low is not None and r.high is not None:
@@ -783,6 +794,7 @@ __all__ = [
     "interval_seed",
     "load_elites",
     "markdown",
+    "outward_percent",
     "random_layouts",
     "rate_counts",
     "rate_intervals",

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from legws_daemon.core.montecarlo import clopper_pearson
 from legws_daemon.errors import InputError
@@ -24,6 +26,7 @@ from legws_daemon.sim.evaluate import (
     group_intervals,
     interval_seed,
     markdown,
+    outward_percent,
     rate_intervals,
     run_eval,
 )
@@ -73,17 +76,29 @@ def _report(
     return report
 
 
+@given(st.floats(0.0, 1.0), st.integers(0, 3))
+def test_a_bound_is_rounded_away_from_the_rate_it_bounds(x: float, digits: int) -> None:
+    """A printed lower bound never exceeds the bound, an upper one is never below it, and
+    neither is farther from it than one unit of the last digit."""
+    low = float(outward_percent(x, digits, "low"))
+    high = float(outward_percent(x, digits, "high"))
+    unit = 10.0**-digits
+    assert 100 * x - unit - 1e-6 <= low <= 100 * x + 1e-6
+    assert 100 * x - 1e-6 <= high <= 100 * x + unit + 1e-6
+    assert outward_percent(0.9899, 1, "low") == "98.9" and outward_percent(0.99, 1, "low") == "99.0"
+
+
 def test_rate_interval_is_clopper_pearson_at_0_and_100_percent_else_the_bootstrap() -> None:
     every = rate_interval(300, 300, [1.0, 1.0])
     assert every.kind == "at_least" and every.high == 1.0
     assert every.low == pytest.approx(0.025 ** (1 / 300))  # the exact bound at k = n
     assert every.low == clopper_pearson(300, 300)[0]
-    assert format_rate(every) == "100.0 % [≥ 98.8]"
+    assert format_rate(every) == "100.0 % [≥ 98.7]"  # 98.78: rounded outward
     none = rate_interval(0, 300, [0.0, 0.0])
     assert none.kind == "at_most" and none.low == 0.0
     assert none.high == pytest.approx(1 - 0.025 ** (1 / 300))
-    assert format_rate(none) == "0.0 % [≤ 1.2]"
-    assert format_rate(none, 0, 1, "") == "0 [≤ 1.2]"
+    assert format_rate(none) == "0.0 % [≤ 1.3]"  # 1.22: rounded outward
+    assert format_rate(none, 0, 1, "") == "0 [≤ 1.3]"
     normal = rate_interval(170, 240, [0.61, 0.80])
     assert normal.kind == "bootstrap" and (normal.low, normal.high) == (0.61, 0.80)
     assert format_rate(normal) == "70.8 % [61.0, 80.0]"
@@ -128,11 +143,11 @@ def test_a_report_where_every_pick_commits_gets_clopper_pearson_bounds(
     row = next(line for line in text.splitlines() if line.startswith("| layouts (3) |"))
     cells = [c.strip() for c in row.split("|")[2:-1]]
     assert cells[:5] == [
-        "100.0 % [≥ 98.8]",  # commit on the true goal: 300 of 300
-        "100.0 % [≥ 97.6]",  # worst goal: 150 of 150
-        "0.0 % [≤ 1.2]",  # wrong commit: 0 of 300
-        "100.0 % [≥ 98.8]",  # accuracy
-        "100.0 % [≥ 98.8]",  # completed, of the 300 acted on
+        "100.0 % [≥ 98.7]",  # commit on the true goal: 300 of 300 (98.78, outward)
+        "100.0 % [≥ 97.5]",  # worst goal: 150 of 150 (97.57)
+        "0.0 % [≤ 1.3]",  # wrong commit: 0 of 300 (1.22)
+        "100.0 % [≥ 98.7]",  # accuracy
+        "100.0 % [≥ 98.7]",  # completed, of the 300 acted on
     ]
     assert "[100.0, 100.0]" not in text and "[0.0, 0.0]" not in text
     assert "σ = 0.03 m/s" in text and "Clopper–Pearson" in text
