@@ -563,11 +563,11 @@ class MotionPlanner:
         """
         w = self.world
         w.set_q(q1)
-        inside1 = np.concatenate([w.ee_position() - box.lower, box.upper - w.ee_position()])
+        inside1 = _inside(w.ee_position(), box)
         w.set_q(q0)
         p0 = w.ee_position()
         floor0 = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
-        inside0 = np.concatenate([p0 - box.lower, box.upper - p0])
+        inside0 = _inside(p0, box)
         # the least distance inside each face (negative: outside) the line may come to
         need = np.minimum(np.minimum(inside0, np.maximum(inside1, 0.0)), PATH_BOX_CLEARANCE)
         need = need - 1e-6
@@ -580,13 +580,12 @@ class MotionPlanner:
             q = q0 + s * (q1 - q0)
             w.set_q(q)
             p = w.ee_position().copy()
-            inside = np.concatenate([p - box.lower, box.upper - p])
+            inside = _inside(p, box)
             near = float(np.min(inside - need)) < PATH_REFINE_DISTANCE
             if near or near_before:  # close to a face: between the samples too
                 for t in np.linspace(before, s, PATH_REFINE + 1)[1:-1]:
                     w.set_q(q0 + t * (q1 - q0))
-                    why = _box_why(np.concatenate([w.ee_position() - box.lower,
-                                                   box.upper - w.ee_position()]), need)  # fmt: skip
+                    why = _box_why(_inside(w.ee_position(), box), need)
                     if why is not None:
                         return why
                 w.set_q(q)
@@ -623,9 +622,15 @@ class MotionPlanner:
         return ik.q
 
 
+def _inside(p: FloatArray, box: Box) -> FloatArray:
+    """How far ``p`` stands inside each face of ``box`` (negative: outside), the lower
+    faces' x, y, z, then the upper faces'."""
+    return np.concatenate([p - box.lower, box.upper - p])
+
+
 def _box_why(inside: FloatArray, need: FloatArray) -> str | None:
     """Why a point of a joint-space line with these distances inside the box's faces
-    (:meth:`MotionPlanner._blocked`'s order) is not clear of them, or ``None``."""
+    (:func:`_inside`) is not clear of them, or ``None``."""
     if np.all(inside >= need):
         return None
     if np.any(inside < np.minimum(need, 0.0)):
