@@ -53,6 +53,9 @@ STALL_JOINTS = 0.01
 STALL_SECONDS = 2.0
 #: Withdrawals before one joint-space move at most (the second from where the first ended).
 MAX_WITHDRAWALS = 2
+#: Vias passed on the way to one joint-space target at most (each is planned from where the
+#: arm really is; one more means the planner leads the arm round in a circle: a failure).
+MAX_VIAS = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +100,8 @@ class Assistant:
     _entered: int = field(default=-1, repr=False)
     # withdrawals made before each joint move (at most MAX_WITHDRAWALS)
     _withdrawn: dict[int, int] = field(default_factory=dict, repr=False)
+    # vias passed before each joint move (at most MAX_VIAS)
+    _vias: dict[int, int] = field(default_factory=dict, repr=False)
     # progress of the current move: best distances since the last progress, and the
     # active seconds since then
     _best: tuple[float, float] | None = field(default=None, repr=False)
@@ -187,6 +192,11 @@ class Assistant:
                 self._entered = -1
                 return self._move(moves[0], position, rotation)
             if vias:  # pass them first, as moves of the same phase
+                made = self._vias.get(id(prim), 0) + len(vias)
+                if made > MAX_VIAS:
+                    error = f"'{prim.label}': still no clear way after {MAX_VIAS} vias"
+                    return AssistStep(zero(), None, prim.label, failed=error)
+                self._vias[id(prim)] = made
                 passes = [JointMove(prim.label, v, prim.tolerance, prim.patience) for v in vias]
                 self.plan[self.index : self.index] = passes
                 self._entered = self.index  # the via's own line is the one just checked

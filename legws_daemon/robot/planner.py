@@ -77,6 +77,9 @@ HIGHER = (0.0, LIFT_HEIGHT, 2 * LIFT_HEIGHT)
 EXTRA_SEEDS = 4
 #: A via configuration of a joint-space move stands this far below the box's ceiling, m.
 VIA_MARGIN = 0.05
+#: A via closer than this to either end of its move, in every joint, is no via (the arm is
+#: there already; passing it changes nothing), rad.
+VIA_MIN_STEP = 0.02
 #: Points checked along a joint-space move (its ends included).
 PATH_SAMPLES = 12
 #: ... and at most this far apart in every joint, rad.
@@ -89,6 +92,10 @@ PATH_CLEARANCE = 0.01
 #: configurations; the arm's own line starts where the move before it ended, within its
 #: tolerance) is cut to nothing there by the envelope, and the arm stalls on the face, m.
 PATH_BOX_CLEARANCE = 0.0005
+#: ... and a line the arm is to take later, from where an earlier move really ends (a via's
+#: line onward, a withdrawal's): planned with more room, so that the arm, arriving within
+#: its tolerance, finds it clear again when it is checked from there, m.
+LATER_BOX_CLEARANCE = 0.002
 #: Where a sample comes this close to the clearance of a face, m, the line is checked at
 #: this many points more between it and its neighbours (the EE may swing several cm between
 #: samples; a tangent to a face would pass between them unseen).
@@ -364,7 +371,7 @@ class MotionPlanner:
                     if q is q0:
                         continue  # out of reach at this orientation
                     if (
-                        self._blocked(q, q1, box, ignore) is None
+                        self._blocked(q, q1, box, ignore, LATER_BOX_CLEARANCE) is None
                         or self._via(q, q1, R0, R1, box, ignore) is not None
                     ):
                         return [self._withdrawal(target, R0)]
@@ -379,7 +386,7 @@ class MotionPlanner:
         on another IK branch than home's (near the base) returns to the branch it knows."""
         w = self.world
         for q in reversed(self.arrivals):
-            if self._blocked(q, q1, box, ignore) is not None:
+            if self._blocked(q, q1, box, ignore, LATER_BOX_CLEARANCE) is not None:
                 continue
             w.set_q(q)
             p, R = w.ee_position().copy(), w.ee_rotation().copy()
@@ -422,7 +429,7 @@ class MotionPlanner:
                 return None
             q = q_next
             moves.append(self._withdrawal(p1, R))
-        if self._blocked(q, q1, box, ignore) is not None:
+        if self._blocked(q, q1, box, ignore, LATER_BOX_CLEARANCE) is not None:
             return None
         return moves
 
@@ -535,23 +542,41 @@ class MotionPlanner:
             q = self._near(position, R, seed)
             if q is seed:
                 continue  # out of reach
-            if self._clear(q0, q, q1, box, ignore):
+            if self._apart(q, q0, q1) and self._clear(q0, q, q1, box, ignore):
                 return q
         for q in self._seeds:  # the home configuration first, then the fixed seeds
-            if self._clear(q0, q, q1, box, ignore):
+            if self._apart(q, q0, q1) and self._clear(q0, q, q1, box, ignore):
                 return q
         return None
+
+    @staticmethod
+    def _apart(q: FloatArray, q0: FloatArray, q1: FloatArray) -> bool:
+        """Whether ``q`` is a via of ``q0 -> q1`` at all: at least :data:`VIA_MIN_STEP` from
+        each end in some joint. (Above an end already at the box's ceiling the IK lands on
+        that end: its line to the other end can then pass the check by a hair where the
+        straight one did not, and the arm, already there, would be sent to it for ever.)"""
+        return bool(
+            np.max(np.abs(q - q0)) >= VIA_MIN_STEP and np.max(np.abs(q - q1)) >= VIA_MIN_STEP
+        )
 
     def _clear(
         self, q0: FloatArray, q: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str]
     ) -> bool:
-        """Whether both straight joint-space lines ``q0 -> q -> q1`` are clear."""
+        """Whether both straight joint-space lines ``q0 -> q -> q1`` are clear (the second
+        with :data:`LATER_BOX_CLEARANCE`: it is checked again from where the arm reaches
+        ``q``)."""
         return (
-            self._blocked(q0, q, box, ignore) is None and self._blocked(q, q1, box, ignore) is None
+            self._blocked(q0, q, box, ignore) is None
+            and self._blocked(q, q1, box, ignore, LATER_BOX_CLEARANCE) is None
         )
 
     def _blocked(
-        self, q0: FloatArray, q1: FloatArray, box: Box, ignore: frozenset[str]
+        self,
+        q0: FloatArray,
+        q1: FloatArray,
+        box: Box,
+        ignore: frozenset[str],
+        clearance: float = PATH_BOX_CLEARANCE,
     ) -> str | None:
         """Why the straight joint-space line ``q0 -> q1`` is not clear, or ``None``.
 
@@ -569,7 +594,7 @@ class MotionPlanner:
         floor0 = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
         inside0 = _inside(p0, box)
         # the least distance inside each face (negative: outside) the line may come to
-        need = np.minimum(np.minimum(inside0, np.maximum(inside1, 0.0)), PATH_BOX_CLEARANCE)
+        need = np.minimum(np.minimum(inside0, np.maximum(inside1, 0.0)), clearance)
         need = need - 1e-6
         below0 = max(floor0 + PATH_CLEARANCE - float(p0[2]), 0.0) + 1e-9
         ignore = ignore | {other for _, other in w.arm_contacts(ignore=ignore)}
@@ -585,12 +610,12 @@ class MotionPlanner:
             if near or near_before:  # close to a face: between the samples too
                 for t in np.linspace(before, s, PATH_REFINE + 1)[1:-1]:
                     w.set_q(q0 + t * (q1 - q0))
-                    why = _box_why(_inside(w.ee_position(), box), need)
+                    why = _box_why(_inside(w.ee_position(), box), need, clearance)
                     if why is not None:
                         return why
                 w.set_q(q)
             near_before = near
-            why = _box_why(inside, need)
+            why = _box_why(inside, need, clearance)
             if why is not None:
                 return why
             floor = floor_height(w.ee_rotation(), self._table) - FINGERTIP_CLEARANCE
@@ -628,14 +653,14 @@ def _inside(p: FloatArray, box: Box) -> FloatArray:
     return np.concatenate([p - box.lower, box.upper - p])
 
 
-def _box_why(inside: FloatArray, need: FloatArray) -> str | None:
+def _box_why(inside: FloatArray, need: FloatArray, clearance: float) -> str | None:
     """Why a point of a joint-space line with these distances inside the box's faces
     (:func:`_inside`) is not clear of them, or ``None``."""
     if np.all(inside >= need):
         return None
     if np.any(inside < np.minimum(need, 0.0)):
         return "leaves the workspace box"
-    return f"comes within {PATH_BOX_CLEARANCE * 1000:g} mm of the workspace box"
+    return f"comes within {clearance * 1000:g} mm of the workspace box"
 
 
 def _off_the_faces(pre: FloatArray, goal: FloatArray, box: Box) -> FloatArray:

@@ -8,6 +8,7 @@ import pytest
 from legws_daemon.arms import arm
 from legws_daemon.autonomy.assistant import (
     JOINT_SPEED_FRACTION,
+    MAX_VIAS,
     MAX_WITHDRAWALS,
     PRIMITIVE_TIMEOUT,
     Assistant,
@@ -150,6 +151,30 @@ def test_a_joint_move_still_blocked_fails_after_at_most_two_withdrawals(offered:
     assert len(asked) == (MAX_WITHDRAWALS if offered else 1)
     assert ("withdraw" in phases) == offered
     np.testing.assert_allclose(p, [0.5, 0.0, 0.3] if offered else [0.4, -0.5, 0.3], atol=0.005)
+
+
+def test_a_planner_that_keeps_offering_vias_fails_the_move_instead_of_circling() -> None:
+    """A via that leads nowhere (the line from it is found blocked again when the arm gets
+    there, and another via offered) would grow the plan by one move a tick for ever: at most
+    MAX_VIAS vias per joint move, then a failure that says so."""
+    target = np.full(7, 0.5)
+    offered: list[np.ndarray] = []
+
+    def path(q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray]:
+        via = q0 + 0.01  # a via near where the arm already is
+        offered.append(via)
+        return [via]
+
+    a = Assistant([JointMove("carry", target)], 0.1, 0.05, "box", path)
+    q, p = Q0.copy(), np.array([0.5, 0.0, 0.3])
+    for _ in range(400):
+        step = a.step(q, p, DOWN)
+        if step.failed or step.done:
+            break
+        if isinstance(step.command, Joints):  # (a zero Cartesian step as a via is passed)
+            q = q + step.command.qdot * a.dt
+    assert step.failed == f"'carry': still no clear way after {MAX_VIAS} vias"
+    assert len(offered) == MAX_VIAS + 1 and len(a.plan) == 1 + MAX_VIAS
 
 
 def test_grip_waits_its_time() -> None:

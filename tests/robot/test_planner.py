@@ -12,7 +12,12 @@ from legws_daemon.core.geometry import symmetric_angle
 from legws_daemon.errors import InfeasibleError
 from legws_daemon.robot.kinematics import small_rotation_error, velocity_step
 from legws_daemon.robot.motion import BOX_MARGIN, JointMove, Move
-from legws_daemon.robot.planner import MotionPlanner, _off_the_faces
+from legws_daemon.robot.planner import (
+    LATER_BOX_CLEARANCE,
+    VIA_MIN_STEP,
+    MotionPlanner,
+    _off_the_faces,
+)
 from legws_daemon.robot.world import World
 from legws_daemon.safety.envelope import Box
 from legws_daemon.scene.catalog import load_scene
@@ -213,4 +218,46 @@ def test_a_joint_line_may_end_closer_to_a_face_than_the_clearance(
     assert planner._blocked(q_off, q_face, box, everything) is None
     outside = Box(BOX.lower, np.array([x - 0.001, BOX.upper[1], BOX.upper[2]]))
     assert planner._blocked(q_off, q_face, outside, everything) == "leaves the workspace box"
+    planner.world.set_q(planner.q_home)
+
+
+def test_a_line_the_arm_takes_later_is_planned_with_more_room(planner: MotionPlanner) -> None:
+    """A via's onward line is checked again from where the arm really reaches the via (within
+    its tolerance): planned with 2 mm, it still passes the 0.5 mm check from there. The arc
+    1 mm inside the face is clear now and not clear as a later line."""
+    everything = frozenset(planner.world.scene.objects)
+    q0, q1 = _swing(planner, -0.375, 0.325)
+    box = Box(BOX.lower, np.array([_far_x(planner) + 0.001, BOX.upper[1], BOX.upper[2]]))
+    assert planner._blocked(q0, q1, box, everything) is None
+    why = planner._blocked(q0, q1, box, everything, LATER_BOX_CLEARANCE)
+    assert why == f"comes within {LATER_BOX_CLEARANCE * 1000:g} mm of the workspace box"
+    planner.world.set_q(planner.q_home)
+
+
+@given(st.floats(0.0, 0.1), st.floats(0.0, 0.1))
+def test_a_via_at_either_end_of_its_move_is_no_via(d0: float, d1: float) -> None:
+    q0, q1 = np.zeros(7), np.full(7, 1.0)
+    q = q0.copy()
+    q[3] += d0
+    apart = MotionPlanner._apart(q, q0, q1)
+    assert apart == (d0 >= VIA_MIN_STEP)
+    r = q1.copy()
+    r[2] -= d1
+    assert MotionPlanner._apart(r, q0, q1) == (d1 >= VIA_MIN_STEP)
+
+
+def test_via_never_offers_where_the_arm_already_is(
+    planner: MotionPlanner, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every IK of a via candidate lands by the arm (what an end already at the box's ceiling
+    gives): none is offered, though the line from there may pass (the arm would be sent to
+    where it stands, find the line blocked again, and be sent there again)."""
+    everything = frozenset(planner.world.scene.objects)
+    q0, q1 = _swing(planner, -0.375, 0.325)
+    box = Box(BOX.lower, np.array([_far_x(planner) + 0.0004, BOX.upper[1], BOX.upper[2]]))
+    assert planner._blocked(q0, q1, box, everything) is not None
+    monkeypatch.setattr(planner, "_near", lambda position, rotation, seed: q0 + 1e-3)
+    monkeypatch.setattr(planner, "_seeds", [q0 + 2e-3])
+    R0, R1 = planner._rotation_at(q0), planner._rotation_at(q1)
+    assert planner._via(q0, q1, R0, R1, box, everything) is None
     planner.world.set_q(planner.q_home)
