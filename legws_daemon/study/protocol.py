@@ -23,6 +23,7 @@ name = "random"
 task = "tea"
 layout = "random"                     # shipped | random | optimised | optimised_for_operator
 objective = "slack"                   # for optimised layouts: legws optimize's objective
+iterations = 1000                     # and its search iterations
 assist = "commit"                     # commit | blend | hindsight | none
 
 [questionnaires]
@@ -119,6 +120,8 @@ class ConditionSpec(_Model):
     layout: LayoutSource
     assist: Assist = "commit"
     objective: Objective = "slack"
+    #: search iterations of an optimised layout (per decision of a task graph)
+    iterations: Annotated[int, Strict(), Field(ge=1, le=1_000_000)] = 1000
     description: str = ""
 
 

@@ -277,8 +277,9 @@ def _session(protocol: Protocol, person: str, k: int, order: Sequence[str]) -> l
                 source=task.source,
                 layout=cond.layout if position is not None else "shipped",
                 layout_seed=_seed(spec.seed, 3, ci, code, t),
-                objective=cond.objective,
-                assist=cond.assist,
+                objective=cond.objective if position is not None else None,
+                # the first practice trials: the joystick and the commit, before any condition
+                assist=cond.assist if position is not None else "commit",
                 targets=trial_targets(task, first, rng),
             )
 
