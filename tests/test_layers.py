@@ -38,6 +38,7 @@ LAYERS = [
     "placement",  # printable placement mats of planned layouts
     "sim",  # the paper's protocol on the stand-in
     "demo",
+    "study",  # user studies: protocols, counterbalanced schedules
     "cli",
 ]
 TOP_LEVEL = {"errors", "workers", "__init__", "__main__"}

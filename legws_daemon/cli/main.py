@@ -44,6 +44,7 @@ COMMANDS: dict[str, str] = {
     "replay": "legws_daemon.cli.replay:replay_cmd",
     "scenes": "legws_daemon.cli.scenes:scenes_cmd",
     "secure": "legws_daemon.cli.secure:secure_group",
+    "study": "legws_daemon.cli.study:study_group",
     "taskgraph": "legws_daemon.cli.taskgraph:taskgraph_group",
     "track": "legws_daemon.cli.track:track_group",
     "view": "legws_daemon.cli.view:view_cmd",

@@ -67,7 +67,7 @@ from legws_daemon.design.plan_cache import (
 )
 from legws_daemon.design.problem import LayoutProblem
 from legws_daemon.design.stage_goals import TargetGoals
-from legws_daemon.errors import InputError, LegwsError
+from legws_daemon.errors import InfeasibleError, InputError, LegwsError
 from legws_daemon.formats.files import write_atomic
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.robot.kinematics import home_configuration
@@ -514,3 +514,50 @@ def plan_taskgraph(
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
     return plan
+
+
+def random_feasible_layout(
+    graph: TaskGraph,
+    scene: Scene,
+    seed: int,
+    *,
+    arm: str = DEFAULT_ARM,
+    tries: int = 200,
+) -> Layout:
+    """A random layout of the graph's movable candidates (those it does not fix) that meets
+    the scene's constraints and in which every decision's every target passes the motion
+    planner's check (the layout a ``random`` condition of a study runs the whole graph in);
+    the first of ``tries`` seeded draws that does.
+
+    Raises:
+        InfeasibleError: none of the draws is feasible.
+    """
+    names = tuple(
+        dict.fromkeys(
+            c
+            for point in decision_points(graph)
+            for c in point.candidates
+            if c in scene.movable and c not in graph.fixed
+        )
+    )
+    base = scene.default_layout()
+    if not names:
+        return base
+    from legws_daemon.scene.constraints import LayoutConstraints
+
+    cons = LayoutConstraints.of(scene, names)
+    rows = cons.sample(tries, np.random.default_rng([seed, 0x57D1]))
+    world = World(scene, arm=arm)
+    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
+    checker = _Planner(
+        graph, scene, Params(), "cma-me", 1, seed, False, "slack", "sum", world,
+        np.asarray(q_home, dtype=np.float64),
+    )  # fmt: skip
+    points = decision_points(graph)
+    for row in rows:
+        layout = {**base, **cons.to_layout(row)}
+        if all(checker.check(p, layout) is None for p in points):
+            return layout
+    raise InfeasibleError(
+        f"no feasible random layout of '{graph.name}' in {tries} draws (seed {seed})"
+    )

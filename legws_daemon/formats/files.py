@@ -64,6 +64,9 @@ LIMITS: dict[str, int] = {
     "camera calibration": 64 * KiB,
     "teleoperation trace": 32 * MiB,
     "operator": 64 * KiB,
+    "study protocol": 256 * KiB,
+    "study schedule": 64 * MiB,
+    "study table": 256 * MiB,
     "text": 1 * MiB,
 }
 #: Longest line of a file read line by line (:func:`read_lines`): a trace's tick is ~100

@@ -52,7 +52,7 @@ from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
 from legws_daemon.formats.profile import ProfileSpec, load_profile_named, with_arm
 from legws_daemon.hardware.sim import SimAdapter
-from legws_daemon.joystick.sim_user import SimUser, UserView
+from legws_daemon.joystick.sim_user import SimUser, UserAction, UserView
 from legws_daemon.robot.feasibility import GraspCheck
 from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Layout, Scene
@@ -414,6 +414,14 @@ class Evaluator:
             for t in c.stage.targets
         }
 
+    def prepare(self, layout: Layout) -> dict[str, GraspCheck]:
+        """Check every candidate's grasp in ``layout``, then load it with the feasible ones
+        as the candidates (what :meth:`pick` then runs on); returns the checks."""
+        checks = self.check(layout)
+        feasible = [n for n in self.scene.goal_names if checks[n].feasible]
+        self.controller.load(self.scene, layout, scene_graph(self.scene, feasible))
+        return checks
+
     def evaluate(
         self, layout: Layout, seed: int | Sequence[int], episodes_per_goal: int | None = None
     ) -> LayoutEvaluation:
@@ -422,10 +430,8 @@ class Evaluator:
         picks per goal); seeded, so the same seed gives the same picks. Every pick starts
         from home with the objects at the layout and inference reset."""
         rng = np.random.default_rng(seed)
-        checks = self.check(layout)
+        checks = self.prepare(layout)
         feasible = [n for n in self.scene.goal_names if checks[n].feasible]
-        c = self.controller
-        c.load(self.scene, layout, scene_graph(self.scene, feasible))
         picks: list[PickResult] = []
         names = list(self.scene.goal_names)
         if episodes_per_goal is None:
@@ -457,8 +463,13 @@ class Evaluator:
         half = 0.5 * float(np.abs(quat_to_matrix(quaternion)[2]) @ ext)
         return float(position[2]) - half >= self.scene.workspace.table_height + LIFT_CLEARANCE
 
-    def pick(self, goal: str, rng: np.random.Generator) -> PickResult:
-        """One pick of ``goal`` from home, as the protocol says (see the module docstring)."""
+    def pick(self, goal: str, rng: np.random.Generator, onset: float = 0.0) -> PickResult:
+        """One pick of ``goal`` from home, as the protocol says (see the module docstring).
+
+        ``onset``: the user hesitates this many seconds before the first push (the stick
+        held still, as a person who has just been told the goal); every time of the result
+        counts from the pick's start, so it includes the hesitation, and the limits count
+        from the motion's onset."""
         c, a, clock = self.controller, self.stand_in, self.clock
         first = len(self.events)  # a single candidate is committed to by the restart
         a.reset_arm()
@@ -485,8 +496,9 @@ class Evaluator:
             now = (clock.ticks - start) * clock.dt
             if c.mode == Mode.IDLE or failure is not None:
                 break
+            moving = now - onset  # seconds since the motion's onset
             acted = committed is not None or confirmed is not None or grasped is not None
-            if not acted and now >= TIMEOUT_S:
+            if not acted and moving >= TIMEOUT_S:
                 if by_hand:
                     failure, detail = "no_grasp", f"no grasp within {TIMEOUT_S:g} s"
                 else:
@@ -494,14 +506,16 @@ class Evaluator:
                 break
             if by_hand and completed:
                 break  # lifted by hand: the pick is done (no plan takes it home)
-            if now >= TIMEOUT_S + ASSIST_LIMIT_S:
+            if moving >= TIMEOUT_S + ASSIST_LIMIT_S:
                 failure, detail = "limit", f"still in '{c.mode}' after {now:.0f} s"
                 break
             if c.stage is not stage:
                 stage = c.stage
                 targets = {t.name: t.position for t in stage.targets}
             here = a.kinematics.ee_position()
-            if hand is not None:
+            if moving < 0:
+                act = UserAction(np.zeros(3))  # hesitating: the stick held still
+            elif hand is not None:
                 act = hand.act(here, a.kinematics.ee_rotation(), now)
             else:
                 view = UserView(c.mode.value, c.decisions, c.stage.name, here, targets)

@@ -438,3 +438,23 @@ def test_an_operator_steers_the_stand_in_picks_as_its_model_says(tmp_path: Path)
     report = json.loads((out / "eval.json").read_text())
     assert report["operator"] == keyboard.as_dict() and report["user"] == "operator"
     assert "simulated operator" in (out / "eval.md").read_text()
+
+
+@pytest.mark.parametrize("assist", ["commit", "blend", "hindsight", "none"])
+def test_a_hesitation_before_the_first_push_delays_the_pick_by_exactly_itself(
+    assist: str,
+) -> None:
+    # nothing moves while the stick is held still (no help acts on a zero deflection), so a
+    # user who waits 2 s before the first push does the same pick 2 s later: the times from
+    # the pick's start grow by the wait, the commit time (from the first push) does not
+    sc = load_scene("breakfast_easy")
+    ev = Evaluator(sc, assist=assist)  # type: ignore[arg-type]
+    ev.prepare(sc.default_layout())
+    now = ev.pick("banana", np.random.default_rng(3))
+    later = ev.pick("banana", np.random.default_rng(3), onset=2.0)
+    assert now.completed and later.completed
+    assert now.grasp_time is not None and later.grasp_time is not None
+    assert later.grasp_time == pytest.approx(now.grasp_time + 2.0, abs=1e-9)
+    assert later.complete_time == pytest.approx(now.complete_time + 2.0, abs=1e-9)  # type: ignore[operator]
+    assert later.commit_time == now.commit_time
+    assert later.effort == pytest.approx(now.effort)

@@ -1,0 +1,1 @@
+"""User studies: protocols, counterbalanced schedules, sessions, data and their analysis."""
