@@ -550,3 +550,19 @@ def read_text(path: Path, kind: str = "text") -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError("not a UTF-8 text file", source=str(path)) from None
+
+
+def resolve_named(name_or_path: str, folder: Path, what: str, field: str) -> Path:
+    """``name`` -> ``folder/name.toml`` (a shipped file); a ``.toml`` path or one with a
+    ``/`` is used as is. An unknown name lists the known ones (``did you mean ...?`` for a
+    close one), as an :class:`InputError` of ``field``."""
+    if name_or_path.endswith(".toml") or "/" in name_or_path:
+        return Path(name_or_path)
+    path = folder / f"{name_or_path}.toml"
+    if not path.is_file():
+        names = sorted(p.stem for p in folder.glob("*.toml"))
+        guess = did_you_mean(name_or_path, names)
+        hint = f"; did you mean '{guess}'?" if guess is not None else ";"
+        known = ", ".join(names) or "(none)"
+        raise InputError(f"unknown {what} '{name_or_path}'{hint} known: {known}", field=field)
+    return path

@@ -53,6 +53,7 @@ from legws_daemon.formats.validation import (
     did_you_mean,
     parse_toml,
     read_text,
+    resolve_named,
     validate,
 )
 
@@ -200,19 +201,7 @@ def populations_dir() -> Path:
 def load_population(name_or_path: str | Path, conditions: list[str] | None = None) -> Population:
     """Read and validate a population file (a name in ``studies/populations/`` or a path);
     with ``conditions``, every planted effect must name one of them."""
-    text_name = str(name_or_path)
-    if text_name.endswith(".toml") or "/" in text_name:
-        path = Path(text_name)
-    else:
-        path = populations_dir() / f"{text_name}.toml"
-        if not path.is_file():
-            names = sorted(p.stem for p in populations_dir().glob("*.toml"))
-            guess = did_you_mean(text_name, names)
-            hint = f"; did you mean '{guess}'?" if guess is not None else ";"
-            raise InputError(
-                f"unknown population '{text_name}'{hint} known: {', '.join(names) or '(none)'}",
-                field="--simulate",
-            )
+    path = resolve_named(str(name_or_path), populations_dir(), "population", "--simulate")
     text = read_text(path, "study protocol")
     where = SourceText(text, "toml")
     spec = validate(PopulationSpec, parse_toml(text, str(path)), str(path), where)

@@ -58,6 +58,7 @@ from legws_daemon.formats.validation import (
     located,
     parse_toml,
     read_text,
+    resolve_named,
     validate,
 )
 from legws_daemon.scene.catalog import load_scene
@@ -206,18 +207,7 @@ def studies_dir() -> Path:
 
 def resolve_protocol(name_or_path: str) -> Path:
     """``layouts_tea`` -> ``studies/layouts_tea.toml``; a path is used as is."""
-    if name_or_path.endswith(".toml") or "/" in name_or_path:
-        return Path(name_or_path)
-    path = studies_dir() / f"{name_or_path}.toml"
-    if not path.is_file():
-        names = sorted(p.stem for p in studies_dir().glob("*.toml"))
-        guess = did_you_mean(name_or_path, names)
-        hint = f"; did you mean '{guess}'?" if guess is not None else ";"
-        raise InputError(
-            f"unknown study protocol '{name_or_path}'{hint} known: {', '.join(names) or '(none)'}",
-            field="protocol",
-        )
-    return path
+    return resolve_named(name_or_path, studies_dir(), "study protocol", "protocol")
 
 
 def _beside(protocol: Path, name_or_path: str) -> str:

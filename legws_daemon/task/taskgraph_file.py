@@ -22,10 +22,10 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.positions import Loc, SourceText
 from legws_daemon.formats.validation import (
     Name,
-    did_you_mean,
     field_path,
     parse_toml,
     read_text,
+    resolve_named,
     validate,
     within,
 )
@@ -223,15 +223,4 @@ def taskgraphs_dir() -> Path:
 
 def resolve_taskgraph(name_or_path: str) -> Path:
     """``tea`` -> ``taskgraphs/tea.toml``; a path is used as is."""
-    if name_or_path.endswith(".toml") or "/" in name_or_path:
-        return Path(name_or_path)
-    path = taskgraphs_dir() / f"{name_or_path}.toml"
-    if not path.is_file():
-        names = sorted(p.stem for p in taskgraphs_dir().glob("*.toml"))
-        guess = did_you_mean(name_or_path, names)
-        hint = f"; did you mean '{guess}'?" if guess is not None else ";"
-        known = ", ".join(names) or "(none)"
-        raise InputError(
-            f"unknown task graph '{name_or_path}'{hint} known: {known}", field="taskgraph"
-        )
-    return path
+    return resolve_named(name_or_path, taskgraphs_dir(), "task graph", "taskgraph")
