@@ -208,6 +208,8 @@ class Rig:
         """One control period with ``sample`` (``None``: no input); checks the envelope."""
         c = self.c
         mode_before = c.mode
+        ramping = c.handback.active  # control just came back: the command slews to the stick's
+        sent_before = np.array(c._motion, dtype=np.float64)
         adapter = self.adapter
         before = adapter.read_state()
         q_before = before.q
@@ -225,7 +227,13 @@ class Rig:
                 np.testing.assert_array_equal(adapter.read_state().q, q_before)
             elif mode_before == "teleop" and rec.mode == "teleop":
                 limit = self.profile.control.v_max * (1.0 + AXES_NORM_SLACK + SPEED_TOL)
-                assert float(np.linalg.norm(rec.command)) <= limit
+                speed = float(np.linalg.norm(rec.command))
+                if ramping:
+                    # the hand-back (docs/daemon.md): the command slews from the robot's last
+                    # velocity, which may be faster than the stick's, to the stick's (and the
+                    # envelope may cut it further): never faster than that last velocity
+                    limit = max(limit, float(np.linalg.norm(sent_before)) * (1.0 + 1e-9))
+                assert speed <= limit
         if rec.mode in ("idle", "stopped", "fault"):
             np.testing.assert_array_equal(rec.command, np.zeros(3))
         if rec.tick % self.status_every == 0:
