@@ -532,10 +532,11 @@ def random_feasible_layout(
     Raises:
         InfeasibleError: none of the draws is feasible.
     """
+    points = decision_points(graph)
     names = tuple(
         dict.fromkeys(
             c
-            for point in decision_points(graph)
+            for point in points
             for c in point.candidates
             if c in scene.movable and c not in graph.fixed
         )
@@ -553,7 +554,6 @@ def random_feasible_layout(
         graph, scene, Params(), "cma-me", 1, seed, False, "slack", "sum", world,
         np.asarray(q_home, dtype=np.float64),
     )  # fmt: skip
-    points = decision_points(graph)
     for row in rows:
         layout = {**base, **cons.to_layout(row)}
         if all(checker.check(p, layout) is None for p in points):

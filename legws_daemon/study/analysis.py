@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from legws_daemon.core.montecarlo import clopper_pearson
 from legws_daemon.errors import InputError
 
 if TYPE_CHECKING:
@@ -184,16 +185,6 @@ def fit_mixed(
         float(model.fe_params["Intercept"]), conditions, positions,
         float(np.asarray(model.cov_re)[0, 0]), float(model.scale), bool(model.converged), caught,
     )  # fmt: skip
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """The exact binomial interval of ``k`` of ``n``."""
-    from scipy.stats import beta
-
-    a = (1 - level) / 2
-    low = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
-    high = 1.0 if k == n else float(beta.ppf(1 - a, k + 1, n - k))
-    return low, high
 
 
 def fit_success(df: pd.DataFrame, reference: str) -> dict[str, Any]:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.study.analysis import (
     MEASURES,
@@ -130,8 +131,6 @@ def analyze(
     rows_per_block = len(plan["rows"]) if plan else len(order)
     ref = reference if reference is not None else order[0]
     if ref not in order:
-        from legws_daemon.errors import InputError
-
         raise InputError(
             f"unknown condition '{ref}'; the study's: {', '.join(order)}", field="--reference"
         )

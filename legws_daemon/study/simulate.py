@@ -28,7 +28,6 @@ must recover.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +51,7 @@ from legws_daemon.core.operator import SPEED_RANGE, OperatorModel
 from legws_daemon.core.operator_fit import fit_operator
 from legws_daemon.core.params import Params
 from legws_daemon.core.user_model import SimulatedUser
+from legws_daemon.design.operators import finite_or_none
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.formats.operator_file import OperatorFile
@@ -418,18 +418,16 @@ def _trial(
         "targets": ";".join(step.targets),
         "decisions": certs.decisions,
         "slack_j": certs.slack_j,
-        "commit_k": _finite_or_none(certs.commit_k),
+        "commit_k": finite_or_none(certs.commit_k),
         "person_slack_j": certs.person_slack_j,
-        "person_commit_k": _finite_or_none(certs.person_commit_k),
+        "person_commit_k": (
+            None if certs.person_commit_k is None else finite_or_none(certs.person_commit_k)
+        ),
         "hesitation_s": hesitation,
         "recording": "",
     }
     row.update(outcome.columns(step.targets))
     return row
-
-
-def _finite_or_none(x: float | None) -> float | None:
-    return x if x is not None and math.isfinite(x) else None
 
 
 @dataclass

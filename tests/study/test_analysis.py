@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from legws_daemon.core.montecarlo import clopper_pearson
 from legws_daemon.study.analysis import (
-    clopper_pearson,
     fit_mixed,
     fit_success,
     power,
