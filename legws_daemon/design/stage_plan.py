@@ -91,6 +91,12 @@ MAX_VERIFIED = 30
 log = logging.getLogger("legws.plan")
 
 
+def decision_targets(scene: Scene, point: DecisionPoint, layout: Layout) -> list[Target]:
+    """The targets of a decision's candidates in ``layout`` (each by its stage's action)."""
+    stage = point.stage_of
+    return [target(scene, layout, stage[c], action, c) for c, action in point.actions.items()]
+
+
 @dataclass
 class _Planner:
     """What every decision of one planning run shares."""
@@ -121,10 +127,7 @@ class _Planner:
         return self._screen
 
     def targets(self, point: DecisionPoint, layout: Layout) -> list[Target]:
-        stage = point.stage_of
-        return [
-            target(self.scene, layout, stage[c], action, c) for c, action in point.actions.items()
-        ]
+        return decision_targets(self.scene, point, layout)
 
     def goals(self, point: DecisionPoint, layout: Layout) -> GoalSet:
         """The decision's targets in ``layout`` as a goal set from the EE home."""

@@ -20,10 +20,10 @@ from legws_daemon.core.commit import certify_commit
 from legws_daemon.core.goals import GoalSet
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
+from legws_daemon.design.stage_plan import decision_targets
 from legws_daemon.scene.scene import Layout
 from legws_daemon.study.protocol import Task
-from legws_daemon.task.actions import target
-from legws_daemon.task.decisions import DecisionPoint, decision_points
+from legws_daemon.task.decisions import decision_points
 from legws_daemon.task.targets import goal_set
 
 
@@ -56,16 +56,9 @@ def decision_goal_sets(
     for point in decision_points(task.graph):
         if not point.inference:
             continue
-        out.append((point.label, _goals(task, point, layout_for(point.label))))
+        targets = decision_targets(scene, point, layout_for(point.label))
+        out.append((point.label, goal_set(targets, scene.home)))
     return out
-
-
-def _goals(task: Task, point: DecisionPoint, layout: Layout) -> GoalSet:
-    stage = point.stage_of
-    targets = [
-        target(task.scene, layout, stage[c], action, c) for c, action in point.actions.items()
-    ]
-    return goal_set(targets, task.scene.home)
 
 
 def trial_certificates(
