@@ -10,12 +10,17 @@ from typing import TYPE_CHECKING
 import click
 
 from legws_daemon.cli.robot import robot_option
+from legws_daemon.cli.study_export import export_cmd
 from legws_daemon.errors import InputError
 from legws_daemon.formats.printable import echo
 
 if TYPE_CHECKING:
     from legws_daemon.study.protocol import Protocol
     from legws_daemon.study.schedule import Schedule
+
+
+#: Seconds the participant's page stays up after the session's last step (it says so).
+DONE_LINGER_S = 3.0
 
 
 @click.group("study")
@@ -128,13 +133,24 @@ def write_plan(
 @study_group.command("run")
 @click.argument("protocol")
 @click.option(
+    "--participant",
+    default=None,
+    help="Run this participant's session with a person (a pseudonym of the plan in --out, "
+    "e.g. P07): the page, the robot of --profile, the recordings.",
+)
+@click.option(
     "--simulate",
     "population",
-    required=True,
-    help="A population of simulated participants (a name in studies/populations/ or a "
-    ".toml path): the whole study runs on the stand-in in simulated time.",
+    default=None,
+    help="Instead: a population of simulated participants (a name in studies/populations/ "
+    "or a .toml path): the whole study runs on the stand-in in simulated time.",
 )
-@click.option("--participants", type=click.IntRange(1, 999), required=True)
+@click.option(
+    "--participants",
+    type=click.IntRange(1, 999),
+    default=None,
+    help="With --simulate: how many participants (the plan is made, as `study plan`).",
+)
 @click.option(
     "--out",
     "out",
@@ -142,31 +158,128 @@ def write_plan(
     type=click.Path(path_type=Path, file_okay=False),
     help="The study folder: the plan, a folder per participant, the trial table.",
 )
+@click.option(
+    "--profile",
+    default="sim",
+    show_default=True,
+    help="With --participant: the "
+    "hardware profile of the robot (a name in hw_profiles/ or a .toml path).",
+)
+@click.option(
+    "--zenoh-config",
+    "zenoh_config",
+    default=None,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="With --participant: a zenoh configuration for a real network.",
+)
+@click.option(
+    "--page-port",
+    type=click.IntRange(0, 65535),
+    default=8090,
+    show_default=True,
+    help="With --participant: the participant's page, http://127.0.0.1:PORT/ (0: any free port).",
+)
+@click.option(
+    "--viewer-port",
+    type=click.IntRange(0, 65534),
+    default=9090,
+    show_default=True,
+    help="With --participant: the Rerun web viewer beside the "
+    "page (its stream on PORT+1); 0: no viewer.",
+)
+@click.option(
+    "--trial-limit",
+    type=click.FloatRange(10.0, 3600.0),
+    default=180.0,
+    show_default=True,
+    help="With --participant: seconds a trial may run.",
+)
+@click.option(
+    "--calibration-targets",
+    type=click.IntRange(2, 200),
+    default=20,
+    show_default=True,
+    help="With --participant: reaches of the calibration.",
+)
+@click.option(
+    "--allow-motion",
+    is_flag=True,
+    help="Required for a profile that drives real hardware, as for `legws daemon`.",
+)
+@click.option(
+    "--insecure-transport",
+    is_flag=True,
+    help="Let a real arm run on an unauthenticated transport, as for `legws daemon`.",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws.")
 @click.option("--incomplete", is_flag=True, help="As for `study plan`.")
 @click.option("--force", is_flag=True, help="As for `study plan`.")
-@robot_option("sawyer", what="the arm of the stand-in")
+@robot_option(None, what="the arm (the stand-in's with --simulate: the Sawyer by default)")
 def run_cmd(
     protocol: str,
-    population: str,
-    participants: int,
+    participant: str | None,
+    population: str | None,
+    participants: int | None,
     out: Path,
+    profile: str,
+    zenoh_config: Path | None,
+    page_port: int,
+    viewer_port: int,
+    trial_limit: float,
+    calibration_targets: int,
+    allow_motion: bool,
+    insecure_transport: bool,
     seed: int,
     incomplete: bool,
     force: bool,
-    robot: str,
+    robot: str | None,
 ) -> None:
-    """Run a whole study of PROTOCOL with simulated participants drawn from a population
-    (method.md §10 operator models; planted effects per condition): calibration, practice,
-    trials and questionnaires of every session, on the daemon's controller and the MuJoCo
-    stand-in in simulated time. Writes the plan, per participant their operator file,
-    calibration trace, trial table (CSV, Parquet) and answers, and the study's trial table
-    and data dictionary."""
-    from legws_daemon.study.population import load_population
+    """Run PROTOCOL: one participant's session with a person (--participant), or a whole
+    study of simulated participants (--simulate).
+
+    \b
+    With a person: their steps of the plan in --out (`legws study plan`), on the robot of
+    --profile: the calibration (method.md §10), the practice, the trials — each in a daemon
+    of its own, recorded — and the questionnaires, on the page at
+    http://127.0.0.1:PAGE-PORT/ beside the Rerun web viewer. The participant steers with
+    their own publisher (`legws joystick keyboard`, `evdev`, `can`). Pause on the page
+    stops a trial (the robot stops; it runs again on Resume); run the same command again
+    after a crash or Ctrl-C to go on at the step not finished.
+
+    \b
+    Simulated (method.md §10 operator models; planted effects per condition): calibration,
+    practice, trials and questionnaires of every session, on the daemon's controller and
+    the MuJoCo stand-in in simulated time.
+    """
     from legws_daemon.study.protocol import load_protocol
+
+    if (participant is None) == (population is None):
+        raise InputError("give one of --participant (a person) or --simulate (a population)",
+                         field="--participant")  # fmt: skip
+    p = load_protocol(protocol)
+    if population is not None:
+        if participants is None:
+            raise InputError("--simulate needs --participants N", field="--participants")
+        _simulate(p, population, participants, out, seed, incomplete, force, robot or "sawyer")
+        return
+    assert participant is not None
+    from legws_daemon.study.pseudonym import check_pseudonym
+
+    check_pseudonym(participant)
+    if participants is not None:
+        raise InputError("--participants is for --simulate; a person's session runs from "
+                         "the plan in --out", field="--participants")  # fmt: skip
+    _person(p, participant, out, profile, zenoh_config, page_port, viewer_port, trial_limit,
+            calibration_targets, allow_motion, insecure_transport, seed, robot)  # fmt: skip
+
+
+def _simulate(
+    p: Protocol, population: str, participants: int, out: Path, seed: int, incomplete: bool,
+    force: bool, robot: str,
+) -> None:  # fmt: skip
+    from legws_daemon.study.population import load_population
     from legws_daemon.study.simulate import simulate_study
 
-    p = load_protocol(protocol)
     people = load_population(population, p.condition_names)
     schedule = write_plan(p, participants, out, incomplete, force)
 
@@ -181,6 +294,72 @@ def run_cmd(
         f"({done} completed) -> {out}/trials.parquet",
         err=True,
     )
+
+
+def _person(
+    p: Protocol, participant: str, out: Path, profile: str, zenoh_config: Path | None,
+    page_port: int, viewer_port: int, trial_limit: float, calibration_targets: int,
+    allow_motion: bool, insecure_transport: bool, seed: int, robot: str | None,
+) -> None:  # fmt: skip
+    import signal
+    import time
+    from contextlib import ExitStack
+
+    from legws_daemon.formats.profile import load_profile_named
+    from legws_daemon.study.control import Control
+    from legws_daemon.study.layouts import Layouts
+    from legws_daemon.study.rig import RigSpec
+    from legws_daemon.study.session import Session
+    from legws_daemon.study.store import planned_schedule
+    from legws_daemon.study.web import StudyPage
+
+    schedule = planned_schedule(p, out)
+    spec = load_profile_named(profile)
+    control = Control(p.spec.questionnaires)
+    with ExitStack() as stack:
+        viewer_page = grpc = None
+        if viewer_port:
+            from legws_daemon.telemetry.web_viewer import WebTarget, WebViewer
+
+            target = WebTarget("127.0.0.1", viewer_port, viewer_port + 1)
+            stack.enter_context(WebViewer.start(target, field="--viewer-port"))
+            viewer_page, grpc = target.page_url, target.grpc_url
+        rig = RigSpec(profile, zenoh_config, spec.robot, robot, allow_motion,
+                      insecure_transport, grpc)  # fmt: skip
+        session = Session(
+            p, schedule, participant, out / participant, rig, control,
+            Layouts(out / "layouts", arm=robot or spec.arm), trial_limit=trial_limit,
+            calibration_targets=calibration_targets, seed=seed, viewer_url=viewer_page,
+        )  # fmt: skip
+        page = stack.enter_context(StudyPage(control, page_port, viewer_page))
+        first = session.next_step
+        where = (
+            "from the start"
+            if not session.state.done
+            else f"at step {first.index if first else '-'}"
+        )
+        echo(f"legws: {participant}'s session {where}: open {page.url}", err=True)
+
+        def terminate(signum: int, frame: object) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, terminate)
+        try:
+            rows = session.run()
+            time.sleep(DONE_LINGER_S)  # the page shows the end before it goes
+        except KeyboardInterrupt:
+            step = session.next_step
+            at = step.index if step else "-"
+            echo(f"legws: {participant}'s session stopped before step {at}; "
+                 "run the same command to go on", err=True)  # fmt: skip
+            raise SystemExit(130) from None
+    trials = [r for r in rows if r["kind"] == "trial"]
+    echo(f"legws: {participant} done: {len(trials)} trials "
+         f"({sum(bool(r['completed']) for r in trials)} completed) -> {out / participant}",
+         err=True)  # fmt: skip
+
+
+study_group.add_command(export_cmd)
 
 
 @study_group.command("analyze")

@@ -35,7 +35,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,7 +46,7 @@ from legws_daemon.autonomy.events import AssistFailed, Commit, Event, Fault, Ove
 from legws_daemon.autonomy.inputs import OperatorInput
 from legws_daemon.autonomy.modes import Mode
 from legws_daemon.core.arbitration import AssistPolicy
-from legws_daemon.core.geometry import quat_to_matrix
+from legws_daemon.core.geometry import FloatArray, quat_to_matrix
 from legws_daemon.core.operator import OperatorModel
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
@@ -82,6 +82,11 @@ FAILURES = (
     "fault",  # the adapter failed
     "limit",  # the pick ran past TIMEOUT_S + ASSIST_LIMIT_S
 )
+
+#: Called every control tick of a pick (:meth:`Evaluator.pick`'s ``on_tick``): the tick
+#: from the pick's start (0, 1, ...), the EE position at the tick's start (m), the axes sent
+#: to the controller, the controller's mode after the tick (what the daemon records).
+TickCallback = Callable[[int, FloatArray, FloatArray, str], None]
 
 
 def pick_orders(names: Sequence[str], rng: np.random.Generator) -> list[tuple[str, ...]]:
@@ -463,13 +468,20 @@ class Evaluator:
         half = 0.5 * float(np.abs(quat_to_matrix(quaternion)[2]) @ ext)
         return float(position[2]) - half >= self.scene.workspace.table_height + LIFT_CLEARANCE
 
-    def pick(self, goal: str, rng: np.random.Generator, onset: float = 0.0) -> PickResult:
+    def pick(
+        self,
+        goal: str,
+        rng: np.random.Generator,
+        onset: float = 0.0,
+        on_tick: TickCallback | None = None,
+    ) -> PickResult:
         """One pick of ``goal`` from home, as the protocol says (see the module docstring).
 
         ``onset``: the user hesitates this many seconds before the first push (the stick
         held still, as a person who has just been told the goal); every time of the result
         counts from the pick's start, so it includes the hesitation, and the limits count
-        from the motion's onset."""
+        from the motion's onset. ``on_tick``: called every control tick
+        (:data:`TickCallback`); it changes nothing of the pick."""
         c, a, clock = self.controller, self.stand_in, self.clock
         first = len(self.events)  # a single candidate is committed to by the restart
         a.reset_arm()
@@ -524,6 +536,8 @@ class Evaluator:
                 OperatorInput(act.axes, act.confirm, act.cancel, clock(),
                               rotation=act.rotation, gripper=act.gripper)
             )  # fmt: skip
+            if on_tick is not None:
+                on_tick(clock.ticks - start, here, act.axes, rec.mode.value)
             clock.advance()
             effort += float(np.linalg.norm(act.axes)) * clock.dt
             if grasped is None:

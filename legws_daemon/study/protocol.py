@@ -153,11 +153,14 @@ class Task:
         name: its name in the protocol.
         scene: the scene it runs in.
         graph: the task graph, or ``None`` for a scene task.
+        argument: what ``legws daemon --scene``/``--taskgraph`` takes for it: the shipped
+            name, or the file's path (resolved beside the protocol).
     """
 
     name: str
     scene: Scene
     graph: TaskGraph | None
+    argument: str = ""
 
     @property
     def kind(self) -> Literal["scene", "taskgraph"]:
@@ -278,11 +281,13 @@ def load_protocol(name_or_path: str | Path) -> Protocol:
     for name, task in spec.tasks.items():
         try:
             if task.taskgraph is not None:
-                graph, scene = load_taskgraph(resolve_taskgraph(_beside(path, task.taskgraph)))
-                tasks[name] = Task(name, scene, graph)
+                where_task = _beside(path, task.taskgraph)
+                graph, scene = load_taskgraph(resolve_taskgraph(where_task))
+                tasks[name] = Task(name, scene, graph, where_task)
             else:
                 assert task.scene is not None
-                tasks[name] = Task(name, load_scene(_beside(path, task.scene)), None)
+                where_task = _beside(path, task.scene)
+                tasks[name] = Task(name, load_scene(where_task), None, where_task)
         except InputError as err:
             key = "taskgraph" if task.taskgraph is not None else "scene"
             loc = ("tasks", name, key)

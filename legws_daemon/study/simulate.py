@@ -16,6 +16,9 @@ fast as it computes (the clock injected, nothing paced):
   trial runs the whole graph, the participant going for the asked-for object at each choice
   (:class:`~legws_daemon.joystick.sim_user.SimUser` with the model); before the first push
   the participant hesitates (the stick held still) for their hesitation of that trial;
+- **frames**: every trial's per-tick frames (the EE, the axes sent, the mode) are recorded
+  as it runs and written to ``PXX/frames/step-NNN.parquet`` (:mod:`.frames`), the trial
+  table's ``frames`` column;
 - **questionnaires**: each NASA-TLX subscale the participant's baseline plus the condition's
   planted effect plus noise, rounded to the scale's steps of 5 and clipped to 0-100; each
   Likert item likewise, rounded to a point of the scale.
@@ -28,7 +31,7 @@ must recover.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +54,6 @@ from legws_daemon.core.operator import SPEED_RANGE, OperatorModel
 from legws_daemon.core.operator_fit import fit_operator
 from legws_daemon.core.params import Params
 from legws_daemon.core.user_model import SimulatedUser
-from legws_daemon.design.operators import finite_or_none
 from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.formats.operator_file import OperatorFile
@@ -65,51 +67,22 @@ from legws_daemon.sim.protocol import (
     TIMEOUT_S,
     Evaluator,
     SimClock,
+    TickCallback,
     stand_in_profile,
 )
 from legws_daemon.sim.reaches import simulate_reaches
 from legws_daemon.study.certificates import trial_certificates
+from legws_daemon.study.frames import FrameRecorder, frames_path, write_frames
 from legws_daemon.study.layouts import Layouts, TrialLayout
+from legws_daemon.study.outcome import Outcome
 from legws_daemon.study.population import Participant, Population
 from legws_daemon.study.protocol import NASA_TLX, ConditionSpec, Protocol, Task
+from legws_daemon.study.rows import trial_row
 from legws_daemon.study.schedule import Schedule, Step
 from legws_daemon.study.table import write_dictionary, write_table
 
 #: Bootstrap resamples of a simulated calibration's fit (the intervals of the operator file).
 FIT_RESAMPLES = 200
-
-
-@dataclass
-class Outcome:
-    """What one trial measured (the trial table's measured columns)."""
-
-    chosen: list[str] = field(default_factory=list)
-    commit_times: list[float] = field(default_factory=list)
-    wrong: int = 0
-    confirms: int = 0
-    cancels: int = 0
-    overrides: int = 0
-    time_to_grasp_s: float | None = None
-    time_to_task_s: float | None = None
-    effort_s: float = 0.0
-    completed: bool = False
-    failure: str = ""
-
-    def columns(self, targets: tuple[str, ...]) -> dict[str, Any]:
-        return {
-            "chosen": ";".join(self.chosen),
-            "commit_time_s": float(np.mean(self.commit_times)) if self.commit_times else None,
-            "correct": self.wrong == 0 and list(self.chosen) == list(targets),
-            "wrong": self.wrong,
-            "confirms": self.confirms,
-            "cancels": self.cancels,
-            "overrides": self.overrides,
-            "time_to_grasp_s": self.time_to_grasp_s,
-            "time_to_task_s": self.time_to_task_s,
-            "effort_s": self.effort_s,
-            "completed": self.completed,
-            "failure": self.failure,
-        }
 
 
 def with_effect(model: OperatorModel, speed_scale: float) -> OperatorModel:
@@ -194,8 +167,10 @@ def run_graph_trial(
     hesitation: float,
     params: Params,
     rng: np.random.Generator,
+    on_tick: TickCallback | None = None,
 ) -> Outcome:
-    """One trial of a task graph: the whole graph, the participant going for ``targets``."""
+    """One trial of a task graph: the whole graph, the participant going for ``targets``
+    (``on_tick``: called every control tick, as :meth:`Evaluator.pick`'s)."""
     c, clock = stand.controller, stand.clock
     assert stand.task.graph is not None and stand.adapter is not None
     c.load(stand.task.scene, layout.layout, stand.task.graph, layout.plan)
@@ -227,7 +202,9 @@ def run_graph_trial(
             view = UserView(c.mode.value, c.decisions, c.stage.name, state.ee_position, targets_now)
             act = user.act(view, now)
             axes, confirm, cancel = act.axes, act.confirm, act.cancel
-        c.tick(OperatorInput(axes, confirm, cancel, clock()))
+        rec = c.tick(OperatorInput(axes, confirm, cancel, clock()))
+        if on_tick is not None:
+            on_tick(clock.ticks - start, state.ee_position, axes, rec.mode.value)
         clock.advance()
         out.effort_s += float(np.linalg.norm(axes)) * clock.dt
         t = (clock.ticks - start) * clock.dt
@@ -270,12 +247,14 @@ def run_pick_trial(
     goal: str,
     hesitation: float,
     rng: np.random.Generator,
+    on_tick: TickCallback | None = None,
 ) -> Outcome:
-    """One trial of a scene task: the protocol's pick of ``goal``."""
+    """One trial of a scene task: the protocol's pick of ``goal`` (``on_tick``: as
+    :meth:`Evaluator.pick`'s)."""
     checks = evaluator.prepare(layout.layout)
     if not checks[goal].feasible:
         return Outcome(failure=f"infeasible_grasp: {checks[goal].reason}")
-    r = evaluator.pick(goal, rng, onset=hesitation)
+    r = evaluator.pick(goal, rng, onset=hesitation, on_tick=on_tick)
     acted = r.committed or r.confirmed or r.grasped
     out = Outcome(
         chosen=[acted] if acted else [],
@@ -304,8 +283,8 @@ def simulate_participant(
     arm: str = "sawyer",
 ) -> list[dict[str, Any]]:
     """Run one simulated participant's whole session; write their folder (operator file,
-    calibration trace, ``trials.csv``/``.parquet``, ``questionnaires.json``); returns the
-    trial rows."""
+    calibration trace, ``trials.csv``/``.parquet``, ``questionnaires.json``, every trial's
+    ``frames/step-NNN.parquet``); returns the trial rows."""
     output_folder(folder)
     index = list(schedule.steps).index(pseudonym)
     rng = np.random.default_rng([seed, 0x57DD, index])
@@ -326,10 +305,12 @@ def simulate_participant(
     try:
         for step in steps:
             if step.kind in ("practice", "trial"):
+                recorder = FrameRecorder()
                 rows.append(
                     _trial(protocol, population, person, fitted, step, layouts, stands,
-                           params, profile, rng)
+                           params, profile, rng, recorder)
                 )  # fmt: skip
+                rows[-1]["frames"] = _write_frames(folder, step.index, recorder, params.dt)
             elif step.kind == "questionnaire" and step.condition is not None:
                 answered[step.condition] = answers(
                     person, population, step.condition, likert, q.likert_points, rng
@@ -347,6 +328,18 @@ def simulate_participant(
     return rows
 
 
+def _write_frames(folder: Path, index: int, recorder: FrameRecorder, dt: float) -> str:
+    """The step's frames file in ``folder`` (its path relative to ``folder``); none for a
+    trial that did not run (an infeasible grasp: no tick), ``""``."""
+    frames = recorder.frames(dt)
+    if not len(frames):
+        return ""
+    relative = frames_path(index)
+    output_folder(folder / "frames")
+    write_frames(folder / relative, frames)
+    return relative
+
+
 def _trial(
     protocol: Protocol,
     population: Population,
@@ -358,6 +351,7 @@ def _trial(
     params: Params,
     profile: ProfileSpec,
     rng: np.random.Generator,
+    on_tick: TickCallback | None = None,
 ) -> dict[str, Any]:
     assert step.task is not None and step.layout_seed is not None
     task = protocol.tasks[step.task]
@@ -393,41 +387,16 @@ def _trial(
             stands[key] = _Stand(base, params, task, operator)
     stand = stands[key]
     if isinstance(stand, _EvaluatorStand):
-        outcome = run_pick_trial(stand.evaluator, layout, step.targets[0], hesitation, rng)
+        outcome = run_pick_trial(stand.evaluator, layout, step.targets[0], hesitation, rng, on_tick)
     else:
-        outcome = run_graph_trial(stand, layout, step.targets, model, hesitation, params, rng)
+        outcome = run_graph_trial(
+            stand, layout, step.targets, model, hesitation, params, rng, on_tick
+        )
     certs = trial_certificates(
         task, layout.layout_for, params, fitted.certify_with if fitted is not None else None
     )
-    row: dict[str, Any] = {
-        "participant": person.pseudonym,
-        "protocol": protocol.name,
-        "protocol_sha256": protocol.sha256,
-        "index": step.index,
-        "kind": step.kind,
-        "condition": step.condition or "",
-        "position": step.position,
-        "trial": step.trial,
-        "task": task.name,
-        "source": task.source,
-        "assist": assist,
-        "layout_source": layout.source,
-        "layout_origin": layout.origin,
-        "layout": json.dumps(layout.as_data(), separators=(",", ":")),
-        "goal": step.targets[0] if step.targets else "",
-        "targets": ";".join(step.targets),
-        "decisions": certs.decisions,
-        "slack_j": certs.slack_j,
-        "commit_k": finite_or_none(certs.commit_k),
-        "person_slack_j": certs.person_slack_j,
-        "person_commit_k": (
-            None if certs.person_commit_k is None else finite_or_none(certs.person_commit_k)
-        ),
-        "hesitation_s": hesitation,
-        "recording": "",
-    }
-    row.update(outcome.columns(step.targets))
-    return row
+    return trial_row(protocol, step, person.pseudonym, assist, layout, certs, outcome,
+                     hesitation_s=hesitation)  # fmt: skip
 
 
 @dataclass

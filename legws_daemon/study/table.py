@@ -69,6 +69,12 @@ COLUMNS: tuple[Column, ...] = (
     Column("failure", "string", "", "why not (empty when completed)"),
     Column("hesitation_s", "float", "s", "time before the first push"),
     Column("recording", "string", "", "the trial's Rerun recording, relative to the folder"),
+    Column(
+        "frames",
+        "string",
+        "",
+        "the trial's per-tick frames (Parquet), relative to the participant's folder",
+    ),
 )
 
 

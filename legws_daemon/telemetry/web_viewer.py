@@ -131,7 +131,7 @@ def viewer_binary() -> Path:
     return viewer_executable()
 
 
-def _die_with_parent() -> Callable[[], None] | None:
+def die_with_parent() -> Callable[[], None] | None:
     """A ``preexec_fn`` that asks Linux to SIGTERM the child when this thread ends."""
     if not sys.platform.startswith("linux"):
         return None
@@ -174,7 +174,7 @@ def spawn(
                 stderr=subprocess.STDOUT,
                 env=full,
                 start_new_session=True,
-                preexec_fn=_die_with_parent(),  # only prctl: safe after fork
+                preexec_fn=die_with_parent(),  # only prctl: safe after fork
             )
         except OSError as err:
             raise InputError(f"cannot start {args[0]}: {err.strerror or err}") from None
