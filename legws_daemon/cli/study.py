@@ -317,20 +317,22 @@ def _person(
     spec = load_profile_named(profile)
     control = Control(p.spec.questionnaires)
     with ExitStack() as stack:
-        viewer_page = grpc = None
-        if viewer_port:
-            from legws_daemon.telemetry.web_viewer import WebTarget, WebViewer
+        from legws_daemon.telemetry.web_viewer import WebTarget, WebViewer
 
-            target = WebTarget("127.0.0.1", viewer_port, viewer_port + 1)
-            stack.enter_context(WebViewer.start(target, field="--viewer-port"))
-            viewer_page, grpc = target.page_url, target.grpc_url
+        target = WebTarget("127.0.0.1", viewer_port, viewer_port + 1) if viewer_port else None
+        viewer_page = target.page_url if target is not None else None
+        grpc = target.grpc_url if target is not None else None
         rig = RigSpec(profile, zenoh_config, spec.robot, robot, allow_motion,
                       insecure_transport, grpc)  # fmt: skip
+        # the session's checks (the participant in the plan, its session.json) come before
+        # the viewer starts: a refused session starts nothing
         session = Session(
             p, schedule, participant, out / participant, rig, control,
             Layouts(out / "layouts", arm=robot or spec.arm), trial_limit=trial_limit,
             calibration_targets=calibration_targets, seed=seed, viewer_url=viewer_page,
         )  # fmt: skip
+        if target is not None:
+            stack.enter_context(WebViewer.start(target, field="--viewer-port"))
         page = stack.enter_context(StudyPage(control, page_port, viewer_page))
         first = session.next_step
         where = (

@@ -76,7 +76,7 @@ class TrialWatch:
         """One event (``kind``, ``detail``, the daemon's ``stamp``)."""
         out = self.outcome
         if kind == "started":
-            self.started = stamp
+            self.begin(stamp)
         elif kind == "commit":
             if detail.get("single"):
                 return
@@ -108,6 +108,14 @@ class TrialWatch:
             if not out.completed and not out.failure:
                 out.failure = "the daemon shut down before the task was done"
             self.over = True
+
+    def begin(self, started: float) -> None:
+        """The trial's daemon started at ``started`` (its clock): the ``started`` event, or
+        the ``started`` field of its first status — the event is published before a client
+        that was connected to the previous trial's daemon has reconnected, so it may never
+        arrive; the status stream repeats it."""
+        if self.started is None:
+            self.started = started
 
     def status(self, gripper_closed: bool, stamp: float) -> None:
         """One status message's gripper state and stamp."""

@@ -276,15 +276,16 @@ class Session:
                           reach=0, of=n, **self._progress(step))  # fmt: skip
         try:
             while child.poll() is None:
-                for ev in client.events(timeout=0):
-                    if ev.kind in ("reach", "reached"):
-                        done = ev.detail.get("reach", 0) - (ev.kind == "reach")
-                        self.control.update(reach=done, of=ev.detail.get("of", n))
+                for _ in client.events(timeout=0):
+                    pass
+                status = client.next_status(POLL_S)
+                if status is not None and status.calibration is not None:
+                    shown = status.calibration  # reach k of n is on the way: k - 1 done
+                    self.control.update(reach=shown.reach - 1, of=shown.of)
                 if self.control.pause_requested:
                     child.stop(signal.SIGINT)
                     self._set_aside(rec, "calibration")
                     raise PausedError
-                time.sleep(POLL_S)
         finally:
             child.stop(signal.SIGINT)
         if child.poll() != 0 or not self.operator_path.exists():
@@ -371,17 +372,21 @@ class Session:
         info: dict[str, Any], go: str,
     ) -> None:  # fmt: skip
         """Follow the trial's daemon until the trial is over."""
-        launched = self.clock()
+        launched, launched_wall = self.clock(), time.time()
         begun: float | None = None
         while not watch.over:
             for ev in client.events(timeout=0):
                 watch.event(ev.kind, ev.detail, ev.stamp)
-                if ev.kind == "started" and begun is None:
-                    begun = self.clock()
-                    self.control.show(phase="running", message=go, **info,
-                                      **self._progress(step))  # fmt: skip
             status = client.next_status(POLL_S)
-            if status is not None and watch.started is not None:
+            # this trial's daemon: started after it was launched (not a late status of the
+            # previous one); its first status starts the trial if the event did not come
+            ours = status is not None and (status.started or 0.0) >= launched_wall - 1.0
+            if status is not None and ours and status.started is not None:
+                watch.begin(status.started)
+            if watch.started is not None and begun is None:
+                begun = self.clock()
+                self.control.show(phase="running", message=go, **info, **self._progress(step))
+            if status is not None and ours and watch.started is not None:
                 watch.status(status.gripper_closed, status.stamp)
                 self.control.update(mode=status.mode, committed=status.committed,
                                     choice=len(watch.outcome.chosen))  # fmt: skip

@@ -1,0 +1,239 @@
+"""A person's session end to end: `legws study run --participant` as a real process on the
+sim profile, a daemon process per trial, the participant a `legws joystick sim-user`
+publisher over zenoh loopback, the page driven over HTTP and, for the last questionnaire, in
+headless Chromium (playwright). Pause stops a running trial (its recording set aside) and
+Resume runs it again; the session killed mid-trial takes its daemon with it, and the same
+command resumes at the trial not finished; the answers the browser gave land in the trial
+table.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from legws_daemon.cli.study import write_plan
+from legws_daemon.formats.operator_file import load_operator
+from legws_daemon.study.frames import read_frames
+from legws_daemon.study.protocol import load_protocol
+from legws_daemon.study.table import read_table
+from legws_daemon.telemetry.recording import read_teleoperation
+from tests.browser import CHROMIUM, FLAGS, chromium_missing, require
+from tests.daemon.procs import start, stop, write_profile
+from tests.net import free_port
+
+pytestmark = pytest.mark.slow
+
+PROTOCOL = Path(__file__).parent / "data" / "person.toml"
+#: Seconds a step may take here (a calibration of 2 reaches and its fit; a pick and home).
+STEP_TIMEOUT = 150.0
+
+
+class Page:
+    """The participant's page over HTTP."""
+
+    def __init__(self, port: int) -> None:
+        self.url = f"http://127.0.0.1:{port}/"
+
+    def state(self) -> dict[str, Any] | None:
+        try:
+            with urllib.request.urlopen(self.url + "api/state", timeout=5) as r:
+                data: dict[str, Any] = json.load(r)
+                return data
+        except OSError:
+            return None
+
+    def post(self, action: str, body: Any = None) -> tuple[int, dict[str, Any]]:
+        req = urllib.request.Request(
+            self.url + "api/" + action, data=json.dumps(body or {}).encode(),
+            headers={"Content-Type": "application/json"},
+        )  # fmt: skip
+        try:
+            with urllib.request.urlopen(req, timeout=5) as r:
+                return r.status, json.load(r)
+        except urllib.error.HTTPError as err:
+            return err.code, json.load(err)
+
+    def wait(
+        self, phase: str, step: int, proc: subprocess.Popen[bytes], log: Path
+    ) -> dict[str, Any]:
+        deadline = time.monotonic() + STEP_TIMEOUT
+        seen = None
+        while time.monotonic() < deadline:
+            s = self.state()
+            if s is not None:
+                seen = (s["phase"], s.get("step"), s.get("message"))
+                if s["phase"] == phase and s.get("step") == step:
+                    return s
+                assert s["phase"] != "failed", s
+            assert proc.poll() is None or phase == "done", log.read_text()[-3000:]
+            time.sleep(0.2)
+        raise AssertionError(f"no {phase} at step {step}; last {seen}: {log.read_text()[-3000:]}")
+
+
+def _user(profile: Path, log: Path, targets: list[str], seed: int) -> subprocess.Popen[bytes]:
+    args = ["joystick", "sim-user", "--profile", str(profile), "--duration", "150",
+            "--seed", str(seed)]  # fmt: skip
+    for t in targets:
+        args += ["--goal", t]
+    if not targets:
+        args.append("--forever")  # the calibration: every target shown
+    return start(args, log)
+
+
+def _listening(port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _browser_answers(url: str, tlx: int, likert: int, shot: Path) -> str:
+    """Fill the open questionnaire in headless Chromium and submit it; the page's title
+    once the session is done."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=FLAGS)
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            page.goto(url, wait_until="load")
+            page.wait_for_selector("#form:not([hidden]) .q", timeout=30_000)
+            # submitting with a question unanswered is refused on the page itself
+            page.click("#submit")
+            assert "answer every question" in page.inner_text("#error")
+            for box in page.query_selector_all("#form .q"):
+                name = box.get_attribute("data-name")
+                assert name is not None
+                if name.startswith("tlx_"):
+                    page.fill(f"input[name={name}]", str(tlx))
+                else:
+                    page.check(f"input[name={name}][value='{likert}']")
+            page.screenshot(path=str(shot))
+            page.click("#submit")
+            page.wait_for_selector("body[data-phase=done]", timeout=30_000)
+            return page.inner_text("#title")
+        finally:
+            browser.close()
+
+
+def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_chromium(
+    tmp_path: Path,
+) -> None:
+    require(chromium_missing())
+    zport, pport = free_port(), free_port()
+    profile = write_profile(tmp_path, "sim", zport)
+    study = tmp_path / "study"
+    write_plan(load_protocol(PROTOCOL), 2, study, False, False)
+    args = ["study", "run", str(PROTOCOL), "--participant", "P01", "--profile", str(profile),
+            "--out", str(study), "--page-port", str(pport), "--viewer-port", "0",
+            "--calibration-targets", "2", "--trial-limit", "120"]  # fmt: skip
+    log = tmp_path / "session.log"
+    proc = start(args, log)
+    page = Page(pport)
+    users: list[subprocess.Popen[bytes]] = []
+    try:
+        # calibration: Start, the user reaches the targets, the layouts are prepared
+        page.wait("ready", 1, proc, log)
+        users.append(_user(profile, tmp_path / "user-cal.log", [], 1))
+        assert page.post("start") == (200, {"ok": True})
+        s = page.wait("ready", 2, proc, log)
+        stop(users.pop())
+        goal = s["targets"][0]
+        assert s["kind"] == "trial" and s["condition"] == "shipped"
+        # the first trial: paused while it runs (the daemon stops), resumed, run again
+        users.append(_user(profile, tmp_path / "user-2a.log", [goal], 2))
+        page.post("start")
+        page.wait("running", 2, proc, log)
+        assert page.post("pause")[0] == 200
+        page.wait("paused", 2, proc, log)
+        aside = study / "P01" / "recordings" / "step-002.interrupted-1.rrd"
+        assert aside.is_file()
+        assert page.post("start")[0] == 400  # Start is refused while paused
+        stop(users.pop())
+        assert page.post("resume")[0] == 200
+        page.wait("ready", 2, proc, log)
+        users.append(_user(profile, tmp_path / "user-2b.log", [goal], 3))
+        page.post("start")
+        q = page.wait("questionnaire", 3, proc, log)
+        stop(users.pop())
+        names = [f["name"] for f in q["fields"]]
+        assert names == [f"tlx_{k}" for k in ("mental", "physical", "temporal",
+                                             "performance", "effort", "frustration")] + [
+            "likert_1"
+        ]  # fmt: skip
+        # an answer off its scale is refused with its field; then valid answers
+        bad = {n: 50 for n in names} | {"likert_1": 9}
+        code, reply = page.post("answers", bad)
+        assert code == 400 and "likert_1" in reply["error"]
+        assert page.post("answers", {n: 50 for n in names} | {"likert_1": 4})[0] == 200
+        page.wait("break", 4, proc, log)
+        page.post("start")
+        s = page.wait("ready", 5, proc, log)
+        goal5 = s["targets"][0]
+        # the second trial: the session dies while it runs; its daemon goes with it
+        users.append(_user(profile, tmp_path / "user-5a.log", [goal5], 4))
+        page.post("start")
+        page.wait("running", 5, proc, log)
+        assert _listening(zport)  # the trial's daemon
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        deadline = time.monotonic() + 20
+        while _listening(zport) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _listening(zport), "the trial's daemon outlived its session"
+        stop(users.pop())
+        state = json.loads((study / "P01" / "session.json").read_text())
+        assert state["done"] == [1, 2, 3, 4]
+        # the same command again: it resumes at the trial not finished
+        log2 = tmp_path / "session2.log"
+        proc = start(args, log2)
+        page.wait("ready", 5, proc, log2)
+        assert "at step 5" in log2.read_text()
+        users.append(_user(profile, tmp_path / "user-5b.log", [goal5], 5))
+        page.post("start")
+        page.wait("questionnaire", 6, proc, log2)
+        stop(users.pop())
+        # the last questionnaire in the browser
+        title = _browser_answers(page.url, 35, 2, tmp_path / "questionnaire.png")
+        assert title == "Done"
+        assert proc.wait(30) == 0, log2.read_text()[-2000:]
+    finally:
+        for u in users:
+            stop(u)
+        if proc.poll() is None:
+            stop(proc)
+
+    folder = study / "P01"
+    rows = read_table(folder / "trials.parquet")
+    assert [(r["index"], r["condition"]) for r in rows] == [(2, "shipped"), (5, "random")]
+    for r in rows:
+        assert r["completed"] and r["correct"], r
+        assert r["chosen"] == r["goal"]
+        assert r["time_to_grasp_s"] is not None, r
+        assert 0 < r["time_to_grasp_s"] < r["time_to_task_s"], r
+        assert r["slack_j"] is not None and r["person_slack_j"] is not None
+        rec = folder / r["recording"]
+        assert len(read_teleoperation(rec).ticks) > 0
+        frames = read_frames(folder / r["frames"])
+        assert len(frames) > 0 and r["effort_s"] > 0
+    assert [r["assist"] for r in rows] == ["commit", "blend"]
+    # the answers of each condition: over HTTP for the first, in Chromium for the second
+    assert rows[0]["likert_1"] == 4 and rows[0]["tlx_raw"] == 50.0
+    assert rows[1]["likert_1"] == 2 and rows[1]["tlx_mental"] == 35.0 and rows[1]["tlx_raw"] == 35.0
+    answers = json.loads((folder / "questionnaires.json").read_text())["answers"]
+    assert answers["random"]["likert_1"] == 2
+    # the interrupted attempts are kept beside the trial's recordings, not in the table
+    kept = sorted(p.name for p in (folder / "recordings").glob("*.rrd"))
+    assert "step-002.interrupted-1.rrd" in kept and "step-005.interrupted-1.rrd" in kept
+    assert {"calibration.rrd", "step-002.rrd", "step-005.rrd"} <= set(kept)
+    assert load_operator(folder / "operator.json").name == "P01"
+    assert json.loads((folder / "session.json").read_text())["done"] == [1, 2, 3, 4, 5, 6]
