@@ -167,14 +167,26 @@ class _Planner:
         them out of reach is out of reach in every layout, and the search stops there."""
         if self._motion is None:
             self._motion = stand_in_planner(self.world)
-        motion = self._motion
-        motion.set_layout(self.scene.poses(layout))
-        targets = sorted(self.targets(point, layout), key=lambda t: t.name in moving)
-        for t in targets:
-            found = motion.check(t.name, t.position, t.rotation, t.symmetry)
-            if not found.feasible:
-                return t, found.reason
-        return None
+        return first_infeasible(self._motion, self.scene, point, layout, moving)
+
+
+def first_infeasible(
+    motion: MotionPlanner,
+    scene: Scene,
+    point: DecisionPoint,
+    layout: Layout,
+    moving: Collection[str] = (),
+) -> tuple[Target, str] | None:
+    """The first target of decision ``point`` in ``layout`` that fails ``motion``'s check
+    (IK, collisions, a straight approach, a clear way from home) and why; ``None`` when all
+    pass. The targets not in ``moving`` are checked first."""
+    motion.set_layout(scene.poses(layout))
+    targets = sorted(decision_targets(scene, point, layout), key=lambda t: t.name in moving)
+    for t in targets:
+        found = motion.check(t.name, t.position, t.rotation, t.symmetry)
+        if not found.feasible:
+            return t, found.reason
+    return None
 
 
 def _optimised(graph: TaskGraph, scene: Scene, point: DecisionPoint) -> tuple[str, ...]:
@@ -551,15 +563,10 @@ def random_feasible_layout(
 
     cons = LayoutConstraints.of(scene, names)
     rows = cons.sample(tries, np.random.default_rng([seed, 0x57D1]))
-    world = World(scene, arm=arm)
-    q_home = home_configuration(world, scene.home.position, scene.home.rotation).q
-    checker = _Planner(
-        graph, scene, Params(), "cma-me", 1, seed, False, "slack", "sum", world,
-        np.asarray(q_home, dtype=np.float64),
-    )  # fmt: skip
+    motion = stand_in_planner(World(scene, arm=arm))
     for row in rows:
         layout = {**base, **cons.to_layout(row)}
-        if all(checker.check(p, layout) is None for p in points):
+        if all(first_infeasible(motion, scene, p, layout) is None for p in points):
             return layout
     raise InfeasibleError(
         f"no feasible random layout of '{graph.name}' in {tries} draws (seed {seed})"

@@ -65,7 +65,9 @@ LIMITS: dict[str, int] = {
     "teleoperation trace": 32 * MiB,
     "operator": 64 * KiB,
     "study protocol": 256 * KiB,
+    "study population": 256 * KiB,
     "study schedule": 64 * MiB,
+    "study session": 64 * MiB,
     "study table": 256 * MiB,
     "text": 1 * MiB,
 }

@@ -202,7 +202,7 @@ def load_population(name_or_path: str | Path, conditions: list[str] | None = Non
     """Read and validate a population file (a name in ``studies/populations/`` or a path);
     with ``conditions``, every planted effect must name one of them."""
     path = resolve_named(str(name_or_path), populations_dir(), "population", "--simulate")
-    text = read_text(path, "study protocol")
+    text = read_text(path, "study population")
     where = SourceText(text, "toml")
     spec = validate(PopulationSpec, parse_toml(text, str(path)), str(path), where)
     if conditions is not None:

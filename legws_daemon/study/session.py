@@ -160,7 +160,7 @@ class Session:
                 participant=self.participant, protocol=self.protocol.name,
                 protocol_sha256=self.protocol.sha256,
             )  # fmt: skip
-        record = validate(SessionRecord, read_json(path, "study schedule"), str(path))
+        record = validate(SessionRecord, read_json(path, "study session"), str(path))
         if record.protocol_sha256 != self.protocol.sha256 or record.participant != self.participant:
             raise InputError(
                 f"is the session of {record.participant} under protocol {record.protocol} "

@@ -12,9 +12,9 @@ import pytest
 from legws_daemon.study import rig, session, web
 from legws_daemon.telemetry import web_viewer
 from tests.cli.helpers import Result, assert_bad_input, run_script
+from tests.study.person import PERSON
 
 Cli = Callable[..., Result]
-PERSON = Path(__file__).parents[1] / "study" / "data" / "person.toml"
 
 
 @pytest.fixture(autouse=True)

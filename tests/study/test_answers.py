@@ -4,7 +4,6 @@ and a refusal naming the field for anything else."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,8 +13,8 @@ from hypothesis import strategies as st
 from legws_daemon.errors import InputError
 from legws_daemon.study.answers import TLX_STEP, check_answers, questionnaire_fields
 from legws_daemon.study.protocol import NASA_TLX, QuestionnaireSpec, load_protocol
+from tests.study.person import PERSON
 
-PERSON = Path(__file__).parent / "data" / "person.toml"
 TLX = [f"tlx_{key}" for key, _ in NASA_TLX]
 Q = load_protocol(PERSON).spec.questionnaires
 SOURCE = "the questionnaire"

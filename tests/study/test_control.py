@@ -6,7 +6,6 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,14 +13,7 @@ import pytest
 from legws_daemon.errors import InputError
 from legws_daemon.study.answers import check_answers
 from legws_daemon.study.control import PHASES, Control
-from legws_daemon.study.protocol import load_protocol
-
-PERSON = Path(__file__).parent / "data" / "person.toml"
-Q = load_protocol(PERSON).spec.questionnaires
-ANSWERS = {
-    "tlx_mental": 40, "tlx_physical": 10, "tlx_temporal": 55, "tlx_performance": 0,
-    "tlx_effort": 100, "tlx_frustration": 25, "likert_1": 4,
-}  # fmt: skip
+from tests.study.person import ANSWERS, Q
 
 
 @pytest.fixture

@@ -30,10 +30,11 @@ from legws_daemon.telemetry.recording import read_teleoperation
 from tests.browser import CHROMIUM, FLAGS, chromium_missing, require
 from tests.daemon.procs import start, stop, write_profile
 from tests.net import free_port
+from tests.study.person import PERSON
 
 pytestmark = pytest.mark.slow
 
-PROTOCOL = Path(__file__).parent / "data" / "person.toml"
+PROTOCOL = PERSON
 #: Seconds a step may take here (a calibration of 2 reaches and its fit; a pick and home).
 STEP_TIMEOUT = 150.0
 

@@ -14,8 +14,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.study.protocol import Protocol, load_protocol
 from legws_daemon.study.schedule import make_schedule
 from legws_daemon.study.store import existing_plan, planned_schedule
-
-PERSON = Path(__file__).parent / "data" / "person.toml"
+from tests.study.person import PERSON
 
 
 @pytest.fixture(scope="module")

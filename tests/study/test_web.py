@@ -7,22 +7,15 @@ import json
 import re
 import urllib.request
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from legws_daemon.errors import InputError
 from legws_daemon.study.control import Control
-from legws_daemon.study.protocol import load_protocol
 from legws_daemon.study.web import MAX_BODY, PAGE, SCRIPT, StudyPage
+from tests.study.person import ANSWERS, Q
 
-PERSON = Path(__file__).parent / "data" / "person.toml"
-Q = load_protocol(PERSON).spec.questionnaires
-ANSWERS = {
-    "tlx_mental": 40, "tlx_physical": 10, "tlx_temporal": 55, "tlx_performance": 0,
-    "tlx_effort": 100, "tlx_frustration": 25, "likert_1": 4,
-}  # fmt: skip
 JSON = {"Content-Type": "application/json"}
 
 
