@@ -58,6 +58,7 @@ from legws_daemon.scene.grasps import extents
 from legws_daemon.scene.scene import Layout, Scene
 from legws_daemon.sim.hand import HandUser
 from legws_daemon.sim.statistics import km_median
+from legws_daemon.task.graph import TaskGraph
 from legws_daemon.task.runner import scene_graph
 
 #: Most pick orders per layout (the paper samples 120 for M >= 5).
@@ -358,6 +359,52 @@ def stand_in_profile(
     return p.model_copy(update=update)
 
 
+class SimStand:
+    """The daemon's controller driving the MuJoCo stand-in in simulated time: the clock
+    injected (ticked as fast as it computes), every event kept in :attr:`events`.
+
+    Args:
+        profile: the stand-in's profile.
+        scene: the scene it starts in (its shipped layout).
+        params: the model parameters.
+        graph: a task graph to run (default: the scene's pick).
+        operator: the person every certificate is for (method.md §10; ``None``: section
+            2's user).
+    """
+
+    def __init__(
+        self,
+        profile: ProfileSpec,
+        scene: Scene,
+        params: Params,
+        *,
+        graph: TaskGraph | None = None,
+        operator: OperatorModel | None = None,
+    ) -> None:
+        self.clock = SimClock(params.dt)
+        self.events: list[Event] = []
+        self.adapter: SimAdapter | None = None
+
+        def make(sc: Scene) -> SimAdapter:
+            adapter = SimAdapter(profile, sc, clock=self.clock)
+            adapter.connect()
+            self.adapter = adapter
+            return adapter
+
+        self.controller = Controller(
+            profile, scene, scene.default_layout(), make, params, self.events.append,
+            graph=graph, clock=self.clock, operator=operator,
+        )  # fmt: skip
+
+    @property
+    def stand_in(self) -> SimAdapter:
+        assert self.adapter is not None
+        return self.adapter
+
+    def close(self) -> None:
+        self.controller.shutdown()
+
+
 class Evaluator:
     """Runs the protocol on layouts of one scene with one controller on the stand-in.
 
@@ -390,25 +437,18 @@ class Evaluator:
                 update={"control": base.control.model_copy(update={"assist": assist})}
             )
         self.profile = with_arm(base, arm) if arm is not None else base
-        self.clock = SimClock(self.params.dt)
-        self.events: list[Event] = []
-        self.adapter: SimAdapter | None = None
+        self.stand = SimStand(self.profile, scene, self.params)
+        self.clock = self.stand.clock
+        self.events = self.stand.events
+        self.controller = self.stand.controller
 
-        def make(sc: Scene) -> SimAdapter:
-            adapter = SimAdapter(self.profile, sc, clock=self.clock)
-            adapter.connect()
-            self.adapter = adapter
-            return adapter
-
-        self.controller = Controller(
-            self.profile, scene, scene.default_layout(), make, self.params,
-            self.events.append, clock=self.clock,
-        )  # fmt: skip
+    @property
+    def adapter(self) -> SimAdapter | None:
+        return self.stand.adapter
 
     @property
     def stand_in(self) -> SimAdapter:
-        assert self.adapter is not None
-        return self.adapter
+        return self.stand.stand_in
 
     def check(self, layout: Layout) -> dict[str, GraspCheck]:
         """Load ``layout`` (every candidate offered) and check every candidate's grasp."""

@@ -37,12 +37,10 @@ from typing import Any
 
 import numpy as np
 
-from legws_daemon.autonomy.controller import Controller
 from legws_daemon.autonomy.events import (
     AssistFailed,
     Cancel,
     Commit,
-    Event,
     Fault,
     Override,
     TaskDone,
@@ -59,14 +57,12 @@ from legws_daemon.formats.files import output_folder, write_atomic
 from legws_daemon.formats.operator_file import OperatorFile
 from legws_daemon.formats.profile import ProfileSpec
 from legws_daemon.formats.trace import Segment, write_trace
-from legws_daemon.hardware.sim import SimAdapter
 from legws_daemon.joystick.sim_user import SimUser, UserView
-from legws_daemon.scene.scene import Scene
 from legws_daemon.sim.protocol import (
     ASSIST_LIMIT_S,
     TIMEOUT_S,
     Evaluator,
-    SimClock,
+    SimStand,
     TickCallback,
     stand_in_profile,
 )
@@ -132,35 +128,9 @@ def answers(
     return out
 
 
-class _Stand:
-    """The stand-in and the controller of one participant's condition (reused across its
-    trials: each trial loads its layout, the arm goes home, the task restarts)."""
-
-    def __init__(
-        self, profile: ProfileSpec, params: Params, task: Task, operator: OperatorModel | None
-    ) -> None:
-        self.clock = SimClock(params.dt)
-        self.events: list[Event] = []
-        self.adapter: SimAdapter | None = None
-        self.task = task
-
-        def make(sc: Scene) -> SimAdapter:
-            adapter = SimAdapter(profile, sc, clock=self.clock)
-            adapter.connect()
-            self.adapter = adapter
-            return adapter
-
-        self.controller = Controller(
-            profile, task.scene, task.scene.default_layout(), make, params, self.events.append,
-            graph=task.graph, clock=self.clock, operator=operator,
-        )  # fmt: skip
-
-    def close(self) -> None:
-        self.controller.shutdown()
-
-
 def run_graph_trial(
-    stand: _Stand,
+    stand: SimStand,
+    task: Task,
     layout: TrialLayout,
     targets: tuple[str, ...],
     model: OperatorModel,
@@ -172,9 +142,9 @@ def run_graph_trial(
     """One trial of a task graph: the whole graph, the participant going for ``targets``
     (``on_tick``: called every control tick, as :meth:`Evaluator.pick`'s)."""
     c, clock = stand.controller, stand.clock
-    assert stand.task.graph is not None and stand.adapter is not None
-    c.load(stand.task.scene, layout.layout, stand.task.graph, layout.plan)
-    adapter = stand.adapter
+    assert task.graph is not None
+    c.load(task.scene, layout.layout, task.graph, layout.plan)
+    adapter = stand.stand_in
     adapter.reset_arm()
     c.restart_task()
     stand.events.clear()
@@ -384,13 +354,13 @@ def _trial(
                     "place)",
                     field="assist",
                 )
-            stands[key] = _Stand(base, params, task, operator)
+            stands[key] = SimStand(base, task.scene, params, graph=task.graph, operator=operator)
     stand = stands[key]
     if isinstance(stand, _EvaluatorStand):
         outcome = run_pick_trial(stand.evaluator, layout, step.targets[0], hesitation, rng, on_tick)
     else:
         outcome = run_graph_trial(
-            stand, layout, step.targets, model, hesitation, params, rng, on_tick
+            stand, task, layout, step.targets, model, hesitation, params, rng, on_tick
         )
     certs = trial_certificates(
         task, layout.layout_for, params, fitted.certify_with if fitted is not None else None
