@@ -23,7 +23,8 @@ and carries them out with the robot (:mod:`.rig`) and the participant's page
 **Pause** (the page's button) stops a trial under way at once — the daemon is stopped, so
 the robot is — and keeps its recording as ``step-NNN.interrupted-K.rrd``; the trial runs
 again from the start on **Resume**. Progress is saved after every step
-(``session.json``, written atomically with the trial table): a session that crashed, or
+(``session.json``, written atomically with the trial table, and the study's table of every
+participant's trials so far beside their folders): a session that crashed, or
 was stopped with Ctrl-C, starts again with the same command at the step it had not
 finished.
 """
@@ -58,6 +59,7 @@ from legws_daemon.study.protocol import Protocol
 from legws_daemon.study.rig import Child, RigSpec
 from legws_daemon.study.rows import trial_row
 from legws_daemon.study.schedule import Schedule, Step
+from legws_daemon.study.store import write_study_table
 from legws_daemon.study.table import write_dictionary, write_table
 
 #: Seconds a trial may run from the daemon's start before it ends as not done.
@@ -182,6 +184,7 @@ class Session:
         write_atomic(
             self.folder / STATE_FILE, (self.state.model_dump_json(indent=1) + "\n").encode()
         )
+        write_study_table(self.folder.parent, self.protocol.spec.questionnaires.likert)
 
     def _person(self) -> OperatorFile | None:
         return load_operator(self.operator_path) if self.operator_path.exists() else None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -59,3 +60,20 @@ def planned_schedule(protocol: Protocol, folder: Path) -> Schedule:
             source=source,
         )
     return schedule
+
+
+def write_study_table(folder: Path, likert_texts: Sequence[str]) -> int:
+    """The study's trial table, ``folder/trials.csv`` and ``.parquet``, made of every
+    participant's (``folder/PXX/trials.parquet``, pseudonym-named folders only), and the
+    data dictionary beside it; returns the number of rows. A person's session writes it
+    after every step, so the study's table always holds every session's trials so far."""
+    from legws_daemon.study.pseudonym import what_it_looks_like
+    from legws_daemon.study.table import read_table, write_dictionary, write_table
+
+    parts = sorted(
+        p for p in folder.glob("*/trials.parquet") if what_it_looks_like(p.parent.name) is None
+    )
+    rows = [r for p in parts for r in read_table(p)]
+    write_table(folder, "trials", rows, len(likert_texts))
+    write_dictionary(folder, likert_texts)
+    return len(rows)

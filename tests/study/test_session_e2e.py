@@ -24,12 +24,13 @@ import pytest
 from legws_daemon.cli.study import write_plan
 from legws_daemon.formats.operator_file import load_operator
 from legws_daemon.study.frames import read_frames
+from legws_daemon.study.lerobot import check_lerobot, export_lerobot
 from legws_daemon.study.protocol import load_protocol
 from legws_daemon.study.table import read_table
 from legws_daemon.telemetry.recording import read_teleoperation
 from tests.browser import CHROMIUM, FLAGS, chromium_missing, require
 from tests.daemon.procs import start, stop, write_profile
-from tests.net import free_port
+from tests.net import free_port, free_port_pair
 from tests.study.person import PERSON
 
 pytestmark = pytest.mark.slow
@@ -97,9 +98,9 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
-def _browser_answers(url: str, tlx: int, likert: int, shot: Path) -> str:
+def _browser_answers(url: str, tlx: int, likert: int, shot: Path) -> tuple[str, str | None]:
     """Fill the open questionnaire in headless Chromium and submit it; the page's title
-    once the session is done."""
+    once the session is done, and the address of the viewer it embeds."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
@@ -108,6 +109,7 @@ def _browser_answers(url: str, tlx: int, likert: int, shot: Path) -> str:
             page = browser.new_page(viewport={"width": 1200, "height": 900})
             page.goto(url, wait_until="load")
             page.wait_for_selector("#form:not([hidden]) .q", timeout=30_000)
+            viewer = page.get_attribute("#viewer", "src")
             # submitting with a question unanswered is refused on the page itself
             page.click("#submit")
             assert "answer every question" in page.inner_text("#error")
@@ -121,7 +123,7 @@ def _browser_answers(url: str, tlx: int, likert: int, shot: Path) -> str:
             page.screenshot(path=str(shot))
             page.click("#submit")
             page.wait_for_selector("body[data-phase=done]", timeout=30_000)
-            return page.inner_text("#title")
+            return page.inner_text("#title"), viewer
         finally:
             browser.close()
 
@@ -130,12 +132,12 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
     tmp_path: Path,
 ) -> None:
     require(chromium_missing())
-    zport, pport = free_port(), free_port()
+    zport, pport, vport = free_port(), free_port(), free_port_pair()
     profile = write_profile(tmp_path, "sim", zport)
     study = tmp_path / "study"
     write_plan(load_protocol(PROTOCOL), 2, study, False, False)
     args = ["study", "run", str(PROTOCOL), "--participant", "P01", "--profile", str(profile),
-            "--out", str(study), "--page-port", str(pport), "--viewer-port", "0",
+            "--out", str(study), "--page-port", str(pport), "--viewer-port", str(vport),
             "--calibration-targets", "2", "--trial-limit", "120"]  # fmt: skip
     log = tmp_path / "session.log"
     proc = start(args, log)
@@ -204,8 +206,10 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
         page.wait("questionnaire", 6, proc, log2)
         stop(users.pop())
         # the last questionnaire in the browser
-        title = _browser_answers(page.url, 35, 2, tmp_path / "questionnaire.png")
+        title, viewer = _browser_answers(page.url, 35, 2, tmp_path / "questionnaire.png")
         assert title == "Done"
+        # beside the instructions, the Rerun web viewer every trial's daemon logged into
+        assert viewer is not None and viewer.startswith(f"http://127.0.0.1:{vport}/?url=")
         assert proc.wait(30) == 0, log2.read_text()[-2000:]
     finally:
         for u in users:
@@ -238,3 +242,8 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
     assert {"calibration.rrd", "step-002.rrd", "step-005.rrd"} <= set(kept)
     assert load_operator(folder / "operator.json").name == "P01"
     assert json.loads((folder / "session.json").read_text())["done"] == [1, 2, 3, 4, 5, 6]
+    # the study's table holds the session's trials; the study exports as a LeRobotDataset
+    assert [r["index"] for r in read_table(study / "trials.parquet")] == [2, 5]
+    dataset = tmp_path / "dataset"
+    summary = export_lerobot(study, dataset, fps=20)
+    assert summary["episodes"] == 2 and check_lerobot(dataset) == []

@@ -13,7 +13,7 @@ from legws_daemon.cli.study import write_plan
 from legws_daemon.errors import InputError
 from legws_daemon.study.protocol import Protocol, load_protocol
 from legws_daemon.study.schedule import make_schedule
-from legws_daemon.study.store import existing_plan, planned_schedule
+from legws_daemon.study.store import existing_plan, planned_schedule, write_study_table
 from tests.study.person import PERSON
 
 
@@ -159,3 +159,21 @@ def test_a_plan_file_that_is_no_plan_is_refused(
     assert words in str(err)
     with pytest.raises(InputError):
         existing_plan(folder)
+
+
+def test_the_study_table_is_every_participants_table_and_nothing_else(tmp_path: Path) -> None:
+    from legws_daemon.study.table import read_table, write_table
+
+    likert = ["The robot understood which object I wanted."]
+    for who, trials in (("P01", [2, 5]), ("P02", [2])):
+        rows = [{"participant": who, "index": i, "kind": "trial", "condition": "c"} for i in trials]
+        (tmp_path / who).mkdir()
+        write_table(tmp_path / who, "trials", rows, 1)
+    # a folder that is not a participant's (an optimisation run's) is not read
+    (tmp_path / "layouts").mkdir()
+    write_table(tmp_path / "layouts", "trials", [{"participant": "x", "index": 9}], 1)
+    assert write_study_table(tmp_path, likert) == 3
+    rows = read_table(tmp_path / "trials.parquet")
+    assert [(r["participant"], r["index"]) for r in rows] == [("P01", 2), ("P01", 5), ("P02", 2)]
+    assert "likert_1" in (tmp_path / "data_dictionary.md").read_text()
+    assert (tmp_path / "trials.csv").read_text().count("\n") == 4  # header and 3 rows
