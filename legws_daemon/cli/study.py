@@ -11,7 +11,7 @@ import click
 
 from legws_daemon.cli.robot import robot_option
 from legws_daemon.cli.study_export import export_cmd
-from legws_daemon.errors import InputError
+from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.printable import echo
 
 if TYPE_CHECKING:
@@ -355,6 +355,10 @@ def _person(
             echo(f"legws: {participant}'s session stopped before step {at}; "
                  "run the same command to go on", err=True)  # fmt: skip
             raise SystemExit(130) from None
+        except LegwsError as err:  # the page says why the session stopped, then the line
+            control.show(phase="failed", message=f"The session stopped: {err}")
+            time.sleep(DONE_LINGER_S)
+            raise
     trials = [r for r in rows if r["kind"] == "trial"]
     echo(f"legws: {participant} done: {len(trials)} trials "
          f"({sum(bool(r['completed']) for r in trials)} completed) -> {out / participant}",

@@ -247,3 +247,38 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
     dataset = tmp_path / "dataset"
     summary = export_lerobot(study, dataset, fps=20)
     assert summary["episodes"] == 2 and check_lerobot(dataset) == []
+
+
+def test_a_session_whose_robot_cannot_start_says_why_on_the_page_and_exits_2(
+    tmp_path: Path,
+) -> None:
+    zport, pport = free_port(), free_port()
+    profile = write_profile(tmp_path, "sim", zport)
+    study = tmp_path / "study"
+    write_plan(load_protocol(PROTOCOL), 2, study, False, False)
+    log = tmp_path / "session.log"
+    with socket.socket() as taken:  # something else holds the robot's port
+        taken.bind(("127.0.0.1", zport))
+        taken.listen()
+        proc = start(["study", "run", str(PROTOCOL), "--participant", "P02", "--profile",
+                      str(profile), "--out", str(study), "--page-port", str(pport),
+                      "--viewer-port", "0", "--calibration-targets", "2"], log)  # fmt: skip
+        try:
+            page = Page(pport)
+            page.wait("ready", 1, proc, log)
+            page.post("start")
+            deadline = time.monotonic() + STEP_TIMEOUT
+            state = page.state()
+            while (state is None or state["phase"] != "failed") and time.monotonic() < deadline:
+                time.sleep(0.2)
+                state = page.state()
+            assert state is not None and state["phase"] == "failed", state
+            assert "the calibration exited" in state["message"] and "in use" in state["message"]
+            assert proc.wait(30) == 2
+        finally:
+            if proc.poll() is None:
+                stop(proc)
+    lines = [ln for ln in log.read_text().splitlines() if ln.startswith("legws: error")]
+    assert len(lines) == 1 and "calibration.log" in lines[0], log.read_text()
+    assert "Traceback" not in log.read_text()
+    assert not (study / "P02" / "operator.json").exists()
