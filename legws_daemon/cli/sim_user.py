@@ -104,6 +104,14 @@ def simulated_operator(
     help="Steer like the fitted model of this operator file (legws operator calibrate/fit).",
 )
 @click.option(
+    "--onset",
+    type=FiniteFloat(min=0.0, max=600.0),
+    default=0.0,
+    show_default=True,
+    help="Hesitate this many seconds after the daemon's first status before the first push "
+    "(the stick held still, enable held), as a person who has just been told the goal.",
+)
+@click.option(
     "--until-done/--forever",
     default=True,
     show_default=True,
@@ -120,6 +128,7 @@ def sim_user_cmd(
     bias: float | None,
     steering: str | None,
     operator_file: Path | None,
+    onset: float,
     until_done: bool,
 ) -> None:
     """Steer like the paper's noisy user, from the daemon's published status.
@@ -132,6 +141,7 @@ def sim_user_cmd(
     --rho, --bias or --steering (or --operator FILE) it steers like that operator model
     (method.md §10), its noise correlated over the time that really passes between samples.
     """
+    from legws_daemon.formats.messages import Buttons
     from legws_daemon.joystick.publisher import Sample, stop_on_signals
     from legws_daemon.joystick.sim_user import SimUser, UserView
 
@@ -150,16 +160,24 @@ def sim_user_cmd(
         if view is not None:
             user.choose(view)  # a goal that is no target of this decision: one line, exit 2
 
+        heard: list[float] = []  # when the first fresh status came (the onset's start)
+
         def sample() -> Sample | None:
             if until_done and watch.done.is_set():
                 stop.set()
                 return None
             now = time.monotonic()
-            return user.sample(watch.latest(now), now, watch.received)
+            status = watch.latest(now)
+            if status is not None and not heard:
+                heard.append(now)
+            if heard and now - heard[0] < onset:
+                return (0.0, 0.0, 0.0), Buttons(enable=True)  # told the goal, not pushing yet
+            return user.sample(status, now, watch.received)
 
         wanted = ", ".join(goals) or "a random goal at each decision"
         who = "" if operator is None else f" steering like {operator.describe()}"
-        echo(f"legws: simulated user{who} going for {wanted} on {pub.key}", err=True)
+        after = f", pushing {onset:g} s after the daemon's first status" if onset else ""
+        echo(f"legws: simulated user{who} going for {wanted} on {pub.key}{after}", err=True)
         pub.run(sample, options.rate_for(profile), options.duration, stop)
     echo(f"legws: daemon modes seen: {' -> '.join(watch.modes_seen)}", err=True)
     for decision, goal in user.chosen:

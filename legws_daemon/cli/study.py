@@ -253,11 +253,14 @@ def run_cmd(
     """
     from legws_daemon.study.protocol import load_protocol
 
-    if (participant is None) == (population is None):
-        raise InputError("give one of --participant (a person) or --simulate (a population)",
-                         field="--participant")  # fmt: skip
+    if participant is None and population is None:
+        raise InputError(
+            "give --participant (a person's session) or --simulate (a whole simulated "
+            "study), or both (a rehearsal)",
+            field="--participant",
+        )
     p = load_protocol(protocol)
-    if population is not None:
+    if participant is None and population is not None:
         if participants is None:
             raise InputError("--simulate needs --participants N", field="--participants")
         _simulate(p, population, participants, out, seed, incomplete, force, robot or "sawyer")
@@ -270,7 +273,8 @@ def run_cmd(
         raise InputError("--participants is for --simulate; a person's session runs from "
                          "the plan in --out", field="--participants")  # fmt: skip
     _person(p, participant, out, profile, zenoh_config, page_port, viewer_port, trial_limit,
-            calibration_targets, allow_motion, insecure_transport, seed, robot)  # fmt: skip
+            calibration_targets, allow_motion, insecure_transport, seed, robot,
+            population)  # fmt: skip
 
 
 def _simulate(
@@ -300,6 +304,7 @@ def _person(
     p: Protocol, participant: str, out: Path, profile: str, zenoh_config: Path | None,
     page_port: int, viewer_port: int, trial_limit: float, calibration_targets: int,
     allow_motion: bool, insecure_transport: bool, seed: int, robot: str | None,
+    rehearsal: str | None = None,
 ) -> None:  # fmt: skip
     import signal
     import time
@@ -331,9 +336,21 @@ def _person(
             Layouts(out / "layouts", arm=robot or spec.arm), trial_limit=trial_limit,
             calibration_targets=calibration_targets, seed=seed, viewer_url=viewer_page,
         )  # fmt: skip
+        stand_in = None
+        if rehearsal is not None:  # a simulated participant at the page and the stick
+            from legws_daemon.study.population import load_population
+            from legws_daemon.study.rehearse import SimulatedPerson, draw_participant
+
+            people = load_population(rehearsal, p.condition_names)
+            who, rng = draw_participant(people, list(schedule.steps), participant, seed)
+            logs = out / participant / "logs"
+            stand_in = SimulatedPerson(who, people, p, control, rig, logs, rng)
         if target is not None:
             stack.enter_context(WebViewer.start(target, field="--viewer-port"))
         page = stack.enter_context(StudyPage(control, page_port, viewer_page))
+        if stand_in is not None:
+            stand_in.start()
+            stack.callback(stand_in.close)
         first = session.next_step
         where = (
             "from the start"
@@ -350,6 +367,9 @@ def _person(
             rows = session.run()
             time.sleep(DONE_LINGER_S)  # the page shows the end before it goes
         except KeyboardInterrupt:
+            if stand_in is not None and stand_in.error is not None:
+                raise InputError(f"the simulated participant: {stand_in.error}",
+                                 field="--simulate") from None  # fmt: skip
             step = session.next_step
             at = step.index if step else "-"
             echo(f"legws: {participant}'s session stopped before step {at}; "

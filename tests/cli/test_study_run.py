@@ -74,11 +74,18 @@ def test_a_pseudonym_not_of_the_usual_form_is_refused(cli: Cli, planned: Path) -
         assert_bad_input(r, "--participant", "pseudonyms only")
 
 
-def test_neither_or_both_of_participant_and_simulate_is_refused(cli: Cli, planned: Path) -> None:
+def test_neither_participant_nor_simulate_is_refused(cli: Cli, planned: Path) -> None:
     r = cli("study", "run", PERSON, "--out", planned)
-    assert_bad_input(r, "--participant", "give one of --participant", "--simulate")
-    r = cli("study", "run", PERSON, "--participant", "P01", "--simulate", "lab", "--out", planned)
-    assert_bad_input(r, "--participant", "give one of --participant", "--simulate")
+    assert_bad_input(r, "--participant", "give --participant", "--simulate", "rehearsal")
+
+
+def test_a_rehearsal_with_a_population_planting_an_unknown_condition_is_refused(
+    cli: Cli, planned: Path
+) -> None:
+    population = Path(__file__).parents[1] / "study" / "data" / "planted.toml"  # plants 'late'
+    r = cli("study", "run", PERSON, "--participant", "P01", "--simulate", population,
+            "--out", planned)  # fmt: skip
+    assert_bad_input(r, "late")
 
 
 def test_participants_is_for_simulate_only(cli: Cli, planned: Path) -> None:

@@ -10,6 +10,7 @@ table.
 from __future__ import annotations
 
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -282,3 +283,42 @@ def test_a_session_whose_robot_cannot_start_says_why_on_the_page_and_exits_2(
     assert len(lines) == 1 and "calibration.log" in lines[0], log.read_text()
     assert "Traceback" not in log.read_text()
     assert not (study / "P02" / "operator.json").exists()
+
+
+def test_a_rehearsal_puts_a_simulated_participant_at_the_page_and_the_stick(
+    tmp_path: Path,
+) -> None:
+    from legws_daemon.study.population import load_population
+    from legws_daemon.study.rehearse import draw_participant
+
+    protocol = PERSON.parent / "rehearsal.toml"
+    zport, pport = free_port(), free_port()
+    profile = write_profile(tmp_path, "sim", zport)
+    study = tmp_path / "study"
+    write_plan(load_protocol(protocol), 1, study, False, False)
+    log = tmp_path / "session.log"
+    proc = start(["study", "run", str(protocol), "--participant", "P01", "--simulate", "lab",
+                  "--seed", "4", "--profile", str(profile), "--out", str(study),
+                  "--page-port", str(pport), "--viewer-port", "0"], log)  # fmt: skip
+    try:
+        assert proc.wait(STEP_TIMEOUT) == 0, log.read_text()[-3000:]
+    finally:
+        if proc.poll() is None:
+            stop(proc)
+    folder = study / "P01"
+    [row] = read_table(folder / "trials.parquet")
+    assert row["completed"] and row["correct"] and row["chosen"] == row["goal"], row
+    assert row["hesitation_s"] is not None and row["commit_time_s"] is not None
+    assert len(read_frames(folder / row["frames"])) > 0
+    # the questionnaire answered as the simulator answers: every subscale on its steps of 5
+    tlx = [row[f"tlx_{k}"] for k in ("mental", "physical", "temporal", "performance",
+                                     "effort", "frustration")]  # fmt: skip
+    assert all(v % 5 == 0 and 0 <= v <= 100 for v in tlx) and 1 <= row["likert_1"] <= 7
+    # the stick steered like the participant the simulated study draws as P01 with seed 4
+    who, _ = draw_participant(load_population("lab"), ["P01"], "P01", 4)
+    stick = (folder / "logs" / "stick-1.log").read_text()
+    assert f"steering like {who.model.describe()}" in stick, stick
+    # ... hesitating as drawn: nothing pushed before the onset, so the commit's wait is longer
+    found = re.search(r"pushing ([0-9.]+) s after the daemon's first status", stick)
+    assert found is not None, stick
+    assert row["hesitation_s"] >= float(found.group(1)) - 0.05, (row, found.group(1))
