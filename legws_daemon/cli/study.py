@@ -329,19 +329,23 @@ def _person(
         grpc = target.grpc_url if target is not None else None
         rig = RigSpec(profile, zenoh_config, spec.robot, robot, allow_motion,
                       insecure_transport, grpc)  # fmt: skip
+        people = None
+        if rehearsal is not None:
+            from legws_daemon.study.population import load_population
+
+            people = load_population(rehearsal, p.condition_names)
         # the session's checks (the participant in the plan, its session.json) come before
         # the viewer starts: a refused session starts nothing
         session = Session(
             p, schedule, participant, out / participant, rig, control,
             Layouts(out / "layouts", arm=robot or spec.arm), trial_limit=trial_limit,
             calibration_targets=calibration_targets, seed=seed, viewer_url=viewer_page,
+            rehearsal=people.spec.name if people is not None else None,
         )  # fmt: skip
         stand_in = None
-        if rehearsal is not None:  # a simulated participant at the page and the stick
-            from legws_daemon.study.population import load_population
+        if people is not None:  # a simulated participant at the page and the stick
             from legws_daemon.study.rehearse import SimulatedPerson, draw_participant
 
-            people = load_population(rehearsal, p.condition_names)
             who, rng = draw_participant(people, list(schedule.steps), participant, seed)
             logs = out / participant / "logs"
             stand_in = SimulatedPerson(who, people, p, control, rig, logs, rng)

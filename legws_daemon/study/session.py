@@ -83,6 +83,9 @@ class SessionRecord(BaseModel):
     interrupted: dict[str, int] = {}
     rows: list[dict[str, Any]] = []
     answers: dict[str, dict[str, Any]] = {}
+    #: a rehearsal's population (a simulated participant, :mod:`.rehearse`); ``None``: a
+    #: person. A folder is one or the other for good: their data never mix.
+    rehearsal: str | None = None
 
 
 def _pretty(name: str) -> str:
@@ -125,6 +128,7 @@ class Session:
         seed: int = 0,
         clock: Callable[[], float] = time.monotonic,
         viewer_url: str | None = None,
+        rehearsal: str | None = None,
     ) -> None:
         if participant not in schedule.steps:
             raise InputError(
@@ -144,6 +148,7 @@ class Session:
         self.seed = seed
         self.clock = clock
         self.viewer_url = viewer_url
+        self.rehearsal = rehearsal
         self.params = Params()
         self.dt = 1.0 / load_profile_named(rig.profile).control.rate_hz
         self.steps = schedule.steps[participant]
@@ -160,7 +165,7 @@ class Session:
         if not path.exists():
             return SessionRecord(
                 participant=self.participant, protocol=self.protocol.name,
-                protocol_sha256=self.protocol.sha256,
+                protocol_sha256=self.protocol.sha256, rehearsal=self.rehearsal,
             )  # fmt: skip
         record = validate(SessionRecord, read_json(path, "study session"), str(path))
         if record.protocol_sha256 != self.protocol.sha256 or record.participant != self.participant:
@@ -169,6 +174,14 @@ class Session:
                 f"({record.protocol_sha256[:12]}), not of {self.participant} under this "
                 f"protocol ({self.protocol.sha256[:12]})",
                 source=str(path), field="protocol_sha256",
+            )  # fmt: skip
+        if record.rehearsal != self.rehearsal:
+            was = (f"a rehearsal's (a participant simulated from {record.rehearsal})"
+                   if record.rehearsal else "a person's")  # fmt: skip
+            raise InputError(
+                f"is {was} session: a person and a rehearsal never share a study folder "
+                "(plan the rehearsal into a folder of its own)",
+                source=str(path), field="rehearsal",
             )  # fmt: skip
         return record
 
