@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from legws_daemon.cli.robot import real_arm_options
 from legws_daemon.core.calibration import MAX_TARGETS
 from legws_daemon.core.params import Params
 from legws_daemon.errors import InputError
@@ -156,16 +157,7 @@ class _Terminal:
     type=click.Path(path_type=Path, dir_okay=False),
     help="zenoh JSON5 configuration for a real network (default: the profile's loopback).",
 )
-@click.option(
-    "--allow-motion",
-    is_flag=True,
-    help="Required for a profile that drives real hardware, as for `legws daemon`.",
-)
-@click.option(
-    "--insecure-transport",
-    is_flag=True,
-    help="Let a real arm run on an unauthenticated transport, as for `legws daemon`.",
-)
+@real_arm_options()
 def calibrate_cmd(
     profile: str,
     count: int,

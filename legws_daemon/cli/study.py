@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from legws_daemon.cli.robot import robot_option
+from legws_daemon.cli.robot import real_arm_options, robot_option
 from legws_daemon.cli.study_export import export_cmd
 from legws_daemon.errors import InputError, LegwsError
 from legws_daemon.formats.printable import echo
@@ -201,16 +201,7 @@ def write_plan(
     show_default=True,
     help="With --participant: reaches of the calibration.",
 )
-@click.option(
-    "--allow-motion",
-    is_flag=True,
-    help="Required for a profile that drives real hardware, as for `legws daemon`.",
-)
-@click.option(
-    "--insecure-transport",
-    is_flag=True,
-    help="Let a real arm run on an unauthenticated transport, as for `legws daemon`.",
-)
+@real_arm_options()
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws.")
 @click.option("--incomplete", is_flag=True, help="As for `study plan`.")
 @click.option("--force", is_flag=True, help="As for `study plan`.")
