@@ -142,8 +142,9 @@ def write_plan(
     "--simulate",
     "population",
     default=None,
-    help="Instead: a population of simulated participants (a name in studies/populations/ "
-    "or a .toml path): the whole study runs on the stand-in in simulated time.",
+    help="A population of simulated participants (a name in studies/populations/ or a "
+    ".toml path): alone, the whole study runs on the stand-in in simulated time; with "
+    "--participant, that participant is drawn from it (a rehearsal, in real time).",
 )
 @click.option(
     "--participants",
@@ -225,8 +226,9 @@ def run_cmd(
     force: bool,
     robot: str | None,
 ) -> None:
-    """Run PROTOCOL: one participant's session with a person (--participant), or a whole
-    study of simulated participants (--simulate).
+    """Run PROTOCOL: one participant's session with a person (--participant), a whole
+    study of simulated participants (--simulate), or both: a rehearsal, a participant drawn
+    from the population at the page and the stick of a person's session.
 
     \b
     With a person: their steps of the plan in --out (`legws study plan`), on the robot of

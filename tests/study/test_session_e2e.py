@@ -191,9 +191,10 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
         deadline = time.monotonic() + 20
-        while _listening(zport) and time.monotonic() < deadline:
+        while any(_listening(p) for p in (zport, vport, vport + 1)) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert not _listening(zport), "the trial's daemon outlived its session"
+        assert not _listening(vport), "the Rerun web viewer outlived its session"
         stop(users.pop())
         state = json.loads((study / "P01" / "session.json").read_text())
         assert state["done"] == [1, 2, 3, 4]
