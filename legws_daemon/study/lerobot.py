@@ -16,8 +16,8 @@ is LeRobot's (``lerobot.datasets.utils`` of lerobot 0.4, the files a
   (``episode_index``, ``tasks``, ``length``, ``data/chunk_index``, ``data/file_index``,
   ``dataset_from_index``, ``dataset_to_index``, the episode's ``stats/<feature>/<stat>``,
   ``meta/episodes/chunk_index``, ``meta/episodes/file_index``), then the trial table's
-  columns (:data:`~.table.COLUMNS`, ``index`` as ``step``): pseudonym, condition, layout,
-  certificates, measures;
+  columns (:data:`~.table.COLUMNS`, ``index`` as ``step``, and the questionnaire's):
+  pseudonym, condition, layout, certificates, measures, answers;
 - ``data/chunk-CCC/file-FFF.parquet``: the frames, files of at most
   :data:`DATA_FILE_SIZE_IN_MB` (uncompressed), :data:`CHUNKS_SIZE` files a chunk.
 
@@ -41,7 +41,7 @@ from legws_daemon.errors import InputError
 from legws_daemon.formats.files import output_folder, regular_file, write_atomic
 from legws_daemon.study.frames import Frames, read_frames
 from legws_daemon.study.pseudonym import check_pseudonym
-from legws_daemon.study.table import COLUMNS, Column, read_table
+from legws_daemon.study.table import COLUMNS, Column, questionnaire_columns, read_table
 
 CODEBASE_VERSION = "v3.0"
 #: LeRobot's defaults: files a chunk folder, the data and video files' sizes (MB).
@@ -281,10 +281,16 @@ def episodes_table(
     data["meta/episodes/chunk_index"] = pa.array([0] * len(episodes), pa.int64())
     data["meta/episodes/file_index"] = pa.array([0] * len(episodes), pa.int64())
     types = {"string": pa.string(), "int": pa.int64(), "float": pa.float64(), "bool": pa.bool_()}
-    for c in STUDY_COLUMNS:
+    likert = max((_likert_items(e.row) for e in episodes), default=0)
+    for c in (*STUDY_COLUMNS, *questionnaire_columns(likert)):
         key = "index" if c.name == "step" else c.name
         data[c.name] = pa.array([_cell(e.row.get(key)) for e in episodes], types[c.kind])
     return pa.Table.from_pydict(data)
+
+
+def _likert_items(row: Mapping[str, Any]) -> int:
+    """How many Likert items the trial table's row has (its ``likert_<k>`` columns)."""
+    return sum(1 for k in row if re.fullmatch(r"likert_[0-9]+", k))
 
 
 def _cell(value: Any) -> Any:

@@ -20,6 +20,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq  # type: ignore[import-untyped]
 import pytest
 
 from legws_daemon.cli.study import write_plan
@@ -249,6 +250,10 @@ def test_a_persons_session_pauses_resumes_survives_a_crash_and_takes_answers_in_
     dataset = tmp_path / "dataset"
     summary = export_lerobot(study, dataset, fps=20)
     assert summary["episodes"] == 2 and check_lerobot(dataset) == []
+    episodes = pq.read_table(dataset / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [(e["participant"], e["condition"], e["likert_1"]) for e in episodes] == [
+        ("P01", "shipped", 4), ("P01", "random", 2)
+    ]  # fmt: skip
 
 
 def test_a_session_whose_robot_cannot_start_says_why_on_the_page_and_exits_2(
