@@ -19,8 +19,9 @@ if TYPE_CHECKING:
     from legws_daemon.study.schedule import Schedule
 
 
-#: Seconds the participant's page stays up after the session's last step (it says so).
-DONE_LINGER_S = 3.0
+#: Seconds the participant's page stays up after the session's last step at most: until the
+#: page has read that it is over (it polls twice a second), or this long when nobody looks.
+DONE_LINGER_S = 10.0
 
 
 @click.group("study")
@@ -300,7 +301,6 @@ def _person(
     rehearsal: str | None = None,
 ) -> None:  # fmt: skip
     import signal
-    import time
     from contextlib import ExitStack
 
     from legws_daemon.formats.profile import load_profile_named
@@ -362,7 +362,7 @@ def _person(
         signal.signal(signal.SIGTERM, terminate)
         try:
             rows = session.run()
-            time.sleep(DONE_LINGER_S)  # the page shows the end before it goes
+            control.wait_seen(DONE_LINGER_S)  # the page shows the end before it goes
         except KeyboardInterrupt:
             if stand_in is not None and stand_in.error is not None:
                 raise InputError(f"the simulated participant: {stand_in.error}",
@@ -374,7 +374,7 @@ def _person(
             raise SystemExit(130) from None
         except LegwsError as err:  # the page says why the session stopped, then the line
             control.show(phase="failed", message=f"The session stopped: {err}")
-            time.sleep(DONE_LINGER_S)
+            control.wait_seen(DONE_LINGER_S)
             raise
     trials = [r for r in rows if r["kind"] == "trial"]
     echo(f"legws: {participant} done: {len(trials)} trials "

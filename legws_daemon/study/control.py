@@ -46,6 +46,7 @@ class Control:
         self._pause = False
         self._answers: dict[str, Any] | None = None
         self._asking = False
+        self._served = -1  # the newest version the page has read
 
     # -- the session's side ---------------------------------------------------------------
     def show(self, **view: Any) -> None:
@@ -99,7 +100,15 @@ class Control:
         """What the page shows now, with its version (it changes with every update) and
         whether the session is paused."""
         with self._cond:
+            self._served = self._version
+            self._cond.notify_all()
             return {**self._view, "version": self._version, "paused": self._pause}
+
+    def wait_seen(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s until the page has read what is shown now (the session's
+        last words: done, or why it stopped); ``True`` once it has."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._served >= self._version, timeout)
 
     def start(self) -> None:
         """The participant is ready (Start)."""

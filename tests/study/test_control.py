@@ -163,3 +163,22 @@ def test_show_with_an_unknown_phase_fails(control: Control) -> None:
     with pytest.raises(AssertionError):
         control.show(message="no phase")
     assert control.view()["phase"] == "starting" and control.view()["version"] == 0
+
+
+def test_the_session_knows_when_the_page_has_read_its_last_words() -> None:
+    c = Control(Q)
+    c.show(phase="done", message="The session is complete.")
+    assert not c.wait_seen(0.05)  # nobody has looked yet
+    done = threading.Event()
+
+    def session() -> None:
+        if c.wait_seen(5.0):
+            done.set()
+
+    t = threading.Thread(target=session)
+    t.start()
+    assert c.view()["phase"] == "done"  # the page's poll
+    t.join(5.0)
+    assert done.is_set()
+    c.update(reach=1)
+    assert not c.wait_seen(0.05)  # a newer view than the one read
