@@ -337,7 +337,8 @@ def _person(
         )  # fmt: skip
         stand_in = None
         if people is not None:  # a simulated participant at the page and the stick
-            from legws_daemon.study.rehearse import SimulatedPerson, draw_participant
+            from legws_daemon.study.rehearse import SimulatedPerson
+            from legws_daemon.study.simulate import draw_participant
 
             who, rng = draw_participant(people, list(schedule.steps), participant, seed)
             logs = out / participant / "logs"

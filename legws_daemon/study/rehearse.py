@@ -5,7 +5,8 @@ person (:mod:`.session`: a daemon per trial on the profile's robot, the recordin
 page) with a participant drawn from the population in their place, as
 :func:`~legws_daemon.study.simulate.simulate_participant` would draw P01 — so a lab runs its
 whole set-up (profile, transport, viewer, the files it publishes) before the first person
-comes, and the result is a real session's folder.
+comes, and the result is a real session's folder (the draw:
+:func:`~legws_daemon.study.simulate.draw_participant`).
 
 The :class:`SimulatedPerson` does what a person does with the page and the stick: it reads
 what the page shows (:class:`~legws_daemon.study.control.Control`), presses Start when a
@@ -34,20 +35,10 @@ from legws_daemon.study.control import Control
 from legws_daemon.study.population import Participant, Population
 from legws_daemon.study.protocol import Protocol
 from legws_daemon.study.rig import Child, RigSpec
-from legws_daemon.study.simulate import answers, with_effect
+from legws_daemon.study.simulate import answers, trial_hesitation, with_effect
 
 #: How often the simulated participant looks at the page, s.
 LOOK_S = 0.1
-
-
-def draw_participant(
-    population: Population, participants: list[str], pseudonym: str, seed: int
-) -> tuple[Participant, np.random.Generator]:
-    """``pseudonym`` drawn as the simulated study draws them (the same person for the same
-    seed and place in the plan), and the generator of their later draws."""
-    index = participants.index(pseudonym)
-    rng = np.random.default_rng([seed, 0x57DD, index])
-    return population.draw(pseudonym, rng), rng
 
 
 class SimulatedPerson:
@@ -114,11 +105,6 @@ class SimulatedPerson:
             args.append("--forever")  # the calibration: every target shown
         return args
 
-    def _hesitation(self, condition: str | None) -> float:
-        h = self.population.spec.hesitation
-        extra = self.population.effect(condition).hesitation_s
-        return max(0.0, self.person.hesitation_s + extra + h.trial_sd * float(self.rng.normal()))
-
     def _run(self) -> None:
         try:
             self._act()
@@ -138,7 +124,11 @@ class SimulatedPerson:
             elif phase == "ready" and key not in done:
                 done.add(key)
                 self._let_go()
-                onset = self._hesitation(view.get("condition")) if view.get("targets") else 0.0
+                onset = (
+                    trial_hesitation(self.person, self.population, view.get("condition"), self.rng)
+                    if view.get("targets")
+                    else 0.0
+                )
                 log = self.folder / f"stick-{view.get('step')}.log"
                 args = [*self._stick_args(view), "--onset", f"{onset:.3f}"]
                 self._stick = Child(args, log, "the simulated stick")

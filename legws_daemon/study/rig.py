@@ -104,11 +104,15 @@ class RigSpec:
         return args + self.rerun(recording)
 
     def calibrate_args(
-        self, out: Path, name: str, scene: str, targets: int, seed: int, recording: Path
-    ) -> list[str]:
-        """``legws operator calibrate`` of the participant."""
+        self, out: Path, name: str, scene: str, targets: int, seed: int, recording: Path,
+        *, trace: Path | None = None,
+    ) -> list[str]:  # fmt: skip
+        """``legws operator calibrate`` of the participant (``trace``: where the reaches'
+        trace goes; default NAME.trace.jsonl beside ``out``)."""
         args = ["operator", "calibrate", *self.common(), "--out", str(out), "--name", name]
         args += ["--scene", scene, "--targets", str(targets), "--seed", str(seed)]
+        if trace is not None:
+            args += ["--trace", str(trace)]
         return args + self.rerun(recording)
 
     def client(self) -> Client:

@@ -88,6 +88,12 @@ class SessionRecord(BaseModel):
     rehearsal: str | None = None
 
 
+def _drain(client: Client) -> None:
+    """Drop the events heard so far (none of them is the step's about to start)."""
+    for _ in client.events(timeout=0):
+        pass
+
+
 def _pretty(name: str) -> str:
     return name.replace("_", " ")
 
@@ -280,20 +286,18 @@ class Session:
             message=(f"The robot learns how you steer: reach {n} targets, one at a time, as "
                      "you would reach for an object. Press Start when ready."),
         )  # fmt: skip
-        for _ in client.events(timeout=0):
-            pass
+        _drain(client)
         rec = self._fresh(self.folder / "recordings" / "calibration.rrd")
         args = self.rig.calibrate_args(
-            self.operator_path, self.participant, first.scene.source, n, self.seed, rec
-        )
-        args += ["--trace", str(self.folder / "calibration.trace.jsonl")]
+            self.operator_path, self.participant, first.scene.source, n, self.seed, rec,
+            trace=self.folder / "calibration.trace.jsonl",
+        )  # fmt: skip
         child = Child(args, self.folder / "logs" / "calibration.log", "the calibration")
         self.control.show(phase="calibrating", message="Steer the hand to the target shown.",
                           reach=0, of=n, **self._progress(step))  # fmt: skip
         try:
             while child.poll() is None:
-                for _ in client.events(timeout=0):
-                    pass
+                _drain(client)
                 status = client.next_status(POLL_S)
                 if status is not None and status.calibration is not None:
                     shown = status.calibration  # reach k of n is on the way: k - 1 done
@@ -349,8 +353,7 @@ class Session:
             layout=layout_file if plan_dir is None else None, plan=plan_dir,
             operator=self.operator_path if self.operator_path.exists() else None,
         )  # fmt: skip
-        for _ in client.events(timeout=0):  # nothing of an earlier process counts
-            pass
+        _drain(client)  # nothing of an earlier process counts
         self.control.show(phase="starting", message="The robot is getting ready ...",
                           **info, **self._progress(step))  # fmt: skip
         child = Child(args, self.folder / "logs" / f"{name}.log", f"the daemon of {name}")

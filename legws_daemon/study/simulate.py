@@ -241,6 +241,25 @@ def run_pick_trial(
     return out
 
 
+def draw_participant(
+    population: Population, participants: list[str], pseudonym: str, seed: int
+) -> tuple[Participant, np.random.Generator]:
+    """``pseudonym`` drawn from ``population`` (the same person for the same seed and place
+    in the plan's ``participants``), and the generator of their later draws."""
+    rng = np.random.default_rng([seed, 0x57DD, participants.index(pseudonym)])
+    return population.draw(pseudonym, rng), rng
+
+
+def trial_hesitation(
+    person: Participant, population: Population, condition: str | None, rng: np.random.Generator
+) -> float:
+    """The participant's hesitation before a trial's first push, s: their mean, the
+    condition's planted shift, the trial's spread (never below 0)."""
+    h = population.spec.hesitation
+    extra = population.effect(condition).hesitation_s
+    return max(0.0, person.hesitation_s + extra + h.trial_sd * float(rng.standard_normal()))
+
+
 def simulate_participant(
     protocol: Protocol,
     schedule: Schedule,
@@ -257,8 +276,7 @@ def simulate_participant(
     ``frames/step-NNN.parquet``); returns the trial rows."""
     output_folder(folder)
     index = list(schedule.steps).index(pseudonym)
-    rng = np.random.default_rng([seed, 0x57DD, index])
-    person = population.draw(pseudonym, rng)
+    person, rng = draw_participant(population, list(schedule.steps), pseudonym, seed)
     params = Params()
     profile = stand_in_profile(params, arm=arm)
     q = protocol.spec.questionnaires
@@ -331,10 +349,7 @@ def _trial(
     assist: AssistPolicy = cond.assist if cond is not None else "commit"
     effect = population.effect(step.condition)
     model = with_effect(person.model, effect.speed_scale)
-    h = population.spec.hesitation
-    hesitation = max(
-        0.0, person.hesitation_s + effect.hesitation_s + h.trial_sd * float(rng.standard_normal())
-    )
+    hesitation = trial_hesitation(person, population, step.condition, rng)
     layout = layouts.for_trial(task, cond, step.layout_seed, fitted)
     key = step.condition
     if key not in stands:
