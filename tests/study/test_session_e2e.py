@@ -300,7 +300,7 @@ def test_a_rehearsal_puts_a_simulated_participant_at_the_page_and_the_stick(
     tmp_path: Path,
 ) -> None:
     from legws_daemon.study.population import load_population
-    from legws_daemon.study.rehearse import draw_participant
+    from legws_daemon.study.simulate import draw_participant
 
     protocol = PERSON.parent / "rehearsal.toml"
     zport, pport = free_port(), free_port()
